@@ -1,0 +1,5 @@
+import sys
+
+from vfmlab.cli import main
+
+sys.exit(main())

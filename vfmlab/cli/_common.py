@@ -1,0 +1,46 @@
+"""Helpers shared by the CLI commands: the console, error reporting and output formats."""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Any
+
+import click
+import numpy as np
+from rich.console import Console
+
+console = Console(highlight=False)
+err_console = Console(stderr=True, highlight=False)
+
+
+class CliError(click.ClickException):
+    """An error the user can act on: printed as one message, exit code 1."""
+
+    def show(self, file=None) -> None:  # noqa: D401 - click API
+        err_console.print(f"[bold red]Error:[/] {self.message}", markup=True, soft_wrap=True)
+
+
+def to_jsonable(obj: Any) -> Any:
+    """Convert numpy scalars/arrays (NaN -> None) into plain JSON-serialisable Python."""
+    if isinstance(obj, dict):
+        return {str(k): to_jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [to_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return to_jsonable(obj.tolist())
+    if isinstance(obj, (np.bool_,)):
+        return bool(obj)
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        value = float(obj)
+        return None if math.isnan(value) or math.isinf(value) else value
+    if isinstance(obj, bytes):
+        return obj.decode("utf-8", "replace")
+    return obj
+
+
+def print_json(obj: Any) -> None:
+    """Print ``obj`` as JSON on stdout (no colour, no wrapping), for scripts."""
+    click.echo(json.dumps(to_jsonable(obj), indent=2, sort_keys=False))
