@@ -51,7 +51,7 @@ def load_session_data(session) -> dict:
 @click.argument("session_path", metavar="SESSION", type=click.Path(exists=True, dir_okay=False))
 @click.option("--model", type=click.Choice(["fung", "delfino", "hgo", "neohookean"]), default="fung",
               show_default=True, help="Constitutive model.")
-@click.option("--wall", type=click.Choice(["membrane", "thick"]), default="thick", show_default=True,
+@click.option("--wall", type=click.Choice(["membrane", "thick"]), default="membrane", show_default=True,
               help="membrane: the paper's plain form; thick: markers on the outer surface, pressure on the lumen.")
 @click.option("--ends", type=click.Choice(["clamped", "free"]), default="clamped", show_default=True,
               help="clamped: tube tied on cannulae beyond the markers (pressure on the unmeasured strip counted).")
