@@ -33,6 +33,8 @@ GAP_FOR_FLAGS = 0.01
 #: magnitude) still keeps the balance within ``GAP_FOR_FLAGS`` once the others compensate.
 RESOLUTION_LIMIT = 0.3
 LOG_RANGE = 12.0
+#: RMS normalised gap below which the balance is considered exact (no further starts are tried).
+EXACT_GAP = 1e-5
 #: Typical magnitude of parameters that may be zero or negative (for the scale of their changes).
 TYPICAL = {"alpha12": 1.0, "phi": 0.5}
 
@@ -224,7 +226,7 @@ def identify_prepared(
             continue
         if best is None or cost < best[1]:
             best = (x, cost, ok, msg)
-        if best[1] < 1e-20 * data.evw.size:  # exact balance: further starts cannot do better
+        if best[1] < 0.5 * EXACT_GAP**2 * data.evw.size:  # balance exact to quadrature: no start does better
             break
     if best is None:
         raise IdentificationError(f"the optimiser found no finite cost for model {model.name!r} from {starts}")
