@@ -33,7 +33,11 @@ def params_of(model):
     return NEOHOOKEAN if model == "neohookean" else PAPER_PARAMETERS[model]
 
 
-def simulate(model, *, clamped=True, wall="membrane"):
+CLAMPED = True
+
+
+def simulate(model, *, clamped=None, wall="membrane"):
+    clamped = CLAMPED if clamped is None else clamped
     return simulate_test(model, params_of(model), clamped=clamped, wall=wall, n_markers=300)
 
 
@@ -46,7 +50,8 @@ def fmt_err(errs):
 
 
 def bench_timing(repeats):
-    print("\n## Time to identify (300 markers, 1 reference + 8 pressure steps, clamped membrane tube, exact data)\n")
+    print(f"\n## Time to identify (300 markers, 1 reference + 8 pressure steps, {'clamped' if CLAMPED else 'homogeneous'} "
+          "membrane tube, exact data)\n")
     print("| model | optimiser | prepare (s) | optimise (s) | cost evaluations | max parameter error |")
     print("|---|---|---|---|---|---|")
     for model in ("fung", "hgo"):
@@ -54,7 +59,8 @@ def bench_timing(repeats):
         tp = []
         for _ in range(repeats):
             t = time.perf_counter()
-            data = prepare(sim.positions, sim.pressure, sim.axial_force, thickness=sim.thickness)
+            data = prepare(sim.positions, sim.pressure, sim.axial_force, thickness=sim.thickness,
+                           ends="clamped" if CLAMPED else "free")
             tp.append(time.perf_counter() - t)
         for opt, reps in (("lsq", repeats), ("nelder-mead", max(1, repeats // 2))):
             times = []
@@ -87,7 +93,8 @@ def bench_thick():
 
 
 def bench_noise(n_seeds, models):
-    print(f"\n## Noise: bias and scatter over {n_seeds} seeds (clamped membrane tube, 300 markers, lsq)\n")
+    print(f"\n## Noise: bias and scatter over {n_seeds} seeds ({'clamped' if CLAMPED else 'homogeneous'} membrane tube, "
+          "300 markers, lsq)\n")
     print("median relative error (robust scatter = half the 16-84 % range); 'ok' = fits whose every parameter "
           "except alpha12 is within 10 %; 'flagged' = fits that raised a warning other than a poorly identifiable "
           "alpha12/c.\n")
@@ -105,7 +112,7 @@ def bench_noise(n_seeds, models):
                     pos = sim.exact_positions + rng.normal(0.0, noise, sim.exact_positions.shape)
                     try:
                         data = prepare(pos, sim.pressure, sim.axial_force, thickness=sim.thickness,
-                                       smoothing=smoothing)
+                                       smoothing=smoothing, ends="clamped" if CLAMPED else "free")
                         res = identify_prepared(data, model)
                     except Exception as exc:  # a failed fit counts as not ok
                         logging.getLogger("bench").info("seed %d failed: %s", seed, exc)
@@ -139,12 +146,16 @@ def main(argv=None):
     ap.add_argument("--part", choices=["timing", "thick", "noise", "all"], default="all")
     ap.add_argument("--seeds", type=int, default=None, help="noise seeds (default 50, --quick 10)")
     ap.add_argument("--models", default=",".join(MODELS), help="models for the noise study")
+    ap.add_argument("--data", choices=["clamped", "homogeneous"], default="clamped",
+                    help="membrane tube clamped on cannulae (default) or homogeneous (timing and noise parts)")
     args = ap.parse_args(argv)
+    global CLAMPED
+    CLAMPED = args.data == "clamped"
     logging.basicConfig(level=logging.ERROR)
     warnings.simplefilter("ignore", RuntimeWarning)
     repeats = 3 if args.quick else 7
     seeds = args.seeds or (10 if args.quick else 50)
-    print(f"# bench_identification ({'quick' if args.quick else 'full'}), numpy {np.__version__}")
+    print(f"# bench_identification ({'quick' if args.quick else 'full'}, {args.data} data), numpy {np.__version__}")
     if args.part in ("timing", "all"):
         bench_timing(repeats)
     if args.part in ("thick", "all"):
