@@ -292,6 +292,7 @@ def prepare(
         dV0 = np.where(valid, dA0 * e0 * sw, 0.0)  # (s, t, q)
         C = np.where(valid[..., None, None], C, np.eye(2))
         cs.append(np.stack([C[..., 0, 0], C[..., 1, 1], C[..., 0, 1]], -1).reshape(n_steps, -1, 3))
+        dE = np.where(valid[None, ..., None, None], dE, 0.0)  # excluded triangles may hold NaN geometry
         dens.append((np.stack([dE[..., 0, 0], dE[..., 1, 1], 2.0 * dE[..., 0, 1]], -1)
                      * dV0[None, ..., None]).reshape(fields.n_fields, n_steps, -1, 3))
     c = np.concatenate(cs, axis=1)
@@ -299,8 +300,9 @@ def prepare(
 
     # External work: pressure on the loaded surface (markers for membrane, lumen for thick)
     _, _, _, normal_da, u_here = layer(1.0 if wall == "membrane" else 0.0)
-    pw = np.einsum("stqc,fstqc->fst", normal_da, u_here)
-    pw = np.where(st.valid[None], pw, 0.0).sum(-1)
+    with np.errstate(invalid="ignore"):
+        pw = np.einsum("stqc,fstqc->fst", normal_da, u_here)
+    pw = np.where(st.valid[None], np.nan_to_num(pw), 0.0).sum(-1)
     pressure_work = p[None] * pw
 
     # Axial force across the top measured boundary
