@@ -71,6 +71,8 @@ class VFMData:
     wall, ends : str
     mesh : SurfaceMesh
     n_valid_triangles : ndarray, shape (n_steps,)
+    n_outliers : ndarray, shape (n_steps,)
+        Markers set unobserved as mis-tracked, per step.
     pressure, axial_force : ndarray, shape (n_steps,)
     """
 
@@ -86,6 +88,7 @@ class VFMData:
     ends: str
     mesh: SurfaceMesh
     n_valid_triangles: np.ndarray
+    n_outliers: np.ndarray
     pressure: np.ndarray
     axial_force: np.ndarray
     thickness: float
@@ -163,6 +166,7 @@ def prepare(
     quadrature: int = 1,
     toward: np.ndarray | None = None,
     smoothing: tuple[int, int] | None = None,
+    reject_outliers: bool = True,
 ) -> VFMData:
     """Build the virtual-work balance from measured data.
 
@@ -197,6 +201,9 @@ def prepare(
     smoothing : (int, int), optional
         Smooth each step's displacement field on Legendre(Z) x Fourier(Theta) of these degrees
         before differentiating (for noisy markers; see ``kinematics.smooth_cylindrical``).
+    reject_outliers : bool
+        Treat markers that disagree with their neighbours in a step (mis-tracked) as unobserved
+        there (``kinematics.marker_outliers``); counts in ``VFMData.n_outliers``.
     """
     if wall not in WALLS:
         raise ValueError(f"wall must be one of {WALLS}; got {wall!r}")
@@ -211,7 +218,7 @@ def prepare(
         fields = paper_fields(mesh)
     check_fields(fields, mesh)
     aligned, _, _ = align_steps(x, reference)
-    st = surface_state(mesh, aligned, quadrature, smoothing)
+    st = surface_state(mesh, aligned, quadrature, smoothing, reject_outliers)
     geo = st.geometry
     tri = mesh.triangles
     n_steps, n_tri = st.valid.shape
@@ -345,7 +352,7 @@ def prepare(
         log.warning("triangles excluded for unobserved markers per step: %s", (n_tri - n_valid).tolist())
     return VFMData(c=c, work_density=work_density, evw=evw, pressure_work=pressure_work, end_work=end_work,
                    end_force=n_end, scale=scale, field_names=tuple(fields.names), wall=wall, ends=ends, mesh=mesh,
-                   n_valid_triangles=n_valid, pressure=p, axial_force=f, thickness=e0)
+                   n_valid_triangles=n_valid, n_outliers=st.outliers.sum(axis=1), pressure=p, axial_force=f, thickness=e0)
 
 
 def internal_virtual_work(data: VFMData, model: str | Model, parameters) -> np.ndarray:
