@@ -132,6 +132,7 @@ class SurfaceState:
     z_xi: np.ndarray
     valid: np.ndarray   # (n_steps, n_tri) bool
     outliers: np.ndarray  # (n_steps, n_markers) bool, markers set unobserved by marker_outliers
+    noise: np.ndarray     # (n_steps,) estimated marker noise (m)
     r_markers: np.ndarray      # (n_steps, n_markers) current cylindrical coordinates of the markers
     theta_markers: np.ndarray
     z_markers: np.ndarray
@@ -221,6 +222,10 @@ def marker_outliers(mesh: SurfaceMesh, r, theta, z, *, floor: float = 0.25, n_si
     Returns
     -------
     outlier : ndarray, shape (n_steps, n_markers) bool
+    noise : ndarray, shape (n_steps,)
+        Estimated standard deviation of the marker coordinates (m): median mismatch / 2.2 (the
+        median norm of a 3-D Gaussian is 1.54 sigma and the neighbours' fit adds its own scatter;
+        the factor is calibrated on random marker layouts to within ~5 %).
     """
     tri = mesh.triangles
     n = mesh.n_markers
@@ -254,7 +259,8 @@ def marker_outliers(mesh: SurfaceMesh, r, theta, z, *, floor: float = 0.25, n_si
         sigma = 1.4826 * np.nanmedian(dev, axis=1, keepdims=True)
         limit = np.maximum(n_sigma * sigma, floor * edge_len)
         outlier |= np.nan_to_num(dev) > limit
-    return outlier
+    noise = np.nanmedian(np.where(outlier, np.nan, dev), axis=1) / 2.2
+    return outlier, noise
 
 
 def surface_state(mesh: SurfaceMesh, aligned: np.ndarray, quadrature: int = 1,
@@ -272,13 +278,14 @@ def surface_state(mesh: SurfaceMesh, aligned: np.ndarray, quadrature: int = 1,
     geo = triangle_geometry(mesh)
     tri = mesh.triangles
     r, th, z, axes = step_cylindrical(mesh, aligned)  # (n_steps, n_markers)
-    outliers = np.zeros(r.shape, bool)
+    outliers, noise = marker_outliers(mesh, r, th, z)
     if reject_outliers:
-        outliers = marker_outliers(mesh, r, th, z)
         if outliers.any():
             log.warning("markers disagreeing with their neighbours (set unobserved) per step: %s",
                         outliers.sum(axis=1).tolist())
             r, th, z = (np.where(outliers, np.nan, a) for a in (r, th, z))
+    else:
+        outliers = np.zeros(r.shape, bool)
     if smoothing is not None:
         r, th, z = smooth_cylindrical(mesh, r, th, z, smoothing)
     rv, thv, zv = r[:, tri], th[:, tri], z[:, tri]  # (n_steps, n_tri, 3)
@@ -298,7 +305,7 @@ def surface_state(mesh: SurfaceMesh, aligned: np.ndarray, quadrature: int = 1,
         R=Rv @ bary.T, R_xi=_grad(Rv, geo.dinv),
         r=rv @ bary.T, r_xi=_grad(rv, geo.dinv),
         theta=thv @ bary.T, theta_xi=theta_xi, z_xi=z_xi,
-        valid=valid, outliers=outliers, r_markers=r, theta_markers=th, z_markers=z, axes=tuple(axes), bary=bary, qweight=qw, geometry=geo,
+        valid=valid, outliers=outliers, noise=noise, r_markers=r, theta_markers=th, z_markers=z, axes=tuple(axes), bary=bary, qweight=qw, geometry=geo,
     )
 
 

@@ -73,6 +73,9 @@ class VFMData:
     n_valid_triangles : ndarray, shape (n_steps,)
     n_outliers : ndarray, shape (n_steps,)
         Markers set unobserved as mis-tracked, per step.
+    marker_noise : float
+        Estimated marker noise (m, median over steps; ``kinematics.marker_outliers``).
+    smoothing : tuple or None
     pressure, axial_force : ndarray, shape (n_steps,)
     """
 
@@ -89,6 +92,8 @@ class VFMData:
     mesh: SurfaceMesh
     n_valid_triangles: np.ndarray
     n_outliers: np.ndarray
+    marker_noise: float
+    smoothing: tuple | None
     pressure: np.ndarray
     axial_force: np.ndarray
     thickness: float
@@ -352,7 +357,8 @@ def prepare(
         log.warning("triangles excluded for unobserved markers per step: %s", (n_tri - n_valid).tolist())
     return VFMData(c=c, work_density=work_density, evw=evw, pressure_work=pressure_work, end_work=end_work,
                    end_force=n_end, scale=scale, field_names=tuple(fields.names), wall=wall, ends=ends, mesh=mesh,
-                   n_valid_triangles=n_valid, n_outliers=st.outliers.sum(axis=1), pressure=p, axial_force=f, thickness=e0)
+                   n_valid_triangles=n_valid, n_outliers=st.outliers.sum(axis=1),
+                   marker_noise=float(np.nanmedian(st.noise)), smoothing=smoothing, pressure=p, axial_force=f, thickness=e0)
 
 
 def internal_virtual_work(data: VFMData, model: str | Model, parameters) -> np.ndarray:
