@@ -292,10 +292,6 @@ def identify_prepared(
             flags.append(f"{nm} is poorly identifiable: a change of {value:.2g} ({unit}) can be compensated by the "
                          f"other parameters within a {GAP_FOR_FLAGS:.0%} virtual-work gap; do not trust its value"
                          + (" (load at two or more axial stretches to constrain it)" if nm == "alpha12" else ""))
-    for i, j in zip(*np.triu_indices(n, 1)):
-        if abs(corr[i, j]) > 0.995:
-            flags.append(f"{model.parameter_names[i]} and {model.parameter_names[j]} are strongly correlated "
-                         f"({corr[i, j]:+.3f}): the data constrain mostly a combination of them")
     for nm, se in stderr.items():
         if model.positive[model.parameter_names.index(nm)] and se > 0.3 * abs(params[nm]):
             flags.append(f"{nm} is uncertain: standard error {se:.3g} is more than 30 % of its value")
