@@ -35,10 +35,25 @@ def params_of(model):
 
 
 CLAMPED = True
+SYNTH = False  # use the tests' independent clamped-tube solver (30-90 mmHg) instead of rig_sim's
+
+
+class _Synth:
+    """The fields of rig_sim's SimulatedTest that the benchmark uses, from tests/ident_clamped_synth.py."""
+
+    def __init__(self, model):
+        sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+        from ident_clamped_synth import clamped_tube
+
+        pos, p, f = clamped_tube(model, params_of(model), np.array([15.0, 30.0, 45.0, 60.0, 75.0, 90.0]) * 133.322387415)
+        self.positions = self.exact_positions = pos
+        self.pressure, self.axial_force, self.thickness = p, f, 1.3e-3
 
 
 def simulate(model, *, clamped=None, wall="membrane"):
     clamped = CLAMPED if clamped is None else clamped
+    if clamped and SYNTH and wall == "membrane":
+        return _Synth(model)
     return simulate_test(model, params_of(model), clamped=clamped, wall=wall, n_markers=300)
 
 
@@ -210,11 +225,13 @@ def main(argv=None):
     ap.add_argument("--part", choices=["timing", "flat", "thick", "noise", "all"], default="all")
     ap.add_argument("--seeds", type=int, default=None, help="noise seeds (default 50, --quick 10)")
     ap.add_argument("--models", default=",".join(MODELS), help="models for the noise study")
-    ap.add_argument("--data", choices=["clamped", "homogeneous"], default="clamped",
-                    help="membrane tube clamped on cannulae (default) or homogeneous (timing and noise parts)")
+    ap.add_argument("--data", choices=["clamped", "clamped-synth", "homogeneous"], default="clamped",
+                    help="membrane tube clamped on cannulae (rig_sim, default; or the tests' independent solver, "
+                         "6 pressures 15-90 mmHg) or homogeneous (timing and noise parts)")
     args = ap.parse_args(argv)
-    global CLAMPED
-    CLAMPED = args.data == "clamped"
+    global CLAMPED, SYNTH
+    CLAMPED = args.data != "homogeneous"
+    SYNTH = args.data == "clamped-synth"
     logging.basicConfig(level=logging.ERROR)
     warnings.simplefilter("ignore", RuntimeWarning)
     repeats = 3 if args.quick else 7

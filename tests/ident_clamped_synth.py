@@ -33,8 +33,9 @@ def _lam_s(model, params, lt, target, guess):
     ls = np.array(guess, dtype=float)
     for _ in range(60):
         h = 1e-20
-        _, sc = membrane_cauchy(model, params, lt + 0j, ls + 1j * h)
-        g = R0 * E0 * sc / (ls + 1j * h)  # = R H S_s ls
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+            _, sc = membrane_cauchy(model, params, lt + 0j, ls + 1j * h)
+            g = R0 * E0 * sc / (ls + 1j * h)  # = R H S_s ls
         step = (g.real - target) / (g.imag / h)
         ls = np.clip(ls - step, 0.3 * ls, 3.0 * ls)
         if np.all(np.abs(step) < 1e-14 * ls):
@@ -82,7 +83,8 @@ def clamped_tube(model, params, pressures, *, stretch=1.1, n=300, seed=0, margin
     for p in pressures:  # continuation in pressure from the previous solution
         for sub in ([0.5, 1.0] if guess is not None else [1.0]):
             sol, N = _solve(model, params, float(p) * sub if sub < 1 else float(p), stretch, guess)
-            guess = (sol.x, sol.y, sol.p)
+            Zg = np.linspace(0.0, 0.5 * L0, 401)
+            guess = (Zg, sol.sol(Zg), sol.p)  # resampled: nodes do not pile up along the continuation
         y = sol.sol(np.abs(Z))
         r, z = y[0], np.sign(Z) * y[1]
         pos.append(np.column_stack([r * np.cos(theta), r * np.sin(theta), z]))
