@@ -214,3 +214,24 @@ def test_a_mistracked_marker_only_costs_its_triangles(caplog):
     res = identify_prepared(data, "delfino")
     assert np.isfinite(res.cost)
     assert res.parameters["alpha"] == pytest.approx(PAPER["delfino"]["alpha"], rel=0.01)
+
+
+def test_user_virtual_fields():
+    from identification import VirtualFields, paper_fields
+    from identification.errors import IdentificationError
+
+    pos, p, f = _single_stretch("delfino")
+    mesh = build_mesh(pos[0])
+    base = paper_fields(mesh)
+    zeta = base.values[1, :, 2]
+    values = np.zeros((2, mesh.n_markers, 3))
+    values[0, :, 0] = np.sin(np.pi * zeta) ** 2  # a different radial bump
+    values[1, :, 2] = zeta**2  # a non-linear axial field, still 0 / 1 on the ends
+    mine = VirtualFields(names=("bump", "axial2"), values=values, load_end=np.array([0.0, 1.0]))
+    res = identify(pos, p, f, thickness=E0, model="delfino", ends="free", mesh=mesh, fields=mine)
+    assert res.field_names == ("bump", "axial2")
+    for name, value in PAPER["delfino"].items():
+        assert res.parameters[name] == pytest.approx(value, rel=1e-6)
+    bad = VirtualFields(names=("shift",), values=np.ones((1, mesh.n_markers, 3)), load_end=np.array([1.0]))
+    with pytest.raises(IdentificationError, match="must vanish on the bottom boundary"):
+        prepare(pos, p, f, thickness=E0, ends="free", mesh=mesh, fields=bad)
