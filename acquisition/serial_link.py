@@ -166,10 +166,18 @@ class SerialLink:
     def _close_quietly(self) -> None:
         port, self.port = self.port, None
         if port is not None:
+            # pyserial's socket:// close() skips closing the socket when shutdown() fails on a dead
+            # connection; close it ourselves so nothing leaks
+            sock = getattr(port, "_socket", None)
             try:
                 port.close()
             except _PORT_ERRORS:  # pragma: no cover - closing a dead port
                 pass
+            if sock is not None:
+                try:
+                    sock.close()
+                except OSError:  # pragma: no cover
+                    pass
 
     @property
     def is_open(self) -> bool:
