@@ -2,3 +2,5 @@
 
 Implements the interfaces of the stage packages; the stage packages never import it.
 """
+
+from rig_sim.instruments import SimulatedRig

@@ -119,7 +119,7 @@ def test_garbled_and_truncated_replies_are_retried(rig, channel):
 def test_silence_is_retried_then_a_timeout(rig, channel):
     opener = open_pressure if channel == "pressure" else open_load_cell
     port = rig.pressure_port if channel == "pressure" else rig.load_cell_port
-    with opener(port, retries=1, timeout=0.05) as dev:
+    with opener(port, retries=1, timeout=0.1) as dev:
         rig.fault(channel).silence(1)
         dev.read()
         rig.fault(channel).silence(2)
@@ -144,16 +144,16 @@ def test_device_errors_are_reported_not_dropped(rig):
 
 
 def test_slow_device_within_and_beyond_the_timeout(rig):
-    with open_pressure(rig.pressure_port, timeout=0.15, retries=0) as p:
+    with open_pressure(rig.pressure_port, timeout=0.3, retries=0) as p:
         rig.fault("pressure").slow(0.05)
         t0 = time.monotonic()
         p.read()
         assert time.monotonic() - t0 >= 0.05
-        rig.fault("pressure").slow(0.3)
+        rig.fault("pressure").slow(0.6)
         with pytest.raises(InstrumentTimeout):
             p.read()
         rig.fault("pressure").slow(0.0)
-        time.sleep(0.3)  # the late reply arrives; it must not be taken for the next answer
+        time.sleep(0.4)  # the late reply arrives; it must not be taken for the next answer
         p.set_unit("kPa")
         assert p.unit == "kPa"
 

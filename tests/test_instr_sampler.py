@@ -193,3 +193,22 @@ def test_wait_stable_against_the_controller(rig):
             p.set_setpoint(120 * MMHG)
             assert s.wait_stable(20.0, 0.2, target_pa=120 * MMHG, timeout_s=3.0)
             assert abs(s.latest("pressure").value - 120 * MMHG) < 20.0
+
+
+def test_dwell_longer_than_the_ring_buffer_is_refused():
+    s = Sampler(FakeInstrument([1.0]), None, rate_hz=50, ring_size=100)
+    with pytest.raises(ValueError, match="ring_size"):
+        s.is_stable(1.0, 3.0)
+
+
+def test_simulated_rig_exposes_controller_state_and_takes_any_mechanics():
+    with SimulatedRig(rng=np.random.default_rng(1), tau_s=0.01, force_noise_n=0.0) as rig:
+        rig.set_mechanics(lambda p, stretch: 2.0 * stretch + p * 1e-4)
+        rig.set_stretch(1.5)
+        with open_pressure(rig.pressure_port) as p, open_load_cell(rig.load_cell_port) as f:
+            p.set_mode("control")
+            p.set_setpoint(10_000.0)
+            assert rig.controller_mode == "CONTROL" and rig.setpoint_pa == pytest.approx(10_000.0, rel=1e-6)
+            assert rig.target_pa == pytest.approx(10_000.0, rel=1e-6)
+            time.sleep(0.1)
+            assert f.read().value == pytest.approx(3.0 + 1.0, abs=0.002)
