@@ -30,7 +30,7 @@ from acquisition.instrument_errors import Disconnected, GarbledReply, Instrument
 log = logging.getLogger(__name__)
 
 USB_SERIAL_PREFIX = "usb-serial:"
-_PORT_ERRORS = (serial.SerialException, OSError, termios.error, ValueError, AttributeError, TypeError)
+_PORT_ERRORS = (serial.SerialException, OSError, termios.error, ValueError)
 
 
 def find_port_by_serial(serial_number: str, list_ports: Callable[[], list] | None = None) -> str:

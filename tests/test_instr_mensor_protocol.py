@@ -165,3 +165,9 @@ def test_reading_round_trip(value):
     raw = f" {value:+.6E}\r\n".encode()
     pa, unit = parse_pressure(parse_reply(raw), "kPa")
     assert pa == pytest.approx(value * 1e3, rel=1e-6, abs=1e-9) and unit == "kPa"
+
+
+def test_units_that_can_only_be_read_still_convert():
+    assert parse_unit_name("inH2O @4C") == "inH2O" and parse_unit_name("HPA") == "hPa"
+    value, unit = parse_pressure(parse_reply(b" +1.000000E+01\r\n"), "cmH2O")
+    assert value == pytest.approx(980.638) and unit == "cmH2O"
