@@ -3,4 +3,24 @@
 Implements the interfaces of the stage packages; the stage packages never import it.
 """
 
-from rig_sim.instruments import SimulatedRig
+from .cameras import camera_ring, look_at
+from .instruments import SimulatedRig
+from .render import MarkerTruth, RenderedFrame, SceneStyle, render_markers
+from .sensor import SensorModel, expose
+from .specimen_geometry import MarkerLayout, SurfaceOfRevolution, deform_cylinder, random_marker_layout
+
+__all__ = [
+    "SimulatedRig",
+    "camera_ring",
+    "look_at",
+    "MarkerTruth",
+    "RenderedFrame",
+    "SceneStyle",
+    "render_markers",
+    "SensorModel",
+    "expose",
+    "MarkerLayout",
+    "SurfaceOfRevolution",
+    "deform_cylinder",
+    "random_marker_layout",
+]
