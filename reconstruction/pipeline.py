@@ -57,6 +57,10 @@ class ReconstructionSettings:
         Surface normal estimate for the marker-centre offset.
     guided_gate_px : float
         Image-space gate when searching lost markers near their predicted projection.
+    min_view_cos : float
+        Views at grazing incidence (cosine between the surface normal and the direction to the
+        camera below this) are dropped when at least two better views remain: near the limb the
+        marker is seen against the silhouette and its centroid is biased by up to ~0.5 px.
     detection : dict
         Extra keyword arguments for :func:`reconstruction.detection.detect_markers`.
     """
@@ -68,6 +72,7 @@ class ReconstructionSettings:
     prior_tolerance: float = 0.35
     normals: str = "local"
     guided_gate_px: float = 4.0
+    min_view_cos: float = 0.35
     sigma_px: float | None = None
     detection: dict = field(default_factory=dict)
 
@@ -176,8 +181,26 @@ def points_from_detections(
         dets, cameras, epipolar_px=settings.epipolar_px, max_reprojection_px=settings.max_reprojection_px,
         prior=prior, min_views=2, sigma_px=settings.sigma_px,
     )
+    obs = res.observations
     t = res.triangulation
-    return StepPoints(t.points, res.observations, t.uncertainty, t.reprojection_rms, t.n_views, prior, dets, t.sigma_px)
+    if prior is not None and obs.shape[0] and settings.min_view_cos > -1:
+        cosv = _view_cosines(t.points, prior, cameras)  # (n, n_cams)
+        good = (obs >= 0) & (cosv >= settings.min_view_cos)
+        drop = (obs >= 0) & ~good & (good.sum(axis=1) >= 2)[:, None]
+        if np.any(drop):
+            obs = np.where(drop, -1, obs)
+            t = triangulate(observed_pixels(dets, obs), cameras, sigma_px=settings.sigma_px)
+    return StepPoints(t.points, obs, t.uncertainty, t.reprojection_rms, t.n_views, prior, dets, t.sigma_px)
+
+
+def _view_cosines(points: np.ndarray, prior: CylinderPrior, cameras: list[Camera]) -> np.ndarray:
+    """Cosine between the outward radial direction and the direction to each camera, (n, n_cams)."""
+    _, _, nrm = prior.radial(points)
+    out = np.empty((points.shape[0], len(cameras)))
+    for c, cam in enumerate(cameras):
+        v = cam.center - points
+        out[:, c] = np.sum(nrm * v, axis=1) / np.linalg.norm(v, axis=1)
+    return out
 
 
 def reconstruct_step(
@@ -259,7 +282,7 @@ def _guided_recovery(pred, lost, step: StepPoints, cameras, settings, gate3d):
         px = cam.project(P)
         fin = np.all(np.isfinite(px), axis=1)
         if step.prior is not None:
-            fin &= step.prior.facing(P, cam)
+            fin &= _view_cosines(P, step.prior, [cam])[:, 0] >= settings.min_view_cos
         d, j = cKDTree(step.detections[c][free]).query(np.where(fin[:, None], px, -1e9), distance_upper_bound=settings.guided_gate_px)
         hit = np.flatnonzero(fin & np.isfinite(d))
         # two lost markers claiming one detection: the closer keeps it
