@@ -11,8 +11,8 @@ Method
    ``max_reprojection_px`` (and facing that camera) joins its support. Candidates with identical
    support are merged, all are triangulated with every supporting view (DLT + Gauss-Newton), and
    views whose residual exceeds the gate are dropped.
-4. Global selection: candidates are ranked by (number of views, reprojection RMS) over the whole
-   set; the best is accepted, and every other candidate that shares a detection with it loses that
+4. Global selection: candidates are ranked by (clean reprojection, number of views, reprojection
+   RMS) over the whole set, "clean" meaning an RMS within 4x the typical one; the best is accepted, and every other candidate that shares a detection with it loses that
    detection, is re-triangulated from the views it keeps and re-ranked (it is dropped if fewer than
    ``min_views`` remain). Each detection is used at most once and a candidate never wins by
    being first in some camera's list.
@@ -319,14 +319,23 @@ def _select(obs, tri, dets, cameras, gate, min_views, prior, sigma_px) -> list[n
     """Best-first selection over the whole candidate set; losers of a conflict are re-scored."""
     n_cams = obs.shape[1]
     used = [np.zeros(len(d), bool) for d in dets]
+    # candidates whose reprojection RMS is far above the typical one are ranked after all others,
+    # whatever their number of views (a ghost that picked up a chance third view must not beat a
+    # clean two-view marker)
+    typical = float(np.median(tri.reprojection_rms)) if obs.shape[0] else 0.0
+    weak_above = max(4.0 * typical, 0.1 * gate)
+
+    def key(nv, rms):
+        return (int(rms > weak_above), -nv, rms)
+
     heap = []
     for k in range(obs.shape[0]):
-        heapq.heappush(heap, (-int((obs[k] >= 0).sum()), float(tri.reprojection_rms[k]), k, tuple(obs[k])))
+        heapq.heappush(heap, (*key(int((obs[k] >= 0).sum()), float(tri.reprojection_rms[k])), k, tuple(obs[k])))
     chosen: list[np.ndarray] = []
     seen: set[tuple] = set()
     while heap:
-        nv, rms, k, key = heapq.heappop(heap)
-        o = np.array(key)
+        *_, k, obs_key = heapq.heappop(heap)
+        o = np.array(obs_key)
         views = np.flatnonzero(o >= 0)
         taken = np.array([used[c][o[c]] for c in views], dtype=bool)
         if not np.any(taken):
@@ -344,5 +353,5 @@ def _select(obs, tri, dets, cameras, gate, min_views, prior, sigma_px) -> list[n
         seen.add(key2)
         t2, ob2 = _triangulate_gated(o2[None], dets, cameras, gate, min_views, prior, sigma_px)
         if ob2.shape[0] == 1:
-            heapq.heappush(heap, (-int((ob2[0] >= 0).sum()), float(t2.reprojection_rms[0]), k, tuple(ob2[0])))
+            heapq.heappush(heap, (*key(int((ob2[0] >= 0).sum()), float(t2.reprojection_rms[0])), k, tuple(ob2[0])))
     return chosen

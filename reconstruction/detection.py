@@ -99,7 +99,7 @@ def detect_markers(
     diameter_range: tuple[float, float] | None = None,
     threshold_sigma: float = 6.0,
     min_darkness: float = 0.3,
-    min_relative_contrast: float = 0.5,
+    min_relative_contrast: float = 0.6,
     max_elongation: float = 1.6,
     edge_margin: int = 2,
     saturation: float | None | str = "auto",

@@ -149,17 +149,17 @@ def _bootstrap_prior(dets, cameras, settings: ReconstructionSettings, loose: Cyl
         dets, cameras, epipolar_px=settings.epipolar_px, max_reprojection_px=settings.max_reprojection_px,
         prior=loose, min_views=3, sigma_px=settings.sigma_px,
     )
-    if res.observations.shape[0] < 8:
+    clean = res.triangulation.reprojection_rms <= 4.0 * np.median(res.triangulation.reprojection_rms) + 0.05
+    if clean.sum() < 8:
         return loose
     try:
-        cyl = fit_cylinder(res.points)
+        cyl = fit_cylinder(res.points[clean])
     except ValueError:
         return loose
-    r, _, _ = cyl.cylindrical(res.points)
-    _, _, z = cyl.cylindrical(res.points)
+    r, _, z = cyl.cylindrical(res.points[clean])
     spread = float(np.percentile(np.abs(r - cyl.radius), 95))
     tol = max(4.0 * spread, 0.04 * cyl.radius, 2.0 * settings.marker_diameter)
-    half = float(np.max(np.abs(z))) * 1.3 + 2 * marker_spacing(res.points)
+    half = float(np.max(np.abs(z))) * 1.3 + 2 * marker_spacing(res.points[clean])
     return CylinderPrior(radius=cyl.radius, tolerance=tol, half_length=half, axis_point=cyl.axis_point,
                          axis_direction=cyl.axis_direction)
 

@@ -115,7 +115,7 @@ def fit_cylinder(points: np.ndarray, *, axis_guess=(0.0, 0.0, 1.0)) -> CylinderF
     return CylinderFit(q, a, float(abs(sol.x[4])), float(np.sqrt(np.mean(res**2))), int(pts.shape[0]))
 
 
-def surface_normals(centres: np.ndarray, cylinder: CylinderFit | None = None, *, method: str = "local", k: int = 10) -> np.ndarray:
+def surface_normals(centres: np.ndarray, cylinder: CylinderFit | None = None, *, method: str = "local", k: int = 12) -> np.ndarray:
     """Outward unit normals of the surface through the marker centres.
 
     Parameters
@@ -125,8 +125,9 @@ def surface_normals(centres: np.ndarray, cylinder: CylinderFit | None = None, *,
     cylinder : CylinderFit, optional
         Axis for orientation (fitted if not given).
     method : {"local", "cylinder"}
-        "local": quadratic height-field fit to the ``k`` nearest neighbours in the
-        (circumferential, axial) tangent frame of the cylinder; "cylinder": the radial direction.
+        "local": quadratic height-field fit through the marker, to its ``k`` nearest neighbours
+        (Gaussian-weighted by distance) in the (circumferential, axial) tangent frame of the
+        cylinder; "cylinder": the radial direction.
     k : int
         Neighbours for the local fit (>= 6).
 
@@ -155,14 +156,19 @@ def surface_normals(centres: np.ndarray, cylinder: CylinderFit | None = None, *,
     u = np.einsum("mkj,mj->mk", D, t1)
     v = D @ a
     h = np.einsum("mkj,mj->mk", D, radial)
-    A = np.stack([np.ones_like(u), u, v, u * u, u * v, v * v], axis=-1)  # (m, k+1, 6)
-    AtA = np.einsum("mki,mkj->mij", A, A)
-    cond_ok = np.linalg.cond(AtA) < 1e12
-    coef = np.zeros((P.shape[0], 6))
+    # height field through the marker itself (h(0, 0) = 0): h = b u + c v + d u^2 + e u v + f v^2,
+    # neighbours weighted by a Gaussian of their distance so the nearest dominate
+    dist2 = u * u + v * v
+    s2 = np.median(dist2[:, 1:], axis=1, keepdims=True) + 1e-30
+    w = np.exp(-dist2 / (2.0 * s2))
+    A = np.stack([u, v, u * u, u * v, v * v], axis=-1)  # (m, k+1, 5)
+    AtA = np.einsum("mk,mki,mkj->mij", w, A, A)
+    cond_ok = np.linalg.cond(AtA) < 1e14
+    coef = np.zeros((P.shape[0], 5))
     if np.any(cond_ok):
-        Atb = np.einsum("mki,mk->mi", A[cond_ok], h[cond_ok])
+        Atb = np.einsum("mk,mki,mk->mi", w[cond_ok], A[cond_ok], h[cond_ok])
         coef[cond_ok] = np.linalg.solve(AtA[cond_ok], Atb[..., None])[..., 0]
-    n = radial - coef[:, 1:2] * t1 - coef[:, 2:3] * a
+    n = radial - coef[:, 0:1] * t1 - coef[:, 1:2] * a
     n /= np.linalg.norm(n, axis=1, keepdims=True)
     n = np.where(cond_ok[:, None], n, radial)
     out[ok] = n
