@@ -269,7 +269,6 @@ class SessionRunner:
                 self.state.step = k
                 self._do_step(block, stretch, target)
                 k += 1
-                self.state.steps_done = k
             self._pump()
             status = "complete"
         except SessionQuit as exc:
@@ -333,6 +332,8 @@ class SessionRunner:
         row = self.writer.add_step(record, images)
         self._last_step = (row, block, stretch, target)
         self._step_times.append(self.clock())
+        if block >= 0 and supersedes < 0:
+            self.state.steps_done += 1
         if self.detector is not None:
             self.state.markers = {name: int(self.detector(f.pixels)) for name, f in frames.items()}
         what = f"retake of step row {supersedes}" if supersedes >= 0 else "step"
