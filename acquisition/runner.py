@@ -105,19 +105,17 @@ class AutoOperator:
     """Unattended operator (``--yes``): accepts defaults, never blocks.
 
     On a Ctrl-C pause it answers ``on_interrupt`` (default "quit": the session stays resumable);
-    when stability times out it captures anyway (with a warning event); a failed capture is
-    retried ``capture_retries`` times, then the session aborts. ``set_pressure`` /
+    when stability times out it captures anyway (with a warning event); when a capture still
+    fails after the runner's automatic retries it aborts (vents). ``set_pressure`` /
     ``set_stretch`` call the optional hooks (the simulated rig's hand on the valve).
     """
 
     def __init__(self, set_pressure: Callable[[float], None] | None = None,
                  set_stretch: Callable[[float], None] | None = None,
-                 on_interrupt: str = "quit", capture_retries: int = 3):
+                 on_interrupt: str = "quit"):
         self._set_pressure, self._set_stretch = set_pressure, set_stretch
         self.on_interrupt = on_interrupt
-        self.capture_retries = capture_retries
         self.messages: list[str] = []
-        self._retries = 0
 
     def set_pressure(self, target: float) -> None:
         if self._set_pressure is not None:
@@ -133,8 +131,7 @@ class AutoOperator:
     def choose(self, reason: str, options: Sequence[str]) -> str:
         self.messages.append(reason)
         if "retry" in options:
-            self._retries += 1
-            return "retry" if self._retries <= self.capture_retries else "abort"
+            return "abort"
         if "capture" in options:
             return "capture"
         return self.on_interrupt if self.on_interrupt in options else options[-1]
@@ -212,6 +209,9 @@ class SessionRunner:
         Called at every tick (the live view).
     tick_s : float
         Polling period of the waits and the log drain, s.
+    capture_retries : int
+        Failed captures retried automatically (after ``retry_delay_s``) before the operator
+        is asked to retry or abort.
     clock, sleep : injectable time sources.
     """
 
@@ -220,6 +220,7 @@ class SessionRunner:
                  stage: Callable[[float], None] | None = None, safety: SafetyLimits | None = None,
                  detector: Callable[[np.ndarray], int] | None = None,
                  on_update: Callable[[RunnerState], None] | None = None, tick_s: float = 0.05,
+                 capture_retries: int = 2, retry_delay_s: float = 0.5,
                  clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep):
         if pressure_mode not in ("controller", "manual"):
             raise ValueError(f"pressure_mode: expected 'controller' or 'manual'; got {pressure_mode!r}")
@@ -240,6 +241,8 @@ class SessionRunner:
         self._step_times: list[float] = []
         self._last_step: tuple[int, int, float, float] | None = None  # (row, block, stretch, target)
         self._finalizing = False
+        self.capture_retries, self.retry_delay_s = int(capture_retries), float(retry_delay_s)
+        self._capture_failures = 0
         self.status = "running"
 
     # ------------------------------------------------------------------ public
@@ -311,11 +314,19 @@ class SessionRunner:
         try:
             result = capture_all(self.cameras, self.protocol.capture.timeout_s)
         except CaptureError as exc:
+            self._capture_failures += 1
             self._warn(str(exc))
-            choice = self.operator.choose(f"Capture failed: {exc}", ["retry", "abort"])
+            self._event("capture_failed", str(exc))
+            if self._capture_failures <= self.capture_retries:
+                self._hold(self.retry_delay_s)  # automatic retry after a short wait
+                return "again"
+            choice = self.operator.choose(f"Capture failed {self._capture_failures} times in a row: {exc}",
+                                          ["retry", "abort"])
             if choice == "abort":
                 raise SessionAborted(f"aborted after a failed capture: {exc}") from exc
+            self._capture_failures = 0
             return "again"
+        self._capture_failures = 0
         t1 = self.clock()
         pressure, force = self._readings(t1 - t0)
         if self._check_fault():

@@ -152,19 +152,26 @@ def test_pause_abort_or_quit_always_vents(tmp_path, monkeypatch, answer, status,
 
 
 def test_failed_camera_is_reported_and_retried(tmp_path):
-    op = Scripted([])
-    runner, rig, cams, states = _runner(tmp_path, op)
+    class FixesCable(Scripted):
+        def choose(self, reason, options):
+            cams[2].unplugged = False  # the operator plugs the camera back, then says retry
+            return super().choose(reason, options)
+
+    op = FixesCable(["retry"])
+    runner, rig, cams, states = _runner(tmp_path, op, capture_retries=1, retry_delay_s=0.2)
     cams[2].unplugged = True
-    threading.Timer(0.6, lambda: setattr(cams[2], "unplugged", False)).start()
     assert runner.run() == "complete"
-    assert any("cam2" in r and "Capture failed" in r for r, _ in op.asked)
+    # one automatic retry, then the operator is asked
+    assert op.asked[0][1] == ["retry", "abort"] and "camera 'cam2'" in op.asked[0][0]
     assert any("cam2" in w for st in states for w in st.warnings)
     with open_session(tmp_path / "s.h5") as s:
         assert s.n_steps == 6
+        failed = [e for e in s.events() if e["kind"] == "capture_failed"]
+        assert len(failed) >= 2 and all("cam2" in e["message"] and "unplugged" in e["message"] for e in failed)
 
 
 def test_camera_that_never_comes_back_aborts(tmp_path):
-    runner, rig, cams, _ = _runner(tmp_path, AutoOperator(capture_retries=1))
+    runner, rig, cams, _ = _runner(tmp_path, AutoOperator(), capture_retries=1, retry_delay_s=0.05)
     cams[0].stalled = True
     assert runner.run() == "aborted"
     assert rig.modes[-1] == "vent"
@@ -214,3 +221,15 @@ def test_unstable_pressure_times_out_and_manual_mode(tmp_path):
     assert sum("not stable" in r for r, _ in op.asked) == 4
     with open_session(tmp_path / "s.h5") as s:
         assert sum(e["kind"] == "warning" for e in s.events()) == 4
+
+
+def test_imaged_preconditioning_rows_do_not_count_as_protocol_steps(tmp_path):
+    proto = PROTO.replace("cycle_s = 0.1", "cycle_s = 0.1\nimaged = true").replace("[1.1, 1.2]", "[1.1]")
+    runner, rig, cams, _ = _runner(tmp_path, proto=proto)
+    assert runner.run() == "complete"
+    with open_session(tmp_path / "s.h5") as s:
+        st = s.steps
+        assert st["block"].tolist() == [-1] * 4 + [0, 0, 0]  # 2 pressure + 2 stretch cycles, imaged at the top
+        np.testing.assert_allclose(st["target_pressure"][:2], 80 * MMHG)
+        assert st["stretch"][2:4].tolist() == [1.4, 1.4]
+        assert completed_steps(st) == 3

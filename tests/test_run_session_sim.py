@@ -171,3 +171,72 @@ def test_cli_reports_bad_files_before_anything_moves(tmp_path, capsys):
     rc = main(["run", str(ROOT / "examples" / "paper-protocol.toml"), "--specimen", str(SPECIMEN),
                "--out", str(tmp_path / "y.h5"), "--rig", str(ROOT / "examples" / "sim-rig.toml"), "--yes"])
     assert rc == 1 and "add --sim" in capsys.readouterr().err
+
+
+def _interrupted_session(path, monkeypatch, pressure_identity):
+    import acquisition.session as session_mod
+    from acquisition.session import CameraSpec, SessionWriter, SpecimenInfo
+    from vfmlab.operate import DEFAULT_SIM_RIG
+
+    w = SessionWriter.create(path, SpecimenInfo("s", 0.01, 0.035, 0.0013),
+                             cameras=[CameraSpec(f"cam{i}", "sim", 320, 240) for i in range(4)],
+                             protocol_text=FAST, rig={"config_text": DEFAULT_SIM_RIG},
+                             instruments={"pressure": {"identity": pressure_identity}})
+    w.close(status="running")  # as if the process had died
+    monkeypatch.setattr(session_mod, "_writer_alive", lambda pid, host: False)
+
+
+def test_resume_rechecks_instrument_identity(tmp_path, monkeypatch, capsys):
+    path = tmp_path / "other.h5"
+    _interrupted_session(path, monkeypatch, "MENSOR, CPC6050, SIM9999, 1.00")
+    rc = main(["resume", str(path), "--sim", "--yes", "--no-detect"])
+    err = capsys.readouterr().err
+    assert rc == 1 and "recorded with 'MENSOR, CPC6050, SIM9999, 1.00'" in err and "SIM0001" in err
+    with open_session(path) as s:
+        assert s.status == "interrupted" and s.n_steps == 0  # untouched
+    rc = main(["resume", str(path), "--yes"])
+    assert rc == 1 and "resume it with --sim" in capsys.readouterr().err
+
+
+def test_resume_refuses_a_complete_session(tmp_path, capsys):
+    from acquisition.session import SessionWriter, SpecimenInfo
+
+    path = tmp_path / "done.h5"
+    SessionWriter.create(path, SpecimenInfo("s", 0.01, 0.035, 0.0013), protocol_text=FAST).close("complete")
+    rc = main(["resume", str(path), "--sim", "--yes"])
+    assert rc == 1 and "status is 'complete'" in capsys.readouterr().err
+
+
+def test_ctrl_c_pauses_and_quits_resumably(tmp_path, capsys):
+    """SIGINT (Ctrl-C) in an unattended run: pause at a safe point, quit resumably, vent; resume finishes."""
+    proto = tmp_path / "short.toml"
+    proto.write_text(FAST.replace("pressure_cycles = 8", "pressure_cycles = 0")
+                     .replace("stretch_cycles = 8", "stretch_cycles = 0")
+                     .replace("stretches = [1.1, 1.2]", "stretches = [1.1]")
+                     .replace("[0, 20, 40, 60, 80, 100, 125, 150]", "[0, 50, 100, 150]"))
+    out = tmp_path / "c.h5"
+    proc = subprocess.Popen([sys.executable, "-m", "vfmlab", "run", str(proto), "--specimen", str(SPECIMEN),
+                             "--out", str(out), "--sim", "--yes", "--sim-speed", "5", "--no-detect"],
+                            env=_env(), cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    t0 = time.monotonic()
+    try:
+        while _n_steps(out) < 2:
+            assert proc.poll() is None and time.monotonic() - t0 < 30
+            time.sleep(0.02)
+        proc.send_signal(signal.SIGINT)
+        text = proc.communicate(timeout=30)[0].decode()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+    assert proc.returncode == 0, text
+    assert "pausing at the next safe point" in text and "Session interrupted" in text and "vfmlab resume" in text
+    with open_session(out) as s:
+        assert s.status == "interrupted" and 2 <= s.n_steps < 4
+        kinds = [e["kind"] for e in s.events()]
+        assert "pause" in kinds and "quit" in kinds and "safe" in kinds  # vented
+    assert main(["resume", str(out), "--sim", "--yes", "--sim-speed", "5", "--no-detect"]) == 0
+    capsys.readouterr()
+    with open_session(out) as s:
+        assert s.status == "complete" and s.n_steps == 4
+        np.testing.assert_allclose(s.steps["target_pressure"], np.array([0, 50, 100, 150]) * MMHG)
