@@ -126,7 +126,7 @@ def _sec_specimen(ctx: _Context, rep: _Report) -> str:
             ["notes", sp.notes or "–"], ["session status", s.status], ["started", s.start_time or "–"],
             ["recorded with", f"vfmlab {s.software_version or '?'} (schema {s.schema_version})"],
             ["steps captured", f"{s.n_steps} ({int(ctx.steps['active'].sum())} active)"]]
-    return _table(["", ""], rows)
+    return _table(["property", "value"], rows)
 
 
 def _sec_protocol(ctx: _Context, rep: _Report) -> str:
