@@ -2,3 +2,23 @@
 
 Implements the interfaces of the stage packages; the stage packages never import it.
 """
+
+from .cameras import camera_ring, look_at
+from .render import MarkerTruth, RenderedFrame, SceneStyle, render_markers
+from .sensor import SensorModel, expose
+from .specimen_geometry import MarkerLayout, SurfaceOfRevolution, deform_cylinder, random_marker_layout
+
+__all__ = [
+    "camera_ring",
+    "look_at",
+    "MarkerTruth",
+    "RenderedFrame",
+    "SceneStyle",
+    "render_markers",
+    "SensorModel",
+    "expose",
+    "MarkerLayout",
+    "SurfaceOfRevolution",
+    "deform_cylinder",
+    "random_marker_layout",
+]

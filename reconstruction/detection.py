@@ -1,0 +1,357 @@
+"""Sub-pixel detection of dark circular markers in one grey-level image.
+
+Method
+------
+1. Candidates: black top-hat (morphological closing minus image) with a square element larger
+   than the largest marker, thresholded a few robust sigmas above its background level; then
+   connected components (``cv2.connectedComponentsWithStats``).
+2. Per candidate, on a fixed-size patch (all candidates at once, vectorised): peak contrast, the
+   half-contrast area (diameter), second moments (elongation), border contact and nearby
+   saturation, giving accept / reject with a reason.
+3. Sub-pixel centre: iterated windowed centroid of the *normalised darkness*
+   ``w = 1 - I / B(x, y)`` where ``B`` is a plane fitted robustly to an annulus around the
+   marker (multiplicative illumination: a black disc gives ``w = 1`` whatever the illumination
+   gradient, so the centroid is unbiased by shading), with a soft-edged circular window that
+   follows the estimate.
+
+Pixel coordinates are OpenCV's (x right, y down, origin at the centre of the top-left pixel).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+__all__ = ["Detections", "REJECT_DTYPE", "REJECT_REASONS", "detect_markers"]
+
+log = logging.getLogger(__name__)
+
+REJECT_REASONS = ("too_small", "too_large", "merged", "not_round", "edge", "low_contrast", "glare")
+REJECT_DTYPE = np.dtype(
+    [("x", "f8"), ("y", "f8"), ("diameter", "f8"), ("contrast", "f8"), ("reason", "U12")]
+)
+
+
+@dataclass(frozen=True)
+class Detections:
+    """Markers found in one image.
+
+    Attributes
+    ----------
+    centres : ndarray, shape (n, 2)
+        Sub-pixel centres, px (OpenCV convention).
+    diameter : ndarray, shape (n,)
+        Equivalent diameter of the half-contrast area, px.
+    contrast : ndarray, shape (n,)
+        Relative darkness at the core, ``1 - I_core / I_background`` (0..1).
+    quality : ndarray, shape (n,)
+        Roundness: minor / major axis of the half-contrast area (1 = circle).
+    precision : ndarray, shape (n,)
+        Estimated 1-sigma centre uncertainty per coordinate from image noise, px.
+    rejects : structured ndarray, dtype REJECT_DTYPE, shape (n_rejects,)
+        Rejected candidates with ``reason`` in ``REJECT_REASONS``.
+    noise : float
+        Robust estimate of the image noise, grey levels.
+    """
+
+    centres: np.ndarray
+    diameter: np.ndarray
+    contrast: np.ndarray
+    quality: np.ndarray
+    precision: np.ndarray
+    rejects: np.ndarray
+    noise: float
+
+    def __len__(self) -> int:
+        return int(self.centres.shape[0])
+
+    def reject_counts(self) -> dict[str, int]:
+        """Number of rejected candidates per reason."""
+        return {r: int(np.count_nonzero(self.rejects["reason"] == r)) for r in REJECT_REASONS}
+
+
+def _empty(noise: float, rejects: np.ndarray | None = None) -> Detections:
+    z = np.zeros(0)
+    return Detections(
+        np.zeros((0, 2)), z, z.copy(), z.copy(), z.copy(),
+        np.zeros(0, REJECT_DTYPE) if rejects is None else rejects, float(noise),
+    )
+
+
+def _saturation_level(image: np.ndarray, saturation: float | None | str) -> float | None:
+    if saturation is None:
+        return None
+    if saturation != "auto":
+        return float(saturation)
+    if image.dtype == np.uint8:
+        return 254.5
+    if image.dtype == np.uint16:
+        return 65534.5
+    return None
+
+
+def detect_markers(
+    image: np.ndarray,
+    *,
+    diameter_range: tuple[float, float] | None = None,
+    threshold_sigma: float = 6.0,
+    min_relative_contrast: float = 0.5,
+    max_elongation: float = 1.6,
+    edge_margin: int = 2,
+    saturation: float | None | str = "auto",
+    window_margin: float = 2.5,
+    iterations: int = 4,
+    centroid_threshold: float = 0.2,
+) -> Detections:
+    """Detect dark circular markers with sub-pixel centres.
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W)
+        Grey-level image (uint8, uint16 or float).
+    diameter_range : (float, float), optional
+        Accepted marker diameters, px. Default: 0.6x .. 1.5x the median diameter of the
+        candidates (with an absolute search range of 3..80 px).
+    threshold_sigma : float
+        Candidate threshold in robust sigmas of the top-hat background.
+    min_relative_contrast : float
+        Reject blobs whose relative darkness is below this fraction of the median of the
+        accepted markers (grey debris, shadows).
+    max_elongation : float
+        Major/minor axis ratio above which a blob is rejected (``merged`` when its area is also
+        about twice a marker's, else ``not_round``).
+    edge_margin : int
+        Blobs whose bounding box comes within this many pixels of the border are ``edge``.
+    saturation : float, None or "auto"
+        Grey level counted as saturated (glare); "auto" = dtype maximum for integer images.
+    window_margin : float
+        Centroid window radius = diameter / 2 + window_margin, px.
+    iterations : int
+        Window re-centring iterations of the centroid.
+    centroid_threshold : float
+        Fraction of each blob's peak darkness subtracted before the centroid (weights
+        ``max(w - t * peak, 0)``), so that background texture inside the window does not pull
+        the centre; 0 gives the plain background-subtracted grey-value centroid.
+
+    Returns
+    -------
+    Detections
+    """
+    image = np.asarray(image)
+    if image.ndim != 2:
+        raise ValueError(f"image must be a 2-D grey-level array (H, W); got shape {image.shape}")
+    H, W = image.shape
+    sat = _saturation_level(image, saturation)
+    img = image.astype(np.float32)
+    dmin, dmax = (3.0, 80.0) if diameter_range is None else map(float, diameter_range)
+    if not 0 < dmin < dmax:
+        raise ValueError(f"diameter_range must be (min, max) with 0 < min < max px; got {diameter_range}")
+
+    # 1. candidates
+    k = int(np.ceil(1.3 * dmax)) | 1
+    closed = cv2.morphologyEx(img, cv2.MORPH_CLOSE, cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)))
+    tophat = closed - img
+    sample = tophat[:: max(1, H // 256), :: max(1, W // 256)].ravel()
+    med = float(np.median(sample))
+    mad = float(np.median(np.abs(sample - med))) * 1.4826
+    noise_img = img[:: max(1, H // 256), :: max(1, W // 256)]
+    lap = noise_img[1:-1, 1:-1] - 0.25 * (noise_img[:-2, 1:-1] + noise_img[2:, 1:-1] + noise_img[1:-1, :-2] + noise_img[1:-1, 2:])
+    noise = float(np.median(np.abs(lap - np.median(lap)))) * 1.4826 / np.sqrt(1.25) if lap.size else 0.0
+    floor = 0.03 * float(np.median(closed[:: max(1, H // 256), :: max(1, W // 256)]))
+    thr = med + max(threshold_sigma * mad, floor)
+    mask = (tophat > thr).astype(np.uint8)
+    n_lab, labels, stats, cents = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    areas = stats[1:, cv2.CC_STAT_AREA].astype(float)
+    ids = np.arange(1, n_lab)
+    # ignore specks that are a fraction of the smallest accepted marker (noise, texture)
+    min_area = max(3.0, 0.25 * np.pi * (0.5 * dmin) ** 2)
+    keep = areas >= min_area
+    ids = ids[keep]
+    if diameter_range is None and ids.size:
+        # working size limit from the typical compact candidate (speeds up the patch stage)
+        bwh = np.maximum(stats[ids, cv2.CC_STAT_WIDTH], stats[ids, cv2.CC_STAT_HEIGHT])
+        compact = areas[keep] >= 0.5 * bwh**2
+        if np.count_nonzero(compact) >= 3:
+            dmax = min(dmax, max(2.0 * float(np.median(2 * np.sqrt(areas[keep][compact] / np.pi))), 4.0 * dmin))
+    rejects: list[np.ndarray] = []
+    if sat is not None:
+        rejects.append(_glare_blobs(image, sat))
+    if ids.size == 0:
+        return _empty(noise, _concat(rejects))
+    bw = stats[ids, cv2.CC_STAT_WIDTH]
+    bh = stats[ids, cv2.CC_STAT_HEIGHT]
+    bx = stats[ids, cv2.CC_STAT_LEFT]
+    by = stats[ids, cv2.CC_STAT_TOP]
+    cxy = cents[ids]
+    big = (np.maximum(bw, bh) > 2.2 * dmax) | (areas[keep] > 2.6 * np.pi * (0.5 * dmax) ** 2)
+    if np.any(big):
+        rejects.append(_records(cxy[big], np.sqrt(4 * areas[keep][big] / np.pi), np.nan, "too_large"))
+    ids, bw, bh, bx, by, cxy = ids[~big], bw[~big], bh[~big], bx[~big], by[~big], cxy[~big]
+    if ids.size == 0:
+        return _empty(noise, _concat(rejects))
+
+    # 2. patch measurements (vectorised over candidates)
+    P = int(2 * np.ceil(max(np.max(np.maximum(bw, bh)) * 0.5 + window_margin + 3, 0.5 * dmax + window_margin + 3)) + 1)
+    half = P // 2
+    pad_mode = cv2.BORDER_REFLECT
+    img_p = cv2.copyMakeBorder(img, half, half, half, half, pad_mode)
+    lab_p = cv2.copyMakeBorder(labels.astype(np.int32), half, half, half, half, cv2.BORDER_CONSTANT, value=0)
+    ci = np.rint(cxy).astype(int)  # patch centre, integer pixel (x, y)
+    off = np.arange(P) - half
+    rows = ci[:, 1, None] + off[None, :] + half
+    cols = ci[:, 0, None] + off[None, :] + half
+    patch = img_p[rows[:, :, None], cols[:, None, :]]  # (n, P, P)
+    plab = lab_p[rows[:, :, None], cols[:, None, :]]
+    own = plab == ids[:, None, None]
+    other = (plab != 0) & ~own
+    yy, xx = np.meshgrid(off.astype(float), off.astype(float), indexing="ij")
+    bg_plane = _annulus_plane(patch, own | other, xx, yy, r_in=0.5 * np.maximum(bw, bh) + 2.0, r_out=half - 0.5)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dark = 1.0 - patch / np.maximum(bg_plane, 1e-12)
+    dark_s = _smooth3(dark)
+    peak = np.max(np.where(own, dark_s, -np.inf), axis=(1, 2))
+    halfmask = own & (dark > 0.5 * peak[:, None, None])
+    a_half = halfmask.sum(axis=(1, 2)).astype(float)
+    diam = 2.0 * np.sqrt(a_half / np.pi)
+    # second moments of the half-contrast area
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mx = (halfmask * xx).sum((1, 2)) / a_half
+        my = (halfmask * yy).sum((1, 2)) / a_half
+        sxx = (halfmask * (xx - mx[:, None, None]) ** 2).sum((1, 2)) / a_half
+        syy = (halfmask * (yy - my[:, None, None]) ** 2).sum((1, 2)) / a_half
+        sxy = (halfmask * (xx - mx[:, None, None]) * (yy - my[:, None, None])).sum((1, 2)) / a_half
+    tr = sxx + syy
+    disc = np.sqrt(np.maximum((sxx - syy) ** 2 / 4 + sxy**2, 0.0))
+    l1 = tr / 2 + disc
+    l2 = np.maximum(tr / 2 - disc, 1e-12)
+    elong = np.sqrt(l1 / l2)
+    near_edge = (bx < edge_margin) | (by < edge_margin) | (bx + bw > W - edge_margin) | (by + bh > H - edge_margin)
+    glare = np.zeros(ids.size, dtype=bool)
+    if sat is not None:
+        rr = np.hypot(xx, yy)
+        glare = np.any((patch >= sat) & (rr[None] <= (0.5 * diam + window_margin)[:, None, None]), axis=(1, 2))
+
+    reason = np.full(ids.size, "", dtype="U12")
+    reason[glare] = "glare"
+    reason[(reason == "") & near_edge] = "edge"
+    reason[(reason == "") & ~np.isfinite(peak)] = "low_contrast"
+    if diameter_range is None:
+        plausible = (reason == "") & (elong < max_elongation) & (diam >= dmin)
+        if np.any(plausible):
+            dmed = float(np.median(diam[plausible]))
+            lo, hi = 0.6 * dmed, 1.5 * dmed
+        else:
+            lo, hi = dmin, dmax
+    else:
+        lo, hi = dmin, dmax
+    dref = 0.5 * (lo + hi) if diameter_range is not None else (lo + hi) / 2.1
+    area_ratio = a_half / (np.pi * (0.5 * dref) ** 2)
+    merged = (elong > max_elongation) & (area_ratio > 1.4)
+    reason[(reason == "") & merged] = "merged"
+    reason[(reason == "") & (elong > max_elongation)] = "not_round"
+    reason[(reason == "") & (diam < lo)] = "too_small"
+    reason[(reason == "") & (diam > hi)] = "too_large"
+    good = reason == ""
+    if np.any(good):
+        cref = float(np.median(peak[good]))
+        reason[good & (peak < min_relative_contrast * cref)] = "low_contrast"
+    bad = reason != ""
+    if np.any(bad):
+        rec = _records(cxy[bad], diam[bad], peak[bad], "")
+        rec["reason"] = reason[bad]
+        rejects.append(rec)
+    good = reason == ""
+    if not np.any(good):
+        return _empty(noise, _concat(rejects))
+
+    # 3. sub-pixel centroid of normalised darkness in a soft circular window
+    g = np.flatnonzero(good)
+    d_g = dark[g]
+    d_g = np.where(other[g], 0.0, d_g)
+    if centroid_threshold > 0:
+        d_g = np.maximum(d_g - centroid_threshold * peak[g][:, None, None], 0.0)
+    rw = 0.5 * diam[g] + window_margin
+    c = np.stack([mx[g], my[g]], axis=1)  # relative to the patch centre pixel
+    for _ in range(max(1, iterations)):
+        rr = np.hypot(xx[None] - c[:, 0, None, None], yy[None] - c[:, 1, None, None])
+        win = np.clip(rw[:, None, None] + 0.5 - rr, 0.0, 1.0)
+        wgt = d_g * win
+        s = wgt.sum((1, 2))
+        c = np.stack([(wgt * xx).sum((1, 2)) / s, (wgt * yy).sum((1, 2)) / s], axis=1)
+    # noise-limited precision: var(cx) = sigma_rel^2 sum(win (x - cx)^2) / s^2
+    sigma_rel = noise / np.maximum(np.median(bg_plane[g], axis=(1, 2)), 1e-12)
+    prec = sigma_rel * np.sqrt((win * ((xx[None] - c[:, 0, None, None]) ** 2)).sum((1, 2))) / np.abs(s)
+    centres = ci[g].astype(float) + c
+    ok = np.all(np.isfinite(centres), axis=1)
+    if not np.all(ok):
+        rejects.append(_records(cxy[g][~ok], diam[g][~ok], peak[g][~ok], "low_contrast"))
+    q = np.sqrt(l2 / np.maximum(l1, 1e-12))[g]
+    order = np.lexsort((centres[ok, 0], centres[ok, 1]))
+    return Detections(
+        centres=centres[ok][order],
+        diameter=diam[g][ok][order],
+        contrast=peak[g][ok][order],
+        quality=q[ok][order],
+        precision=prec[ok][order],
+        rejects=_concat(rejects),
+        noise=noise,
+    )
+
+
+def _smooth3(a: np.ndarray) -> np.ndarray:
+    """3x3 box mean over the last two axes (edges replicated)."""
+    p = np.pad(a, ((0, 0), (1, 1), (1, 1)), mode="edge")
+    s = sum(p[:, i : i + a.shape[1], j : j + a.shape[2]] for i in range(3) for j in range(3))
+    return s / 9.0
+
+
+def _annulus_plane(patch, exclude, xx, yy, r_in, r_out) -> np.ndarray:
+    """Robust plane fit ``B = a + b x + c y`` to an annulus of each patch; returns B on the patch grid."""
+    rr = np.hypot(xx, yy)
+    ring = (rr[None] >= np.asarray(r_in)[:, None, None]) & (rr[None] <= r_out) & ~exclude
+    A = np.stack([np.ones_like(xx), xx, yy], axis=-1).reshape(-1, 3)  # (P*P, 3)
+    AA = (A[:, :, None] * A[:, None, :]).reshape(-1, 9)
+    n = patch.shape[0]
+    flat = patch.reshape(n, -1)
+    ring_f = ring.reshape(n, -1)
+    w = ring_f.astype(float)
+    coef = np.zeros((n, 3))
+    for it in range(3):
+        AtA = (w @ AA).reshape(n, 3, 3) + 1e-9 * np.eye(3)
+        Atb = (w * flat) @ A
+        coef = np.linalg.solve(AtA, Atb[..., None])[..., 0]
+        if it == 2:
+            break
+        # robust: drop annulus pixels more than 3 MAD from the plane (texture, neighbours)
+        res = np.abs(flat - coef @ A.T)
+        rabs = np.where(ring_f, res, np.nan)
+        mad = np.nanmedian(rabs, axis=1) * 1.4826 + 1e-9
+        w = (ring_f & (res <= 3.0 * mad[:, None])).astype(float)
+    return (coef @ A.T).reshape(patch.shape)
+
+
+def _glare_blobs(image: np.ndarray, sat: float) -> np.ndarray:
+    m = (image >= sat).astype(np.uint8)
+    n, _, stats, cents = cv2.connectedComponentsWithStats(m, connectivity=8)
+    if n <= 1:
+        return np.zeros(0, REJECT_DTYPE)
+    area = stats[1:, cv2.CC_STAT_AREA]
+    big = area >= 4
+    return _records(cents[1:][big], 2 * np.sqrt(area[big] / np.pi), np.nan, "glare")
+
+
+def _records(xy, diam, contrast, reason) -> np.ndarray:
+    xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+    rec = np.zeros(xy.shape[0], REJECT_DTYPE)
+    rec["x"], rec["y"] = xy[:, 0], xy[:, 1]
+    rec["diameter"] = diam
+    rec["contrast"] = contrast
+    rec["reason"] = reason
+    return rec
+
+
+def _concat(parts: list[np.ndarray]) -> np.ndarray:
+    return np.concatenate(parts) if parts else np.zeros(0, REJECT_DTYPE)
