@@ -348,12 +348,16 @@ def _sec_parameters(ctx: _Context, rep: _Report) -> str:
         out.append(_table(["parameter", "value", "std. error", "rel. error (%)", "unit", "identifiability"], tab,
                           numeric={1, 2, 3}))
         if isinstance(flags, dict):
-            other = {k: v for k, v in flags.items() if k not in names}
+            notes = [f"{k}: {v}" for k, v in flags.items() if k not in names]
+        elif isinstance(flags, str):
+            notes = [flags] if flags else []
         else:
-            other = {"flags": flags}
-        if other:
-            out.append("<p>Flags: " + "; ".join(f'<span class="flag">{html.escape(str(k))}</span>: '
-                                                f"{html.escape(str(v))}" for k, v in other.items()) + "</p>")
+            notes = [str(v) for v in flags]
+        if notes:
+            out.append("<p>Identifiability and fit warnings:</p><ul>" + "".join(
+                f'<li class="flag">{html.escape(n)}</li>' for n in notes) + "</ul>")
+        elif not flags:
+            out.append("<p>No identifiability or fit warning.</p>")
         if len(names) > 1:
             fig = figures.correlation_matrix(r)
             if fig is not None:

@@ -238,7 +238,7 @@ def _vw_arrays(result: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray, list[
     """ivw, evw as (n_fields, n_steps) J, and the field names."""
     a = result["arrays"]
     ivw, evw = np.atleast_2d(np.asarray(a["ivw"], float)), np.atleast_2d(np.asarray(a["evw"], float))
-    names = [str(n) for n in a.get("field_names", a.get("virtual_fields", []))]
+    names = [str(n) for n in a.get("field_names", result["attrs"].get("field_names", a.get("virtual_fields", [])))]
     if names and ivw.shape[0] != len(names) and ivw.shape[1] == len(names):
         ivw, evw = ivw.T, evw.T
     if len(names) != ivw.shape[0]:
@@ -277,19 +277,20 @@ def stress_strain(strain: Mapping[str, np.ndarray], laplace: Mapping[str, np.nda
     fig = _figure(9.0, 3.8)
     axes = fig.subplots(1, 2)
     for ax, (e, s, name) in zip(axes, (("E11", "s11", "circumferential"), ("E22", "s22", "axial"))):
-        for g, lam in enumerate(np.unique(np.round(stretch, 4))):
+        groups = np.unique(np.round(stretch, 4))
+        for g, lam in enumerate(groups):
             sel = np.flatnonzero(np.round(stretch, 4) == lam)
             sel = sel[np.argsort(strain[e][sel])]
-            tag = f", λz {lam:.3f}"
+            label = "reference" if len(sel) == 1 and lam == 1.0 else f"Laplace law, λz {lam:.3f}"
             ax.plot(strain[e][sel] * 100, laplace[s][sel] / 1e3, ls="none", color="k", mfc="none",
-                    marker="os^vD"[g % 5], label="Laplace law" + tag)
-            for j, (label, st) in enumerate(models.items()):
+                    marker="*" if label == "reference" else "os^vD"[g % 5], label=label)
+            for j, (model, st) in enumerate(models.items()):
                 ax.plot(strain[e][sel] * 100, st[s][sel] / 1e3, "-", color=f"C{j}", marker=".",
-                        label=f"{label}{tag}" if g == 0 or len(models) < 3 else None)
+                        label=model if g == len(groups) - 1 else None)
         ax.set_xlabel(f"{name} strain {e} (%)")
         ax.set_ylabel(f"{name} Cauchy stress (kPa)")
         ax.grid(alpha=0.3)
-        ax.legend()
+        ax.legend(fontsize=7)
         ax.set_title(f"{name.capitalize()} direction")
     fig.suptitle("Stress–strain at mid-span: identified models vs Laplace-law estimates")
     return fig
