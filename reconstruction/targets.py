@@ -93,7 +93,7 @@ class BoardSpec:
         if self.kind == "charuco":
             return self.columns * self.square_size, self.rows * self.square_size
         if self.kind == "acircles":
-            return (2 * self.columns) * self.square_size, (self.rows + 1) * self.square_size
+            return (2 * self.columns + 1) * self.square_size, (self.rows + 1) * self.square_size
         return (self.columns + 1) * self.square_size, (self.rows + 1) * self.square_size
 
     def object_points(self) -> np.ndarray:
