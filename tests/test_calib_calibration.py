@@ -166,3 +166,19 @@ def test_real_stereo_corner_spacing(stereo):
     assert abs(err.mean()) < 0.002
     assert err.std() < 0.0082
     assert np.abs(err).max() < 0.047
+
+
+def test_reversed_point_order_resolved(charuco):
+    """Chessboard-like targets may be numbered from either end, differently per camera: resolve_flips fixes it."""
+    cams, views, det, res = charuco
+    names, uv, obj = detections_to_arrays(det, SPEC)
+    seen = np.isfinite(uv).all(-1).sum(-1) >= 6
+    shared = np.argwhere(seen & (seen.sum(0) >= 2)[None, :])
+    flipped = shared[::3]  # every third (camera, view) of the shared views
+    uv2 = uv.copy()
+    for c, v in flipped:
+        uv2[c, v] = uv[c, v, ::-1]
+    res2 = calibrate_cameras(uv2, obj, [c.image_size for c in cams], names, fix_k3=True, resolve_flips=True)
+    assert res2.n_outliers == res.n_outliers and res2.rms_total == pytest.approx(res.rms_total, rel=1e-6)
+    for a, b in zip(res2.cameras, res.cameras):
+        np.testing.assert_allclose(a.K, b.K, atol=1e-3)

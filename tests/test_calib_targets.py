@@ -57,3 +57,8 @@ def test_object_points_and_validation():
         BoardSpec(dictionary="DICT_9X9_1")
     with pytest.raises(TargetError, match=r"\(H, W\)"):
         detect_board(np.zeros((2, 3, 4, 5)), ch)
+
+
+def test_charuco_object_points_match_opencv():
+    spec = BoardSpec("charuco", 7, 5, 4e-3, 3e-3)
+    np.testing.assert_allclose(spec.object_points(), spec.charuco_board().getChessboardCorners(), atol=1e-9)
