@@ -77,6 +77,11 @@ class CalibrationResult:
     message : str
     initial_rms : ndarray, shape (n_cams,)
         Per-camera RMS of the independent ``cv2.calibrateCamera`` initialisations, px.
+    parameter_std : ndarray, shape (n_cams, 15)
+        Standard deviations of (fx, fy, cx, cy [px], k1, k2, p1, p2, k3, rvec [rad], tvec [m]) of
+        each camera from the final solve's covariance ``s^2 (J^T J)^-1`` (NaN for fixed parameters;
+        it assumes independent pixel noise, so it is a lower bound when residuals are correlated).
+        Pose uncertainties refer to the adjustment gauge (the reference camera fixed).
     """
 
     cameras: list[Camera]
@@ -91,9 +96,10 @@ class CalibrationResult:
     converged: bool
     message: str
     initial_rms: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    parameter_std: np.ndarray = field(default_factory=lambda: np.zeros((0, _N_CAM)))
 
     def summary(self) -> list[dict]:
-        """One row per camera: name, views used, RMS (px), fx, fy, cx, cy."""
+        """One row per camera: name, views used, RMS (px), fx, fy, cx, cy and their standard deviations (px)."""
         rows = []
         for i, c in enumerate(self.cameras):
             rows.append(
@@ -105,6 +111,8 @@ class CalibrationResult:
                     fy=float(c.K[1, 1]),
                     cx=float(c.K[0, 2]),
                     cy=float(c.K[1, 2]),
+                    **{f"{k}_std": float(self.parameter_std[i, j]) if self.parameter_std.shape[0] > i else float("nan")
+                       for j, k in enumerate(("fx", "fy", "cx", "cy"))},
                 )
             )
         return rows
@@ -392,6 +400,7 @@ def calibrate_cameras(
         sol = _bundle_adjust(x_cam, x_view, cam_free, ci, vmap[vi], obj[vi, pi], uv[ci, vi, pi], loss if rnd == 0 else "linear", f_scale)
         x_cam, x_view = sol["cam"], sol["view"]
         converged, message = sol["success"], sol["message"]
+        cam_std = sol["cam_std"]
         res = _project(x_cam, x_view, ci_all, vmap[vi_all], obj[vi_all, pi_all]) - uv[ci_all, vi_all, pi_all]
         norm = np.linalg.norm(res, axis=-1)
         s = 1.4826 * np.median(norm[inlier])
@@ -443,6 +452,7 @@ def calibrate_cameras(
         converged=bool(converged),
         message=str(message),
         initial_rms=np.array(init_rms),
+        parameter_std=cam_std,
     )
 
 
@@ -535,7 +545,20 @@ def _bundle_adjust(x_cam, x_view, cam_free, ci, vi, X, uv, loss, f_scale):
         max_nfev=200,
     )
     cam, view = unpack(sol.x)
-    return dict(cam=cam, view=view, success=sol.status > 0, message=sol.message, cost=sol.cost)
+    # standard deviations of the camera parameters from the Gauss-Newton covariance s^2 (J^T J)^-1
+    cam_std = np.full((n_cams, _N_CAM), np.nan)
+    dof = 2 * n_obs - x0.size
+    if dof > 0:
+        J = jac(sol.x)
+        JtJ = J.T @ J
+        JtJ = JtJ.toarray() if sp.issparse(JtJ) else np.asarray(JtJ)
+        s2 = float(np.sum(fun(sol.x) ** 2)) / dof
+        try:
+            cov_diag = np.diag(np.linalg.inv(JtJ))[:n_cf]
+            cam_std.ravel()[cam_idx] = np.sqrt(np.clip(cov_diag * s2, 0, None))
+        except np.linalg.LinAlgError:
+            log.warning("bundle adjustment: singular normal matrix; parameter uncertainties unavailable")
+    return dict(cam=cam, view=view, success=sol.status > 0, message=sol.message, cost=sol.cost, cam_std=cam_std)
 
 
 def reprojection_errors(cameras: list[Camera], board_rvecs, board_tvecs, image_points, object_points) -> np.ndarray:

@@ -53,6 +53,13 @@ def test_charuco_calibration_recovers_truth(charuco):
     assert res.rms.shape == (4,) and res.rms_per_view.shape == (4, 24)
     assert res.n_outliers <= 0.01 * res.n_observations
     assert res.n_observations > 1000
+    # reported uncertainties are honest: intrinsic errors within a few standard deviations
+    std = res.parameter_std
+    assert std.shape == (4, 15) and np.isnan(std[0, 9:]).all() and np.isnan(std[:, 8]).all()  # gauge, fixed k3
+    for a, b, sd in zip(res.cameras, cams, std):
+        err = np.array([a.K[0, 0] - b.K[0, 0], a.K[1, 1] - b.K[1, 1], a.K[0, 2] - b.K[0, 2], a.K[1, 2] - b.K[1, 2]])
+        assert (np.abs(err) < 4 * sd[:4]).all()  # measured |err| / std <= 2.1
+        assert (sd[:4] < 5).all()  # px
     est = _aligned(res, views)
     for a, b in zip(est, cams):
         np.testing.assert_allclose(np.diag(a.K)[:2], np.diag(b.K)[:2], rtol=2e-3)  # measured <= 0.07 %
