@@ -281,7 +281,7 @@ def _marker_coverage(
     cu = origin[:, 0, None, None] + k[None, None, :]
     cv = origin[:, 1, None, None] + k[None, :, None]
     cu, cv = np.broadcast_arrays(cu, cv)
-    o_c, d_c = _camera_rays(camera, window, undistort_grid(camera, cu, cv))
+    g = undistort_grid(camera, cu, cv)
     # bilinear interpolation to ss x ss samples per pixel: (n, size, size, ss, ss, 3)
     f = (np.arange(ss) + 0.5) / ss
     fy = f[:, None, None]
@@ -296,9 +296,13 @@ def _marker_coverage(
             + g11[:, :, :, None, None] * (fy * fx)
         )
 
-    d = interp(d_c)
-    o = interp(o_c) if window is not None else None
-    x, y, z = d[..., 0], d[..., 1], d[..., 2]
+    if window is None:  # central projection: directions (x, y, 1)
+        xy = interp(g)
+        x, y, z, o = xy[..., 0], xy[..., 1], 1.0, None
+    else:
+        o_c, d_c = rays_in_water(camera, window, g)
+        d, o = interp(d_c), interp(o_c)
+        x, y, z = d[..., 0], d[..., 1], d[..., 2]
     M = camera.to_camera(centres)  # (n, 3)
     Mx, My, Mz = (M[:, i, None, None, None, None] for i in range(3))
     if o is not None:
