@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import signal
+import threading
 import time
 
 import click
@@ -60,10 +62,25 @@ def command(use_socket, manual, pressure_mmhg, stretch, load_cell_measures, seed
             console.print(f"\ntry:  vfmlab monitor --pressure {rig.pressure_port} "
                           f"--load-cell {rig.load_cell_port}\n\nCtrl-C to stop.")
         t_end = None if duration is None else time.monotonic() + duration
+        previous = _stop_on_sigterm()
         try:
             while t_end is None or time.monotonic() < t_end:
                 time.sleep(0.05 if t_end is not None else 0.5)
         except KeyboardInterrupt:
             pass
+        finally:
+            if previous is not None:
+                signal.signal(signal.SIGTERM, previous)
     if not as_json:
         console.print("simulated instruments stopped")
+
+
+def _stop_on_sigterm():
+    """Make SIGTERM stop the simulators cleanly (like Ctrl-C); returns the previous handler."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+
+    def handler(signum, frame):
+        raise KeyboardInterrupt
+
+    return signal.signal(signal.SIGTERM, handler)
