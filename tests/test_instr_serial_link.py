@@ -91,3 +91,43 @@ def test_an_open_pyserial_port_can_be_injected():
         with open_load_cell(port) as f:
             assert f.read().unit == "N"
         assert not port.is_open
+
+
+# -- through the whole driver: random replies give a reading or a typed error; cut replies time out ----
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+from acquisition import InstrumentError, Mark10ForceGauge, MensorPressure  # noqa: E402
+
+M_OPEN = [(b"ID?\r\n", b" MENSOR, CPG2500, 1, 1.00\r\n"), (b"Units?\r\n", b" mmHg\r\n"), (b"Ptype?\r\n", b" GAUGE\r\n")]
+K_OPEN = [(b"LIST\r\n", b"V1.00;N;CUR;FLTC8;FLTP1;B0\r\n"), (b"RM\r\n", b"M5-20\r\n"), (b"RS\r\n", b"1\r\n"),
+          (b"RV\r\n", b"1.00\r\n")]
+
+
+def _driver(kind, reply):
+    if kind == "mensor":
+        port = ScriptedPort(M_OPEN + [(b"?\r\n", reply), (b"Error?\r\n", b" NO ERROR\r\n")])
+        return MensorPressure(SerialLink(port, name="m", timeout=0.01), retries=0)
+    port = ScriptedPort(K_OPEN + [(b"?\r\n", reply)])
+    return Mark10ForceGauge(SerialLink(port, name="k", timeout=0.01), retries=0)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.sampled_from(["mensor", "mark10"]), st.binary(max_size=30))
+def test_random_replies_through_the_driver(kind, body):
+    dev = _driver(kind, body + b"\r\n")
+    try:
+        r = dev.read()
+    except InstrumentError:
+        return
+    assert np.isfinite(r.value)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.sampled_from([("mensor", b" +1.234560E+02\r\n"), ("mark10", b"-18.78 lbF\r\n")]),
+       st.integers(min_value=1, max_value=12))
+def test_replies_cut_before_the_terminator_time_out(case, cut):
+    kind, full = case
+    dev = _driver(kind, full[: min(cut, len(full) - 2)])
+    with pytest.raises(InstrumentTimeout):
+        dev.read()
