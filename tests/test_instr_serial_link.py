@@ -8,7 +8,7 @@ import pytest
 from acquisition import Disconnected, GarbledReply, InstrumentTimeout, find_port_by_serial, open_pressure
 from acquisition.serial_link import SerialLink
 from rig_sim.instruments import SimulatedRig
-from tests.instr_scripted_port import ScriptedPort
+from instr_scripted_port import ScriptedPort
 
 
 def test_stale_input_is_flushed_before_a_query():
