@@ -53,7 +53,7 @@ def rendered():
     res = reconstruct_series(images, calib.cameras, settings)
     centres = res.centres @ R.T + t
     positions = res.positions @ R.T + t
-    return cams, calib, frames, res, centres, positions
+    return cams, calib, frames, res, centres, positions, images, (R, t)
 
 
 def test_calibration_is_good(rendered):
@@ -62,7 +62,7 @@ def test_calibration_is_good(rendered):
 
 
 def test_identity_completeness_and_accuracy(rendered):
-    cams, calib, frames, res, centres, positions = rendered
+    cams, calib, frames, res, centres, positions, *_ = rendered
     truth = np.array([f.truth.sphere_centres for f in frames])
     surf = np.array([f.truth.surface_points for f in frames])
     gt = cKDTree(truth[0]).query(centres[0])[1]
@@ -93,7 +93,7 @@ def test_identity_completeness_and_accuracy(rendered):
 
 
 def test_hidden_marker_and_missing_camera(rendered):
-    cams, calib, frames, res, centres, positions = rendered
+    cams, calib, frames, res, centres, positions, *_ = rendered
     truth0 = frames[0].truth.sphere_centres
     track = int(np.argmin(np.linalg.norm(centres[0] - truth0[HIDDEN_MARKER], axis=1)))
     assert not res.visible[HIDDEN_STEP, track] and np.isnan(positions[HIDDEN_STEP, track]).all()
@@ -106,7 +106,7 @@ def test_hidden_marker_and_missing_camera(rendered):
 
 def test_specimen_frame(rendered):
     """frame='specimen' puts z on the fitted axis with the origin at the markers' mid-length."""
-    cams, calib, frames, res, centres, positions = rendered
+    cams, calib, frames, res, centres, positions, *_ = rendered
     cyl = fit_cylinder(centres[0])
     z_axis_in_truth = cyl.axis_direction
     assert abs(z_axis_in_truth[2]) > 0.9999  # sanity: truth axis is z
@@ -117,3 +117,56 @@ def test_specimen_frame(rendered):
     fit = fit_cylinder(c0)
     assert abs(abs(fit.axis_direction[2]) - 1) < 1e-8 and np.linalg.norm(fit.axis_point) < 1e-6
     assert abs(0.5 * (c0[:, 2].min() + c0[:, 2].max())) < 1e-9
+
+
+def test_cli_import_images_then_reconstruct(rendered, tmp_path, capsys):
+    """vfmlab import-images (PNG folders + calibration.toml + loads CSV) then vfmlab reconstruct."""
+    import cv2
+
+    from acquisition.session import open_session
+    from reconstruction.calibration_io import cameras_to_toml
+    from vfmlab.cli import main
+
+    cams, calib, frames, res, centres, positions, images, (R, t) = rendered
+    n = 3
+    for k in range(n):
+        for name, img in images[k].items():
+            (tmp_path / "img" / name).mkdir(parents=True, exist_ok=True)
+            cv2.imwrite(str(tmp_path / "img" / name / f"{k}.png"), img)
+    (tmp_path / "calibration.toml").write_text(cameras_to_toml(calib.cameras, units="mm"))
+    (tmp_path / "loads.csv").write_text("step,pressure_kPa,axial_force_N,stretch\n0,0,0.1,1.0\n1,5,0.2,1.02\n2,10,0.3,1.04\n")
+    out = tmp_path / "s.h5"
+    rc = main(["import-images", str(tmp_path / "img"), "--calibration", str(tmp_path / "calibration.toml"),
+               "--loads", str(tmp_path / "loads.csv"), "-o", str(out), "--marker-diameter-mm", "0.4",
+               "--thickness-mm", "1.0"])
+    assert rc == 0, capsys.readouterr().err
+    with open_session(out) as s:
+        assert s.n_steps == n and sorted(s.camera_names) == sorted(c.name for c in cams)
+        assert s.specimen.radius == pytest.approx(0.010, rel=0.03)  # from step-0 markers (3 % bulge)
+        np.testing.assert_allclose(s.steps["pressure"], [0, 5e3, 10e3])
+    rc = main(["reconstruct", str(out), "--frame", "calibration", "--json"])
+    captured = capsys.readouterr()
+    assert rc == 0, captured.err
+    assert '"stored_as": "markers_001"' in captured.out
+    with open_session(out) as s:
+        m = s.latest("markers")
+    a = m["arrays"]
+    assert a["positions"].shape == (n, a["marker_id"].size, 3) and a["visible"].shape == (n, a["marker_id"].size)
+    assert m["units"]["positions"] == "m" and m["parameters"]["marker_diameter_mm"] == 0.4
+    # same tracks as the library run on the same images
+    np.testing.assert_allclose(a["centres"], res.centres[:n], atol=1e-9, equal_nan=True)
+    # the specimen frame puts the axis on z
+    rc = main(["reconstruct", str(out), "--no-store", "--json"])
+    assert rc == 0
+    with open_session(out) as s:
+        assert s.results("markers") == ["markers_001"]
+
+
+def test_cli_errors(rendered, tmp_path, capsys):
+    from vfmlab.cli import main
+
+    rc = main(["reconstruct", str(tmp_path / "missing.h5")])
+    assert rc == 1
+    rc = main(["import-images", str(tmp_path), "--calibration", str(tmp_path / "c.json"), "--loads",
+               str(tmp_path / "l.csv"), "-o", str(tmp_path / "o.h5"), "--marker-diameter-mm", "0.4"])
+    assert rc == 1 and "--calibration must be a .toml" in capsys.readouterr().err
