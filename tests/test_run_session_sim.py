@@ -40,7 +40,15 @@ timeout_s = 20
 stretches = [1.1, 1.2]
 pressures_mmHg = [0, 20, 40, 60, 80, 100, 125, 150]
 """
+# the simulated rig at reduced resolution (the default --sim rig renders 640x480)
+RIG = (ROOT / "examples" / "sim-rig.toml").read_text().replace("width = 640, height = 480", "width = 320, height = 240")
 PLAN = [(b, s, p * MMHG) for b, s in enumerate((1.1, 1.2)) for p in (0, 20, 40, 60, 80, 100, 125, 150)]
+
+
+def _rig(tmp_path):
+    path = tmp_path / "rig.toml"
+    path.write_text(RIG)
+    return str(path)
 
 
 def _env():
@@ -62,7 +70,8 @@ def test_full_session_sigkill_and_resume(tmp_path, capsys):
     out = tmp_path / "s.h5"
     t0 = time.monotonic()
     proc = subprocess.Popen([sys.executable, "-m", "vfmlab", "run", str(proto), "--specimen", str(SPECIMEN),
-                             "--out", str(out), "--sim", "--yes", "--sim-speed", "5", "--no-detect"],
+                             "--out", str(out), "--rig", _rig(tmp_path), "--sim", "--yes", "--sim-speed", "5",
+                             "--no-detect"],
                             env=_env(), cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     try:
         while _n_steps(out) < 6:
@@ -140,8 +149,8 @@ def test_pulled_load_cell_pauses_and_resumes(tmp_path):
             seen["paused"] = True
 
     console = Console(file=io.StringIO(), width=120)
-    outcome = run_session(str(proto), str(SPECIMEN), str(out), sim=True, yes=True, sim_speed=5, console=console,
-                          observer=observer)
+    outcome = run_session(str(proto), str(SPECIMEN), str(out), rig_path=_rig(tmp_path), sim=True, yes=True,
+                          sim_speed=5, console=console, observer=observer)
     assert outcome.status == "complete" and seen["paused"]
     with open_session(out) as s:
         assert s.status == "complete" and s.n_steps == 4
@@ -216,7 +225,8 @@ def test_ctrl_c_pauses_and_quits_resumably(tmp_path, capsys):
                      .replace("[0, 20, 40, 60, 80, 100, 125, 150]", "[0, 50, 100, 150]"))
     out = tmp_path / "c.h5"
     proc = subprocess.Popen([sys.executable, "-m", "vfmlab", "run", str(proto), "--specimen", str(SPECIMEN),
-                             "--out", str(out), "--sim", "--yes", "--sim-speed", "5", "--no-detect"],
+                             "--out", str(out), "--rig", _rig(tmp_path), "--sim", "--yes", "--sim-speed", "5",
+                             "--no-detect"],
                             env=_env(), cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     t0 = time.monotonic()
     try:

@@ -102,7 +102,7 @@ class LiveView:
         return self
 
     def __exit__(self, *exc: object) -> None:
-        self._live.update(render_state(self.state, self.title), refresh=True)
+        self._live.update(render_state(self.state, self.title), refresh=False)
         self._live.stop()
         self._active = False
 

@@ -44,19 +44,19 @@ measures = "wall"
 [[camera]]
 name = "cam0"
 backend = "sim"
-settings = { width = 320, height = 240 }
+settings = { width = 640, height = 480 }
 [[camera]]
 name = "cam1"
 backend = "sim"
-settings = { width = 320, height = 240 }
+settings = { width = 640, height = 480 }
 [[camera]]
 name = "cam2"
 backend = "sim"
-settings = { width = 320, height = 240 }
+settings = { width = 640, height = 480 }
 [[camera]]
 name = "cam3"
 backend = "sim"
-settings = { width = 320, height = 240 }
+settings = { width = 640, height = 480 }
 [safety]
 max_pressure_mmHg = 200
 max_stretch = 1.5
