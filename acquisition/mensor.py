@@ -36,7 +36,12 @@ UNIT_CODES: dict[int, tuple[str, float]] = {
     22: ("kPa", 1.0e3),
     23: ("Pa", 1.0),
 }
-PA_PER_UNIT: dict[str, float] = {name: f for name, f in UNIT_CODES.values()}
+#: Units the driver can *read* (a device left in one of these still converts correctly); only the coded
+#: ones above can be *set*. Water columns at 4 degC, mercury at 0 degC.
+PA_PER_UNIT: dict[str, float] = {name: f for name, f in UNIT_CODES.values()} | {
+    "hPa": 100.0, "MPa": 1.0e6, "mTorr": 101325.0 / 760.0e3, "inHg": 3386.389, "cmHg": 1333.22387415,
+    "inH2O": 249.08891, "cmH2O": 98.0638, "mmH2O": 9.80638, "mH2O": 9806.38,
+}
 CODE_OF_UNIT: dict[str, int] = {name: code for code, (name, _) in UNIT_CODES.items()}
 _UNIT_ALIASES = {name.lower(): name for name in PA_PER_UNIT} | {"mm hg": "mmHg", "mmhg0c": "mmHg",
                                                                  "torr": "Torr", "psig": "psi", "psia": "psi"}

@@ -318,6 +318,9 @@ class Sampler:
         if band_pa <= 0 or dwell_s <= 0:
             raise ValueError(f"band_pa and dwell_s must be > 0; got {band_pa}, {dwell_s}")
         ch = self._ch("pressure")
+        if dwell_s * self.rate_hz >= ch.ring.maxlen:
+            raise ValueError(f"dwell_s={dwell_s} needs {dwell_s * self.rate_hz:.0f} samples at {self.rate_hz} Hz; "
+                             f"the ring buffer holds {ch.ring.maxlen} (raise ring_size)")
         now = self.clock()
         start = now - dwell_s
         with ch.lock:

@@ -30,7 +30,7 @@ from acquisition.instrument_errors import Disconnected, GarbledReply, Instrument
 log = logging.getLogger(__name__)
 
 USB_SERIAL_PREFIX = "usb-serial:"
-_PORT_ERRORS = (serial.SerialException, OSError, termios.error, ValueError, AttributeError, TypeError)
+_PORT_ERRORS = (serial.SerialException, OSError, termios.error, ValueError)
 
 
 def find_port_by_serial(serial_number: str, list_ports: Callable[[], list] | None = None) -> str:
@@ -166,10 +166,18 @@ class SerialLink:
     def _close_quietly(self) -> None:
         port, self.port = self.port, None
         if port is not None:
+            # pyserial's socket:// close() skips closing the socket when shutdown() fails on a dead
+            # connection; close it ourselves so nothing leaks
+            sock = getattr(port, "_socket", None)
             try:
                 port.close()
             except _PORT_ERRORS:  # pragma: no cover - closing a dead port
                 pass
+            if sock is not None:
+                try:
+                    sock.close()
+                except OSError:  # pragma: no cover
+                    pass
 
     @property
     def is_open(self) -> bool:

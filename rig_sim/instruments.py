@@ -144,6 +144,27 @@ class SimulatedRig:
             raise ValueError(f"stretch must be a positive finite number; got {stretch}")
         self.force_model.stretch = float(stretch)
 
+    def set_mechanics(self, mechanics: MechanicsFn) -> None:
+        """Replace the wall-force model ``f(pressure_Pa, stretch) -> N`` (e.g. the exact artery mechanics)."""
+        if not callable(mechanics):
+            raise TypeError(f"mechanics must be callable f(pressure_Pa, stretch) -> N; got {type(mechanics).__name__}")
+        self.force_model.mechanics = mechanics
+
+    @property
+    def setpoint_pa(self) -> float:
+        """The controller's set-point (Pa), as last received over the wire."""
+        return self.mensor.setpoint_pa
+
+    @property
+    def controller_mode(self) -> str:
+        """The controller's mode: ``"STANDBY"``, ``"MEASURE"``, ``"CONTROL"`` or ``"VENT"``."""
+        return self.mensor.mode
+
+    @property
+    def target_pa(self) -> float:
+        """Where the pressure is heading (set-point, vent or operator value), Pa."""
+        return self.plant.target
+
     def true_pressure(self) -> float:
         """Noise-free pressure now (Pa)."""
         return self.plant.pressure()
