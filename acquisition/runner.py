@@ -598,6 +598,7 @@ class SessionRunner:
     def _finalize(self, status: str, error: BaseException | None) -> None:
         """Safe state, always: vent, close cameras, write the status."""
         self._finalizing = True
+        self.state.stable = False
         self._phase("done", f"session {status}")
         try:
             if self.pressure_mode == "controller":

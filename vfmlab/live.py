@@ -132,10 +132,15 @@ class LiveView:
 
 
 class TerminalOperator:
-    """Asks the operator at the terminal (click prompts), with the live view suspended."""
+    """Asks the operator at the terminal (click prompts), with the live view suspended.
 
-    def __init__(self, console: Console, view: LiveView | None = None):
+    ``hand_pressure`` / ``hand_stretch``: optional callables run after the operator confirms
+    (the simulated rig's valve and stage, so ``--sim`` without ``--yes`` behaves like the rig).
+    """
+
+    def __init__(self, console: Console, view: LiveView | None = None, hand_pressure=None, hand_stretch=None):
         self.console, self.view = console, view
+        self.hand_pressure, self.hand_stretch = hand_pressure, hand_stretch
 
     def _suspended(self):
         return self.view.suspend() if self.view is not None else _Null()
@@ -144,11 +149,15 @@ class TerminalOperator:
         with self._suspended():
             click.prompt(f"Set the pressure to {target / MMHG:.1f} mmHg ({target / 1e3:.2f} kPa), then press Enter",
                          default="", show_default=False)
+        if self.hand_pressure is not None:
+            self.hand_pressure(target)
 
     def set_stretch(self, stretch: float) -> None:
         with self._suspended():
             click.prompt(f"Set the axial stretch to L/L0 = {stretch:.3f}, then press Enter", default="",
                          show_default=False)
+        if self.hand_stretch is not None:
+            self.hand_stretch(stretch)
 
     def precondition(self, message: str) -> None:
         with self._suspended():

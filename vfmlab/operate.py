@@ -138,7 +138,7 @@ def _execute(runner_kwargs: dict[str, Any], protocol: Protocol, writer: SessionW
     if yes:
         operator = AutoOperator(set_pressure=bench.operator_pressure, set_stretch=bench.stage)
     else:
-        operator = TerminalOperator(console, view)
+        operator = TerminalOperator(console, view, hand_pressure=bench.operator_pressure, hand_stretch=bench.stage)
     last = {"steps": start_step}
 
     def on_update(state: RunnerState) -> None:
