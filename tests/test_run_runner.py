@@ -233,3 +233,16 @@ def test_imaged_preconditioning_rows_do_not_count_as_protocol_steps(tmp_path):
         np.testing.assert_allclose(st["target_pressure"][:2], 80 * MMHG)
         assert st["stretch"][2:4].tolist() == [1.4, 1.4]
         assert completed_steps(st) == 3
+
+
+def test_calibration_views_are_captured_first(tmp_path):
+    placed = []
+    op = AutoOperator(place_board=lambda k, n: placed.append((k, n)), remove_board=lambda: placed.append("off"))
+    proto = PROTO.replace("[capture]", "[calibration]\nviews = 3\nboard = \"test board\"\n[capture]")
+    runner, rig, cams, _ = _runner(tmp_path, op, proto=proto)
+    assert runner.run() == "complete"
+    assert placed == [(0, 3), (1, 3), (2, 3), "off"]
+    with open_session(tmp_path / "s.h5") as s:
+        assert s.calibration_images("cam1").shape == (3, 12, 16) and s.n_steps == 6
+        kinds = [e["kind"] for e in s.events()]
+        assert kinds.index("calibration_done") < kinds.index("preconditioning_done")
