@@ -42,6 +42,7 @@ from typing import Any, Protocol as _Protocol
 import numpy as np
 
 from acquisition.cameras import Camera, CaptureError, capture_all
+from acquisition.instrument_errors import InstrumentError
 from acquisition.protocol import MMHG, Protocol, SafetyLimits
 
 __all__ = [
@@ -404,7 +405,7 @@ class SessionRunner:
             return
         self._phase("setting", f"axial stretch L/L0 -> {stretch:.3f}")
         if self.stage is not None:
-            self.stage(stretch)
+            self._command("stage", self.stage, stretch)
         else:
             self.operator.set_stretch(stretch)
         self._stretch = stretch
@@ -413,10 +414,29 @@ class SessionRunner:
     def _set_pressure(self, target: float) -> None:
         self._phase("setting", f"pressure -> {target / MMHG:.1f} mmHg")
         if self.pressure_mode == "controller":
-            self.pressure.set_setpoint(target)
-            self.pressure.set_mode("control")
+            self._command("pressure controller", self.pressure.set_setpoint, target)
+            self._command("pressure controller", self.pressure.set_mode, "control")
         else:
             self.operator.set_pressure(target)
+
+    def _command(self, what: str, fn: Callable[..., Any], *args: Any, attempts: int = 3) -> Any:
+        """Send a command to an instrument; on an instrument fault pause until it is back, then retry.
+
+        A command that fails ``attempts`` times while the instruments read fine (the device
+        refuses it) aborts the session.
+        """
+        failures = 0
+        while True:
+            try:
+                return fn(*args)
+            except InstrumentError as exc:
+                failures += 1
+                msg = f"{what}: command failed ({type(exc).__name__}: {exc})"
+                self._warn(msg)
+                self._event("fault", msg)
+                if failures >= attempts and self.sampler.healthy:
+                    raise SessionAborted(f"{what} refuses the command after {failures} attempts: {exc}") from exc
+                self._hold(self.retry_delay_s)  # pauses here while the sampler sees the fault
 
     def _wait_stable(self, target: float) -> None:
         stab = self.protocol.stability
@@ -494,21 +514,21 @@ class SessionRunner:
         if pc.pressure_cycles:
             self._set_stretch(1.0)
             if self.pressure_mode == "controller":
-                self.pressure.set_mode("control")
+                self._command("pressure controller", self.pressure.set_mode, "control")
                 for i in range(pc.pressure_cycles):
                     self.state.message = f"pressure cycle {i + 1}/{pc.pressure_cycles}"
-                    self.pressure.set_setpoint(pc.pressure_max)
+                    self._command("pressure controller", self.pressure.set_setpoint, pc.pressure_max)
                     self._hold(half)
                     if pc.imaged:
                         self._precondition_capture(1.0, pc.pressure_max)
-                    self.pressure.set_setpoint(0.0)
+                    self._command("pressure controller", self.pressure.set_setpoint, 0.0)
                     self._hold(half)
             else:
                 self.operator.precondition(f"Do {pc.pressure_cycles} pressure cycles 0 -> "
                                            f"{pc.pressure_max / MMHG:.0f} mmHg, then continue")
         if pc.stretch_cycles:
             if self.pressure_mode == "controller":
-                self.pressure.set_setpoint(0.0)
+                self._command("pressure controller", self.pressure.set_setpoint, 0.0)
             if self.stage is not None:
                 for i in range(pc.stretch_cycles):
                     self.state.message = f"stretch cycle {i + 1}/{pc.stretch_cycles}"
