@@ -201,6 +201,7 @@ class PortConfig:
     mode : str
         ``"controller"`` (the rig sets pressure, Mensor ``Setpt``) or ``"manual"`` (operator).
     baudrate : int
+        0 = the driver's default (Mensor 9600, Mark-10 115200).
     measures : str
         Load cell only: ``"wall"`` or ``"total"`` (force on the wall alone, or including the
         pressure end-thrust).
@@ -211,7 +212,7 @@ class PortConfig:
     port: str
     serial_number: str = ""
     mode: str = "manual"
-    baudrate: int = 9600
+    baudrate: int = 0
     measures: str = "wall"
     settings: dict = field(default_factory=dict, compare=False)
 
@@ -564,7 +565,7 @@ def _port(t: _Table, is_load_cell: bool) -> PortConfig:
         mode = t.get("mode", "manual", str)
         if mode not in ("controller", "manual"):
             t.fail("mode", f"expected 'controller' or 'manual'; got {mode!r}")
-    baud = t.integer("baudrate", 9600, lo=1)
+    baud = t.integer("baudrate", 0, lo=1)
     settings = t.get("settings", {}, dict)
     t.done()
     return PortConfig(port, serial, mode, baud, measures, dict(settings))

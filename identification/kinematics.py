@@ -16,6 +16,7 @@ results are objective: a rigid rotation of the deformed markers changes nothing.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,6 +25,8 @@ from .errors import DegenerateDataError
 from .mesh import Axis, SurfaceMesh, fit_axis, to_cylindrical, wrap_angle
 
 __all__ = ["Kinematics", "align_steps", "membrane_kinematics", "QUADRATURE"]
+
+log = logging.getLogger(__name__)
 
 # Barycentric quadrature rules on a triangle: (points (n_q, 3), weights (n_q,), summing to 1).
 QUADRATURE = {
@@ -158,14 +161,65 @@ def step_cylindrical(mesh: SurfaceMesh, aligned: np.ndarray):
     return np.array(out_r), np.array(out_t), np.array(out_z), axes
 
 
-def surface_state(mesh: SurfaceMesh, aligned: np.ndarray, quadrature: int = 1) -> SurfaceState:
-    """Cylindrical interpolation of the aligned positions ``(n_steps, n_markers, 3)``."""
+def smooth_cylindrical(mesh: SurfaceMesh, r, theta, z, degree: tuple[int, int]):
+    """Least-squares smoothing of the displacement field of every step.
+
+    Each cylindrical displacement component (r - R, theta - Theta, z - Z) of a step is replaced by
+    its projection on Legendre polynomials of the reference Z (degree ``degree[0]``) times a
+    Fourier series in Theta (``degree[1]`` harmonics), fitted to the observed markers. Noise
+    averages out at the cost of a bias where the true field varies faster than the basis.
+
+    Parameters
+    ----------
+    r, theta, z : ndarray, shape (n_steps, n_markers)
+    degree : (int, int)
+
+    Returns
+    -------
+    r, theta, z : ndarray, shape (n_steps, n_markers); NaN stays NaN.
+    """
+    nz, nt = int(degree[0]), int(degree[1])
+    Z, T, R = mesh.z, mesh.theta, mesh.r
+    ok_ref = mesh.used & np.isfinite(Z)
+    z0 = 0.5 * (np.nanmax(Z[ok_ref]) + np.nanmin(Z[ok_ref]))
+    half = 0.5 * (np.nanmax(Z[ok_ref]) - np.nanmin(Z[ok_ref]))
+    leg = np.polynomial.legendre.legvander(np.nan_to_num((Z - z0) / half), nz)
+    four = [np.ones_like(T)] + [f(k * np.nan_to_num(T)) for k in range(1, nt + 1) for f in (np.cos, np.sin)]
+    basis = np.concatenate([leg * f[:, None] for f in four], axis=1)  # (n_markers, n_basis)
+    out = []
+    for comp, refv, wrap in ((r, R, False), (theta, T, True), (z, Z, False)):
+        d = comp - refv[None]
+        if wrap:
+            d = wrap_angle(d)
+        sm = np.full_like(d, np.nan)
+        for k in range(d.shape[0]):
+            ok = ok_ref & np.isfinite(d[k])
+            if ok.sum() <= basis.shape[1]:
+                raise DegenerateDataError(
+                    f"smoothing with {basis.shape[1]} basis functions needs more observed markers than that; step {k} "
+                    f"has {int(ok.sum())}")
+            coef, *_ = np.linalg.lstsq(basis[ok], d[k, ok], rcond=None)
+            sm[k] = np.where(ok, basis @ coef, np.nan)
+        out.append(refv[None] + sm)
+    return out[0], out[1], out[2]
+
+
+def surface_state(mesh: SurfaceMesh, aligned: np.ndarray, quadrature: int = 1,
+                  smoothing: tuple[int, int] | None = None) -> SurfaceState:
+    """Cylindrical interpolation of the aligned positions ``(n_steps, n_markers, 3)``.
+
+    ``smoothing=(axial degree, circumferential harmonics)`` smooths the displacement field first
+    (``smooth_cylindrical``). Triangles that are inverted in a step (a noisy marker crossed an
+    edge) are excluded from that step like unobserved ones.
+    """
     if quadrature not in QUADRATURE:
         raise ValueError(f"quadrature must be one of {sorted(QUADRATURE)}; got {quadrature}")
     bary, qw = QUADRATURE[quadrature]
     geo = triangle_geometry(mesh)
     tri = mesh.triangles
     r, th, z, axes = step_cylindrical(mesh, aligned)  # (n_steps, n_markers)
+    if smoothing is not None:
+        r, th, z = smooth_cylindrical(mesh, r, th, z, smoothing)
     rv, thv, zv = r[:, tri], th[:, tri], z[:, tri]  # (n_steps, n_tri, 3)
     valid = np.all(np.isfinite(rv) & np.isfinite(thv) & np.isfinite(zv), axis=-1)
     # unwrap the current angles of each triangle relative to its first vertex
@@ -173,10 +227,16 @@ def surface_state(mesh: SurfaceMesh, aligned: np.ndarray, quadrature: int = 1) -
     fill = lambda a: np.where(valid[..., None], a, 0.0)  # noqa: E731
     rv, thv, zv = fill(rv), fill(thv), fill(zv)
     Rv = mesh.r[tri]
+    theta_xi, z_xi = _grad(thv, geo.dinv), _grad(zv, geo.dinv)
+    jac = theta_xi[..., 0] * z_xi[..., 1] - theta_xi[..., 1] * z_xi[..., 0]
+    inverted = valid & ~(jac > 0.05)  # area in (theta, z) shrunk 20-fold or flipped: a marker crossed an edge
+    if inverted.any():
+        log.warning("excluded inverted/collapsed triangles per step: %s", inverted.sum(axis=1).tolist())
+        valid = valid & ~inverted
     return SurfaceState(
         R=Rv @ bary.T, R_xi=_grad(Rv, geo.dinv),
         r=rv @ bary.T, r_xi=_grad(rv, geo.dinv),
-        theta=thv @ bary.T, theta_xi=_grad(thv, geo.dinv), z_xi=_grad(zv, geo.dinv),
+        theta=thv @ bary.T, theta_xi=theta_xi, z_xi=z_xi,
         valid=valid, r_markers=r, theta_markers=th, z_markers=z, axes=tuple(axes), bary=bary, qweight=qw, geometry=geo,
     )
 

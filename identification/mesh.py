@@ -117,10 +117,10 @@ def fit_axis(points: np.ndarray, *, toward: np.ndarray | None = None, initial: A
             _, _, along, r = geometry(x)
             half = max(np.ptp(along) / 2.0, 1e-12)
             basis = np.polynomial.legendre.legvander((along - along.mean()) / half, deg)
-            coef, *_ = np.linalg.lstsq(basis, r, rcond=None)
+            coef = np.linalg.solve(basis.T @ basis, basis.T @ r)
             return r - basis @ coef
 
-        sol = least_squares(residual, np.zeros(4), method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
+        sol = least_squares(residual, np.zeros(4), method="lm", xtol=1e-12, ftol=1e-12, gtol=1e-12)
         d, o, _, r = geometry(sol.x)
         return d, o, r, float(np.sqrt(np.mean(sol.fun**2)))
 

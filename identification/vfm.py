@@ -162,6 +162,7 @@ def prepare(
     n_layers: int = 4,
     quadrature: int = 1,
     toward: np.ndarray | None = None,
+    smoothing: tuple[int, int] | None = None,
 ) -> VFMData:
     """Build the virtual-work balance from measured data.
 
@@ -193,6 +194,9 @@ def prepare(
         In-plane quadrature points per triangle.
     toward : ndarray, shape (3,), optional
         World direction of the load-cell end (default +z).
+    smoothing : (int, int), optional
+        Smooth each step's displacement field on Legendre(Z) x Fourier(Theta) of these degrees
+        before differentiating (for noisy markers; see ``kinematics.smooth_cylindrical``).
     """
     if wall not in WALLS:
         raise ValueError(f"wall must be one of {WALLS}; got {wall!r}")
@@ -207,7 +211,7 @@ def prepare(
         fields = paper_fields(mesh)
     check_fields(fields, mesh)
     aligned, _, _ = align_steps(x, reference)
-    st = surface_state(mesh, aligned, quadrature)
+    st = surface_state(mesh, aligned, quadrature, smoothing)
     geo = st.geometry
     tri = mesh.triangles
     n_steps, n_tri = st.valid.shape
@@ -223,8 +227,9 @@ def prepare(
     # Current-coordinate derivatives of u_theta (d/dtheta) and u_z (d/dz), for the divergence-free extension
     th_xi, z_xi = st.theta_xi, st.z_xi  # (s, t, 2)
     jac = th_xi[..., 0] * z_xi[..., 1] - th_xi[..., 1] * z_xi[..., 0]  # (s, t)
-    if np.any(st.valid & ~(jac > 0)):
-        raise DegenerateDataError("a triangle is inverted or collapsed in some step (check marker identities)")
+    if st.valid.sum() < 0.5 * st.valid.size:
+        raise DegenerateDataError("more than half of the triangles are unobserved or inverted (check marker "
+                                  "identities and noise)")
     jac = np.where(st.valid, jac, 1.0)
     d_theta = (z_xi[None, ..., 1] * u_xi[:, None, :, 1, 0] - z_xi[None, ..., 0] * u_xi[:, None, :, 1, 1]) / jac
     d_z = (-th_xi[None, ..., 1] * u_xi[:, None, :, 2, 0] + th_xi[None, ..., 0] * u_xi[:, None, :, 2, 1]) / jac

@@ -4,11 +4,13 @@ Implements the interfaces of the stage packages; the stage packages never import
 """
 
 from .cameras import camera_ring, look_at
+from .instruments import SimulatedRig
 from .render import MarkerTruth, RenderedFrame, SceneStyle, render_markers
 from .sensor import SensorModel, expose
 from .specimen_geometry import MarkerLayout, SurfaceOfRevolution, deform_cylinder, random_marker_layout
 
 __all__ = [
+    "SimulatedRig",
     "camera_ring",
     "look_at",
     "MarkerTruth",
