@@ -79,7 +79,7 @@ def board_image(spec: BoardSpec, px_per_m: float, margin: float = 1.0) -> tuple[
 
 
 def board_poses(
-    cameras: list[Camera], spec: BoardSpec, n_views: int, *, max_tilt: float = np.deg2rad(25), offset: float = 4e-3, seed: int = 0
+    cameras: list[Camera], spec: BoardSpec, n_views: int, *, max_tilt: float = np.deg2rad(25), offset: float = 7e-3, seed: int = 0
 ) -> tuple[np.ndarray, np.ndarray]:
     """Random board poses near the ring centre, each facing a random direction in the ring plane.
 

@@ -108,17 +108,18 @@ def undistort_grid(camera: Camera, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return out.reshape(np.shape(u) + (2,))
 
 
-def _texture(s: np.ndarray, zeta: np.ndarray, wavelength: float, seed: int) -> np.ndarray:
-    """Smooth random texture (zero mean, unit RMS) of surface coordinates (m)."""
+def _texture(theta: np.ndarray, zeta: np.ndarray, radius: float, wavelength: float, seed: int) -> np.ndarray:
+    """Smooth random texture (zero mean, unit RMS), periodic in ``theta`` (rad); ``zeta`` axial, m."""
     rng = np.random.default_rng(seed)
-    out = np.zeros(np.shape(s), np.float32)
-    k = 10
-    amps = 0
-    for i in range(k):
+    out = np.zeros(np.shape(theta), np.float32)
+    amps = 0.0
+    for _ in range(10):
         lam = wavelength * 2.0 ** rng.uniform(-1.2, 1.5)
         ang = rng.uniform(0, np.pi)
+        m = np.round(2 * np.pi * radius * np.cos(ang) / lam)  # whole waves around the circumference
+        kz = 2 * np.pi * np.sin(ang) / lam
         a = lam**0.7
-        out += a * np.sin((2 * np.pi / lam) * (np.cos(ang) * s + np.sin(ang) * zeta) + rng.uniform(0, 2 * np.pi)).astype(np.float32)
+        out += (a * np.sin(m * theta + kz * zeta + rng.uniform(0, 2 * np.pi))).astype(np.float32)
         amps += a * a / 2
     return out / np.float32(np.sqrt(amps))
 
@@ -158,10 +159,7 @@ def _background(camera: Camera, profile: SurfaceOfRevolution, style: SceneStyle,
     theta = np.arctan2(P[..., 1], P[..., 0])
     r_mean = float(np.mean(profile.r))
     zeta = (z_hit - profile.z_min) / (profile.z_max - profile.z_min) * 0.035
-    tex = _texture(r_mean * theta, zeta, style.texture_wavelength, seed)
-    tex2 = _texture(r_mean * (theta + 2 * np.pi), zeta, style.texture_wavelength, seed)  # seam-free blend
-    wrap = ((theta + np.pi) / (2 * np.pi)).astype(np.float32)
-    tex = tex * (1 - wrap) + tex2 * wrap
+    tex = _texture(theta, zeta, r_mean, style.texture_wavelength, seed)
     nrm = np.stack([np.cos(theta), np.sin(theta), -profile.slope(z_hit)], -1)
     nrm /= np.linalg.norm(nrm, axis=-1, keepdims=True)
     shade = 0.35 + 0.65 * np.clip(-np.sum(nrm * d, -1) / dist_len, 0, 1)
