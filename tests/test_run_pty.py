@@ -14,7 +14,7 @@ import sys
 import time
 
 from acquisition.session import open_session
-from tests.test_run_session_sim import FAST, ROOT, SPECIMEN
+from test_run_session_sim import FAST, ROOT, SPECIMEN
 
 ANSI = re.compile(rb"\x1b\[[0-9;?]*[a-zA-Z]")
 

@@ -10,7 +10,7 @@ from acquisition.cameras import FunctionCamera
 from acquisition.protocol import MMHG, SafetyLimits, parse_protocol
 from acquisition.runner import AutoOperator, SessionRunner, completed_steps
 from acquisition.session import CameraSpec, SessionWriter, SpecimenInfo, open_session
-from tests._run_fakes import FakeRig
+from _run_fakes import FakeRig
 
 PROTO = """
 [preconditioning]
