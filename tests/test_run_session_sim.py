@@ -124,7 +124,8 @@ def test_full_session_sigkill_and_resume(tmp_path, capsys):
             # the only gap is the kill window: last sample logged before the kill .. first after the resume
             gaps = np.diff(t)
             assert t[k] <= t_kill + 0.05 < t[k + 1]
-            assert t_kill - t[k] < 0.5, "samples older than 0.5 s before the kill were lost"
+            # the kill window: samples still in memory (drained every 50 ms, and after each capture)
+            assert t_kill - t[k] < 1.5, f"{ch}: samples {t_kill - t[k]:.2f} s before the kill were lost"
             # elsewhere: contiguous seq (checked above) and no hole in time beyond sampler jitter
             assert np.delete(gaps, k).max() < 0.5, (ch, np.delete(gaps, k).max())
             assert np.median(gaps) == pytest.approx(1 / RATE_HZ, rel=0.2)
