@@ -241,7 +241,8 @@ def _sec_strain(ctx: _Context, rep: _Report) -> str:
     if len(shown) < len(f.positions) - 1:
         out.append(f"<p>{len(shown)} of {len(f.positions) - 1} loaded steps are shown.</p>")
     for comp, name in (("E11", "circumferential"), ("E22", "axial")):
-        fig = figures.surface_maps(f, f.kin[comp], title=f"{comp}: {name} strain", label=f"{comp} (%)", scale=100)
+        fig = figures.surface_maps(f, f.kin[comp], title=f"{comp}: {name} strain", label=f"{comp} (%)", scale=100,
+                                    min_span=0.05)
         out.append(rep.figure(fig, f"strain_{comp}", f"{name.capitalize()} Green–Lagrange strain {comp} at each step "
                                                      "(paper Fig. 3)."))
     return "".join(out)
@@ -261,7 +262,7 @@ def _sec_stress(ctx: _Context, rep: _Report) -> str:
     for name, st in f.stress.items():
         for comp, label in (("s11", "circumferential σθθ"), ("s22", "axial σzz")):
             fig = figures.surface_maps(f, st[comp], title=f"{name} ({st['model']}): {label}",
-                                       label=f"{label} (kPa)", scale=1e-3)
+                                       label=f"{label.split()[1]} (kPa)", scale=1e-3, min_span=0.1)
             out.append(rep.figure(fig, f"stress_{name}_{comp}", f"{label} from {name} ({st['model']})."))
     return "".join(out)
 
