@@ -109,3 +109,15 @@ def test_dask_local_cluster(batch, tmp_path, capsys):
     rows = _rows(summary)
     assert sorted(r["specimen"] for r in rows if r["status"] == "ok") == ["tube-0", "tube-1", "tube-2"]
     assert sum(r["status"] == "failed" for r in rows) == 1
+
+
+def test_reconstruct_failure_skips_identify(tmp_path, capsys):
+    """Without a calibration the reconstruct stage fails; identify is then skipped, not run on stale tracks."""
+    from tests._e2e_data import make_session as make
+
+    bare = make(tmp_path / "bare.h5", with_results=False)
+    (out,) = reprocess([bare], plan_runs(["reconstruct", "identify"], models=["delfino"]))
+    assert not out.ok and not out.results
+    assert "no calibration" in out.errors[0] and "skipped because reconstruct failed" in out.errors[1]
+    assert main(["reprocess", str(bare), "--stages", "identify,reconstruct", "--model", "delfino"]) == 1
+    assert "no calibration" in capsys.readouterr().err

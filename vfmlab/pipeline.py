@@ -128,18 +128,83 @@ def identify_session(path: str | os.PathLike, *, model: str = "fung", wall: str 
         raise StageError(str(exc)) from None
 
 
-def reconstruct_session(path: str | os.PathLike, **settings: Any) -> str:
-    """Reconstruct and track the 3-D markers of a session; store a "markers" result and return its name.
+def reconstruct_session(path: str | os.PathLike, *, marker_diameter_mm: float | None = None, normals: str = "local",
+                        epipolar_px: float = 2.0, max_reprojection_px: float = 1.5, include_superseded: bool = False,
+                        frame: str = "specimen", flip_axis: bool = False, invoked_by: str = "pipeline") -> str:
+    """Reconstruct and track the 3-D markers of a session from its images and latest calibration.
 
-    Delegates to ``vfmlab.cli.cmd_reconstruct.reconstruct_session(path, **settings)``, the function
-    behind ``vfmlab reconstruct``.
+    The same steps and stored arrays as ``vfmlab reconstruct`` with its defaults (a thin version over
+    ``reconstruction.reconstruct_series``): calibrated session cameras, active steps (or all with
+    ``include_superseded``), marker diameter from the rig settings (default 0.4 mm).
+
+    Returns
+    -------
+    Name of the new "markers" result.
     """
+    import inspect
+
     try:
-        from vfmlab.cli.cmd_reconstruct import reconstruct_session as impl  # type: ignore[attr-defined]
-    except ImportError as exc:
-        raise StageUnavailable(f"{path}: the reconstruct stage is not available in this build ({exc})") from None
+        from reconstruction.calibration_io import CalibrationFileError, cameras_from_arrays
+        from reconstruction.pipeline import ReconstructionSettings, reconstruct_series
+    except ImportError as exc:  # pragma: no cover - the reconstruction package ships with vfmlab
+        raise StageUnavailable(f"the reconstruction package is not available: {exc}") from None
     try:
-        return impl(path, **settings)
+        session = open_session(path)
+    except SessionError as exc:
+        raise StageError(str(exc)) from None
+    with session as s:
+        calib = s.latest("calibration")
+        if calib is None:
+            raise StageError(f"{path}: no calibration; run 'vfmlab calibrate {path}' first")
+        try:
+            by_name = {c.name: c for c in cameras_from_arrays(calib["arrays"])}
+        except CalibrationFileError as exc:
+            raise StageError(f"{path}: stored calibration {calib['name']} is unusable ({exc})") from None
+        cams = [by_name[n] for n in s.camera_names if n in by_name]
+        if len(cams) < 2:
+            raise StageError(f"{path}: calibration {calib['name']} covers cameras {sorted(by_name)} but the session "
+                             f"has {s.camera_names}: at least two session cameras must be calibrated")
+        rows = np.arange(s.n_steps) if include_superseded else np.flatnonzero(s.steps["active"])
+        if rows.size == 0:
+            raise StageError(f"{path}: no steps to reconstruct")
+        if marker_diameter_mm is None:
+            marker_diameter_mm = float((s.rig_settings or {}).get("marker_diameter_mm", 0.4))
+        try:
+            settings = ReconstructionSettings(marker_diameter=marker_diameter_mm * 1e-3,
+                                              specimen_radius=s.specimen.radius, normals=normals,
+                                              epipolar_px=epipolar_px, max_reprojection_px=max_reprojection_px)
+        except ValueError as exc:
+            raise StageError(f"{path}: {exc}") from None
+        names = [c.name for c in cams]
+        extra = {}
+        accepted = inspect.signature(reconstruct_series).parameters
+        if "frame" in accepted:
+            extra["frame"] = frame
+        if "axis_sign" in accepted:
+            extra["axis_sign"] = -1 if flip_axis else 1
+        try:
+            res = reconstruct_series(lambda k: {n: s.image(n, int(rows[k])) for n in names}, cams, settings,
+                                     n_steps=int(rows.size), **extra)
+        except ValueError as exc:
+            raise StageError(f"{path}: reconstruction failed: {exc}") from None
+    d = res.diagnostics
+    arrays = {"positions": res.positions, "visible": res.visible, "uncertainty": res.uncertainty,
+              "marker_id": res.marker_id, "step_index": rows.astype(np.int64), "centres": res.centres,
+              "n_views": res.n_views, "reprojection_rms": res.reprojection_rms,
+              "camera_names": np.array(names, dtype=object), "detected": d["detected"], "rejects": d["rejects"],
+              "reject_reasons": np.array(d["reject_reasons"], dtype=object)}
+    if hasattr(res, "world_to_rig"):
+        arrays["world_to_rig"] = res.world_to_rig
+    params = {"marker_diameter_mm": marker_diameter_mm, "calibration": f"session result {calib['name']}",
+              "frame": frame, "flip_axis": flip_axis, "normals": normals, "epipolar_px": epipolar_px,
+              "max_reprojection_px": max_reprojection_px, "include_superseded": include_superseded}
+    attrs = {"tracked_per_step": np.asarray(d["tracked"]).tolist(), "lost_per_step": np.asarray(d["lost"]).tolist(),
+             "swaps_detected": int(np.sum(d["swaps"])), "sigma_px": np.asarray(d["sigma_px"]).tolist(),
+             "invoked_by": invoked_by}
+    try:
+        return write_result(path, "markers", arrays, params, attrs,
+                            units={"positions": "m", "centres": "m", "uncertainty": "m", "reprojection_rms": "px",
+                                   "world_to_rig": "m"})
     except SessionError as exc:
         raise StageError(str(exc)) from None
 

@@ -110,8 +110,7 @@ def process_session(path: str, runs: Sequence[Run], invoked_by: str = "reprocess
             out.errors.append(f"{path}: {run.label()} skipped because reconstruct failed")
             continue
         settings = dict(run.settings)
-        if run.stage == "identify":
-            settings.setdefault("invoked_by", invoked_by)
+        settings.setdefault("invoked_by", invoked_by)
         try:
             name = STAGES[run.stage](path, **settings)
         except (StageError, SessionError) as exc:
