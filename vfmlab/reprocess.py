@@ -151,7 +151,7 @@ def reprocess(paths: Iterable[str | os.PathLike], runs: Sequence[Run], *, worker
               invoked_by: str = "reprocess") -> list[SessionOutcome]:
     """Process every session; returns the outcomes in the order of ``paths`` (duplicates removed).
 
-    ``workers`` > 1 uses a local process pool (spawned processes); ``scheduler`` (a Dask scheduler
+    ``workers`` > 1 uses a local process pool (forkserver processes); ``scheduler`` (a Dask scheduler
     address such as ``tcp://host:8786``) sends one task per session to a dask.distributed cluster.
     """
     paths = _unique_paths(paths)
@@ -167,7 +167,11 @@ def reprocess(paths: Iterable[str | os.PathLike], runs: Sequence[Run], *, worker
     if scheduler:
         _run_dask(paths, runs, scheduler, done, invoked_by)
     elif workers > 1 and len(paths) > 1:
-        ctx = multiprocessing.get_context("spawn")
+        # forkserver: workers fork from a clean single-threaded server that has imported the
+        # pipeline once (fork from this process could inherit held locks; spawn re-imports per worker).
+        ctx = multiprocessing.get_context("forkserver")
+        ctx.set_forkserver_preload(["vfmlab.reprocess", "vfmlab.pipeline", "identification", "reconstruction",
+                                    "acquisition.session"])
         with ProcessPoolExecutor(max_workers=min(workers, len(paths)), mp_context=ctx) as pool:
             futures = {pool.submit(process_session, p, list(runs), invoked_by): p for p in paths}
             for fut in as_completed(futures):
