@@ -19,6 +19,7 @@ Protocol file layout (see ``examples/paper-protocol.toml``)::
     [test]              stretches = [...], pressures_<u> = [...]    (same levels at each stretch)
     [[block]]           stretch, pressures_<u>                      (or explicit blocks)
     [capture]           cameras = ["all"] or names, timeout_s
+    [calibration]       views (board poses captured before the test), board (description)
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ __all__ = [
     "Stability",
     "TestBlock",
     "CaptureSettings",
+    "CalibrationViews",
     "Protocol",
     "PortConfig",
     "CameraConfig",
@@ -117,6 +119,22 @@ class TestBlock:
 
 
 @dataclass(frozen=True)
+class CalibrationViews:
+    """Calibration-board views captured before preconditioning (stored in the session).
+
+    Attributes
+    ----------
+    views : int
+        Number of board poses (0 = none; calibrate from another session or folder).
+    board : str
+        Description of the board for the operator and the record (e.g. "ChArUco 8x6, 4.5 mm").
+    """
+
+    views: int = 0
+    board: str = ""
+
+
+@dataclass(frozen=True)
 class CaptureSettings:
     """Which cameras to capture (``("all",)`` = every camera of the rig) and the timeout, s."""
 
@@ -133,6 +151,7 @@ class Protocol:
     preconditioning: Preconditioning = field(default_factory=Preconditioning)
     stability: Stability = field(default_factory=Stability)
     capture: CaptureSettings = field(default_factory=CaptureSettings)
+    calibration: CalibrationViews = field(default_factory=CalibrationViews)
     description: str = ""
     text: str = field(default="", compare=False, repr=False)
     source: str = field(default="<protocol>", compare=False, repr=False)
@@ -483,8 +502,13 @@ def parse_protocol(data: dict | str, text: str = "", source: str = "<protocol>",
                 t.fail(f"cameras[{i}]", f"expected a camera name (string); got {c!r}")
         cap = CaptureSettings(tuple(cams), t.number("timeout_s", cap.timeout_s, lo=0.0, lo_open=True))
         t.done()
+    calib = CalibrationViews()
+    t = top.table("calibration")
+    if t is not None:
+        calib = CalibrationViews(t.integer("views", 0), t.get("board", "", str))
+        t.done()
     top.done()
-    proto = Protocol(name, tuple(blocks), pre, stab, cap, description, text, source)
+    proto = Protocol(name, tuple(blocks), pre, stab, cap, calib, description, text, source)
     if rig is not None:
         proto.check_against(rig)
     return proto

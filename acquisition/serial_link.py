@@ -126,6 +126,8 @@ class SerialLink:
         spec = self.spec
         if callable(spec) and not isinstance(spec, serial.SerialBase):
             spec = spec()
+            if spec is None:
+                raise Disconnected(f"{self.name}: the port resolver found no device")
         if not isinstance(spec, str):
             raise TypeError(f"{self.name}: port resolver must return a str; got {type(spec).__name__}")
         if spec.startswith(USB_SERIAL_PREFIX):

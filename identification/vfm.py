@@ -354,7 +354,8 @@ def internal_virtual_work(data: VFMData, model: str | Model, parameters) -> np.n
     batched = any(v.ndim > 0 for v in vals.values())
     if batched:
         vals = {k: np.reshape(v, (-1, 1, 1)) for k, v in vals.items()}
-    s11, s22, s12 = pk2_components(model, data.c[..., 0], data.c[..., 1], data.c[..., 2], vals)
+    c = data.c[None] if batched else data.c
+    s11, s22, s12 = pk2_components(model, c[..., 0], c[..., 1], c[..., 2], vals)
     S = np.stack(np.broadcast_arrays(s11, s22, s12), -1)
     if batched:
         return np.einsum("fspc,espc->efs", data.work_density, S)

@@ -56,7 +56,8 @@ class CylinderPrior:
         Unit axis direction (default +z).
     min_facing : float
         Minimum cosine between the outward radial direction and the direction to a camera for the
-        marker to count as visible in it (negative allows grazing views).
+        marker to count as visible in it. Slightly negative: a sphere standing one radius off the
+        wall is still wholly visible a little beyond the limb.
     """
 
     radius: float
@@ -64,7 +65,7 @@ class CylinderPrior:
     half_length: float = np.inf
     axis_point: np.ndarray = field(default_factory=lambda: np.zeros(3))
     axis_direction: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
-    min_facing: float = 0.0
+    min_facing: float = -0.15
 
     def __post_init__(self) -> None:
         if not (self.radius > 0 and self.tolerance > 0):
@@ -163,6 +164,7 @@ def match_views(
     prior: CylinderPrior | None = None,
     min_views: int = 2,
     min_pair_angle_deg: float = 8.0,
+    max_pair_angle_deg: float = 150.0,
     sigma_px: float | None = None,
 ) -> Correspondence:
     """Find which detections in different cameras are the same marker, and triangulate them.
@@ -180,8 +182,10 @@ def match_views(
         Specimen geometry used to discard ghost candidates.
     min_views : int
         Minimum number of views of an accepted point (>= 2).
-    min_pair_angle_deg : float
-        Camera pairs whose optical axes differ by less than this are not used to seed candidates.
+    min_pair_angle_deg, max_pair_angle_deg : float
+        Camera pairs whose optical axes differ by less or more than these are not used to seed
+        candidates (nearly parallel or nearly opposite rays do not fix the depth; opposite
+        cameras cannot both see a marker on an opaque tube anyway).
     sigma_px : float, optional
         Pixel noise for the triangulation covariance (default estimated).
 
@@ -212,7 +216,7 @@ def match_views(
             if len(dets[i]) == 0 or len(dets[j]) == 0:
                 continue
             ang = np.degrees(np.arccos(np.clip(axes[i] @ axes[j], -1, 1)))
-            if ang < min_pair_angle_deg:
+            if ang < min_pair_angle_deg or ang > max_pair_angle_deg:
                 continue
             Rij = Rs[j] @ Rs[i].T
             tij = cameras[j].tvec - Rij @ cameras[i].tvec
@@ -323,7 +327,7 @@ def _select(obs, tri, dets, cameras, gate, min_views, prior, sigma_px) -> list[n
     # whatever their number of views (a ghost that picked up a chance third view must not beat a
     # clean two-view marker)
     typical = float(np.median(tri.reprojection_rms)) if obs.shape[0] else 0.0
-    weak_above = max(4.0 * typical, 0.1 * gate)
+    weak_above = max(4.0 * typical, 0.03 * gate)
 
     def key(nv, rms):
         return (int(rms > weak_above), -nv, rms)

@@ -17,7 +17,7 @@ from scipy.spatial import cKDTree
 from reconstruction.cameras import Camera
 from reconstruction.correspondence import CylinderPrior, match_views, observed_pixels
 from reconstruction.detection import REJECT_REASONS, Detections, detect_markers
-from reconstruction.surface import fit_cylinder, marker_surface_points, surface_normals
+from reconstruction.surface import fit_cylinder, marker_surface_points, specimen_frame, surface_normals
 from reconstruction.tracking import marker_spacing, match_step
 from reconstruction.triangulation import triangulate
 
@@ -26,6 +26,7 @@ __all__ = [
     "StepPoints",
     "SeriesResult",
     "detect_all",
+    "convergence_point",
     "expected_diameter_px",
     "points_from_detections",
     "reconstruct_step",
@@ -125,10 +126,32 @@ def expected_diameter_px(camera: Camera, marker_diameter: float, target: np.ndar
     return float(camera.K[0, 0] * marker_diameter / max(dist, 1e-12))
 
 
+def convergence_point(cameras: list[Camera]) -> np.ndarray:
+    """Least-squares point closest to all optical axes, (3,) m: where the ring looks (any world frame)."""
+    if len(cameras) < 2:
+        return cameras[0].center + 0.1 * cameras[0].R[2] if cameras else np.zeros(3)
+    A = np.zeros((3, 3))
+    b = np.zeros(3)
+    for c in cameras:
+        d = c.R[2]
+        P = np.eye(3) - np.outer(d, d)
+        A += P
+        b += P @ c.center
+    try:
+        return np.linalg.solve(A, b)
+    except np.linalg.LinAlgError:  # all axes parallel
+        return np.mean([c.center + 0.1 * c.R[2] for c in cameras], axis=0)
+
+
 def detect_all(
     images: Mapping[str, np.ndarray], cameras: list[Camera], settings: ReconstructionSettings
 ) -> list[Detections | None]:
-    """Run :func:`detect_markers` on every camera's image (None where a camera has no image)."""
+    """Run :func:`detect_markers` on every camera's image (None where a camera has no image).
+
+    The accepted diameter range per camera follows from the marker diameter and the camera's
+    distance to the point its optical axis shares with the others.
+    """
+    target = convergence_point(cameras)
     out: list[Detections | None] = []
     for cam in cameras:
         img = images.get(cam.name)
@@ -137,7 +160,7 @@ def detect_all(
             continue
         kw = dict(settings.detection)
         if "diameter_range" not in kw:
-            d = expected_diameter_px(cam, settings.marker_diameter)
+            d = expected_diameter_px(cam, settings.marker_diameter, target)
             kw["diameter_range"] = (max(0.45 * d, 2.0), max(1.7 * d, 4.0))
         out.append(detect_markers(img, **kw))
     return out
@@ -152,8 +175,9 @@ def _bootstrap_prior(dets, cameras, settings: ReconstructionSettings, loose: Cyl
     clean = res.triangulation.reprojection_rms <= 4.0 * np.median(res.triangulation.reprojection_rms) + 0.05
     if clean.sum() < 8:
         return loose
+    guess = None if loose is None else loose.axis_direction
     try:
-        cyl = fit_cylinder(res.points[clean])
+        cyl = fit_cylinder(res.points[clean], axis_guess=guess)
     except ValueError:
         return loose
     r, _, z = cyl.cylindrical(res.points[clean])
@@ -173,10 +197,16 @@ def points_from_detections(
 ) -> StepPoints:
     """Correspondence + triangulation of one step's detections (pixel centres per camera)."""
     dets = [np.asarray(d, dtype=float).reshape(-1, 2) for d in detections]
-    if loose_prior is None and settings.specimen_radius is not None:
-        R = settings.specimen_radius + settings.marker_diameter / 2
-        loose_prior = CylinderPrior(radius=R, tolerance=settings.prior_tolerance * R)
+    # without a prior the specimen is found from markers seen in >= 3 views, in any world frame
     prior = _bootstrap_prior(dets, cameras, settings, loose_prior)
+    rho = settings.marker_diameter / 2
+    if settings.specimen_radius is not None:
+        R = settings.specimen_radius + rho
+        if prior is None:
+            log.warning("no specimen found from >= 3-view markers; assuming the axis is the world z axis")
+            prior = CylinderPrior(radius=R, tolerance=settings.prior_tolerance * R)
+        elif loose_prior is None and abs(prior.radius - R) > 0.5 * R:
+            log.warning("fitted marker-centre radius %.3f mm differs from the expected %.3f mm", prior.radius * 1e3, R * 1e3)
     res = match_views(
         dets, cameras, epipolar_px=settings.epipolar_px, max_reprojection_px=settings.max_reprojection_px,
         prior=prior, min_views=2, sigma_px=settings.sigma_px,
@@ -246,6 +276,9 @@ class SeriesResult:
     reprojection_rms : ndarray, shape (n_steps, n_markers)
         px.
     marker_id : ndarray of int, shape (n_markers,)
+    world_to_rig : ndarray, shape (4, 4)
+        Homogeneous transform applied to the calibration-world points to give the returned
+        positions (identity with ``frame="calibration"``).
     diagnostics : dict of ndarray
         ``detected`` (n_steps, n_cameras), ``rejects`` (n_steps, n_cameras, n_reasons) with
         ``reject_reasons``, ``reconstructed``, ``tracked``, ``lost``, ``recovered``,
@@ -260,6 +293,7 @@ class SeriesResult:
     n_views: np.ndarray
     reprojection_rms: np.ndarray
     marker_id: np.ndarray
+    world_to_rig: np.ndarray
     diagnostics: dict
 
 
@@ -282,7 +316,7 @@ def _guided_recovery(pred, lost, step: StepPoints, cameras, settings, gate3d):
         px = cam.project(P)
         fin = np.all(np.isfinite(px), axis=1)
         if step.prior is not None:
-            fin &= _view_cosines(P, step.prior, [cam])[:, 0] >= settings.min_view_cos
+            fin &= step.prior.facing(P, cam)
         d, j = cKDTree(step.detections[c][free]).query(np.where(fin[:, None], px, -1e9), distance_upper_bound=settings.guided_gate_px)
         hit = np.flatnonzero(fin & np.isfinite(d))
         # two lost markers claiming one detection: the closer keeps it
@@ -309,6 +343,8 @@ def track_series(
     axial_ratios: Sequence[float] | None = None,
     progress: Progress | None = None,
     detection_stats: Sequence[Sequence[Detections | None]] | None = None,
+    frame: str = "calibration",
+    axis_sign: int = 1,
 ) -> SeriesResult:
     """Correspondence, triangulation and tracking for a series of steps given detections.
 
@@ -323,12 +359,20 @@ def track_series(
         stretch[k-1]); default estimated from the points.
     progress : callable (step, n_steps, stage), optional
     detection_stats : optional per-step list of Detections (for the diagnostics)
+    frame : {"calibration", "specimen"}
+        Return points in the calibration's world frame, or in the rig frame of decision 0002
+        (z along the fitted specimen axis, origin at the markers' mid-length in the reference
+        step, x towards camera 0); see :func:`reconstruction.surface.specimen_frame`.
+    axis_sign : {1, -1}
+        Orientation of +z with ``frame="specimen"`` (images cannot tell the load-cell end).
 
     Returns
     -------
     SeriesResult
     """
     settings = settings or ReconstructionSettings()
+    if frame not in ("calibration", "specimen"):
+        raise ValueError(f"frame must be 'calibration' or 'specimen'; got {frame!r}")
     n_steps = len(detections)
     if n_steps == 0:
         raise ValueError("detections must contain at least the reference step; got 0 steps")
@@ -420,7 +464,13 @@ def track_series(
         if v.sum() >= 8:
             normals = surface_normals(centres[k, v], method=settings.normals)
             positions[k, v] = marker_surface_points(centres[k, v], rho, normals)
-    return SeriesResult(positions, centres, visible, unc, nv, rms, np.arange(n), diag)
+    T = np.eye(4)
+    if frame == "specimen" and visible[0].sum() >= 6:
+        R, origin = specimen_frame(centres[0], cameras[0].center, axis_sign=axis_sign)
+        T[:3, :3], T[:3, 3] = R, -R @ origin
+        centres = centres @ R.T + T[:3, 3]
+        positions = positions @ R.T + T[:3, 3]
+    return SeriesResult(positions, centres, visible, unc, nv, rms, np.arange(n), T, diag)
 
 
 def reconstruct_series(
@@ -431,6 +481,8 @@ def reconstruct_series(
     n_steps: int | None = None,
     axial_ratios: Sequence[float] | None = None,
     progress: Progress | None = None,
+    frame: str = "calibration",
+    axis_sign: int = 1,
 ) -> SeriesResult:
     """Full reconstruction of a session's images: detection, correspondence, tracking, offset.
 
@@ -441,7 +493,7 @@ def reconstruct_series(
     cameras : list of Camera
     settings : ReconstructionSettings
     n_steps : int, required when ``images`` is a callable
-    axial_ratios, progress : see :func:`track_series`
+    axial_ratios, progress, frame, axis_sign : see :func:`track_series`
 
     Returns
     -------
@@ -463,4 +515,5 @@ def reconstruct_series(
         found = detect_all(get(k), cameras, settings)
         stats.append(found)
         dets.append([d.centres if d is not None else np.zeros((0, 2)) for d in found])
-    return track_series(dets, cameras, settings, axial_ratios=axial_ratios, progress=progress, detection_stats=stats)
+    return track_series(dets, cameras, settings, axial_ratios=axial_ratios, progress=progress, detection_stats=stats,
+                        frame=frame, axis_sign=axis_sign)

@@ -17,7 +17,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial import cKDTree
 
-__all__ = ["CylinderFit", "fit_cylinder", "surface_normals", "marker_surface_points"]
+__all__ = ["CylinderFit", "fit_cylinder", "surface_normals", "marker_surface_points", "specimen_frame"]
 
 log = logging.getLogger(__name__)
 
@@ -31,7 +31,7 @@ class CylinderFit:
     axis_point : ndarray, shape (3,)
         Point of the axis closest to the world origin, m.
     axis_direction : ndarray, shape (3,)
-        Unit direction, oriented with positive world z.
+        Unit direction, oriented so that its largest component is positive.
     radius : float
         m.
     rms : float
@@ -70,8 +70,11 @@ class CylinderFit:
         return rv / np.linalg.norm(rv, axis=1, keepdims=True)
 
 
-def fit_cylinder(points: np.ndarray, *, axis_guess=(0.0, 0.0, 1.0)) -> CylinderFit:
+def fit_cylinder(points: np.ndarray, *, axis_guess=None) -> CylinderFit:
     """Fit a circular cylinder to points ``(n, 3)`` (NaN rows ignored), robust (soft-L1) loss.
+
+    ``axis_guess`` (3,) starts the axis search; by default each principal direction of the
+    points is tried and the best fit kept, so the result does not depend on the world frame.
 
     Raises
     ------
@@ -82,6 +85,14 @@ def fit_cylinder(points: np.ndarray, *, axis_guess=(0.0, 0.0, 1.0)) -> CylinderF
     pts = pts[np.all(np.isfinite(pts), axis=1)]
     if pts.shape[0] < 6:
         raise ValueError(f"fit_cylinder needs at least 6 finite points; got {pts.shape[0]}")
+    if axis_guess is None:
+        _, _, vt = np.linalg.svd(pts - pts.mean(axis=0), full_matrices=False)
+        fits = [_fit_cylinder(pts, v) for v in vt]
+        return min(fits, key=lambda f: f.rms)
+    return _fit_cylinder(pts, axis_guess)
+
+
+def _fit_cylinder(pts: np.ndarray, axis_guess) -> CylinderFit:
     a0 = np.asarray(axis_guess, dtype=float)
     a0 /= np.linalg.norm(a0)
     # parametrise the axis by a tilt (2) relative to a0 and an offset (2) in the plane normal to a0
@@ -108,7 +119,7 @@ def fit_cylinder(points: np.ndarray, *, axis_guess=(0.0, 0.0, 1.0)) -> CylinderF
     scale = max(r0 * 0.01, 1e-9)
     sol = least_squares(resid, np.array([0.0, 0.0, 0.0, 0.0, r0]), loss="soft_l1", f_scale=scale, x_scale=[1e-2, 1e-2, r0, r0, r0])
     a, q = unpack(sol.x)
-    if a[2] < 0:
+    if a[np.argmax(np.abs(a))] < 0:  # deterministic orientation: largest component positive
         a = -a
     q = q - (q @ a) * a
     res = resid(sol.x)
@@ -193,3 +204,41 @@ def marker_surface_points(centres: np.ndarray, marker_radius: float, normals: np
     if normals is None:
         normals = surface_normals(X, **kw)
     return X - marker_radius * normals
+
+
+def specimen_frame(centres: np.ndarray, toward: np.ndarray | None = None, *, axis_sign: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Rig frame of decision 0002 from the reference marker centres.
+
+    z along the fitted specimen axis, origin on the axis at the mid-point of the markers' axial
+    extent, x towards ``toward`` (e.g. camera 0's optical centre) projected on the transverse
+    plane. The axis sign cannot be told from images: z takes the orientation of
+    :func:`fit_cylinder` (largest component positive) times ``axis_sign``.
+
+    Parameters
+    ----------
+    centres : ndarray, shape (n, 3)
+        Marker centres in the calibration's world frame, m (NaN rows ignored).
+    toward : ndarray, shape (3,), optional
+        A point on the +x side (default: +x of the calibration frame).
+    axis_sign : {1, -1}
+
+    Returns
+    -------
+    R : ndarray, shape (3, 3)
+    origin : ndarray, shape (3,)
+        ``X_rig = R @ (X - origin)``.
+    """
+    if axis_sign not in (1, -1):
+        raise ValueError(f"axis_sign must be 1 or -1; got {axis_sign}")
+    cyl = fit_cylinder(centres)
+    a = cyl.axis_direction * axis_sign
+    X = np.asarray(centres, dtype=float)
+    X = X[np.all(np.isfinite(X), axis=1)]
+    z = (X - cyl.axis_point) @ a
+    origin = cyl.axis_point + 0.5 * (z.min() + z.max()) * a
+    d = (np.asarray(toward, dtype=float) - origin) if toward is not None else np.array([1.0, 0.0, 0.0])
+    x = d - (d @ a) * a
+    if np.linalg.norm(x) < 1e-12:
+        x = np.cross(a, [0.0, 1.0, 0.0]) if abs(a[1]) < 0.9 else np.cross(a, [1.0, 0.0, 0.0])
+    x /= np.linalg.norm(x)
+    return np.stack([x, np.cross(a, x), a]), origin

@@ -83,16 +83,22 @@ class ForceModel:
     plant : PressurePlant
         Where the pressure comes from.
     mechanics : callable, optional
-        ``f(pressure_Pa, stretch) -> N``; default :func:`default_mechanics`.
+        ``f(pressure_Pa, stretch) -> N`` wall force; default :func:`default_mechanics`.
     offset_n, drift_n_per_s, noise_n : float
         Additive offset, linear drift since creation, Gaussian noise standard deviation.
+    end_area_m2 : float
+        0 for a cell that reads the wall force; ``pi r_i**2`` (closed cannula of lumen radius ``r_i``) for a
+        cell that reads the total force ``F_wall - p * pi r_i**2`` (docs/decisions/0003-load-cell.md).
     rng : numpy.random.Generator
         Noise source.
     """
 
     def __init__(self, plant: PressurePlant, mechanics: MechanicsFn | None = None, *, offset_n: float = 0.0,
-                 drift_n_per_s: float = 0.0, noise_n: float = 0.002,
+                 drift_n_per_s: float = 0.0, noise_n: float = 0.002, end_area_m2: float = 0.0,
                  rng: np.random.Generator | None = None) -> None:
+        if end_area_m2 < 0:
+            raise ValueError(f"end_area_m2 must be >= 0; got {end_area_m2}")
+        self.end_area_m2 = float(end_area_m2)
         self.plant = plant
         self.mechanics = mechanics or default_mechanics
         self.offset_n = float(offset_n)
@@ -103,8 +109,9 @@ class ForceModel:
         self._t0 = plant.clock()
 
     def true_force(self) -> float:
-        """Noise-free wall force now (N)."""
-        return float(self.mechanics(self.plant.pressure(), self.stretch))
+        """Noise-free force the cell carries now (N): wall force, minus the pressure end-load if any."""
+        p = self.plant.pressure()
+        return float(self.mechanics(p, self.stretch)) - p * self.end_area_m2
 
     def signal(self) -> float:
         """What the load cell sees now (N), before any tare."""

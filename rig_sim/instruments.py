@@ -44,16 +44,24 @@ class SimulatedRig:
         Plant time constant and the instruments' imperfections.
     stable_window_pa : float
         Window of the controller's ``Stable?``.
+    load_cell_measures : {"wall", "total"}
+        "total": the cell sits behind a closed cannula of lumen radius ``cannula_radius_m`` and reads
+        ``F_wall - p * pi * r_i**2`` (docs/decisions/0003-load-cell.md).
     """
 
     def __init__(self, transport: str = "pty", pressure_source: str = "controller", *,
                  mechanics: MechanicsFn | None = None, clock: Callable[[], float] = time.monotonic,
                  rng: np.random.Generator | None = None, tau_s: float = 0.3, pressure_noise_pa: float = 2.0,
                  force_noise_n: float = 0.002, force_offset_n: float = 0.0, force_drift_n_per_s: float = 0.0,
-                 stable_window_pa: float = 20.0, pressure_serial: str = "SIM0001",
+                 stable_window_pa: float = 20.0, load_cell_measures: str = "wall",
+                 cannula_radius_m: float = 1.5e-3, pressure_serial: str = "SIM0001",
                  load_cell_serial: str = "SIM1001", mark10_ack: str | None = None) -> None:
         if pressure_source not in ("controller", "manual"):
             raise ValueError(f"pressure_source must be 'controller' or 'manual'; got {pressure_source!r}")
+        if load_cell_measures not in ("wall", "total"):
+            raise ValueError(f"load_cell_measures must be 'wall' or 'total'; got {load_cell_measures!r}")
+        self.load_cell_measures = load_cell_measures
+        end_area = np.pi * cannula_radius_m**2 if load_cell_measures == "total" else 0.0
         rng = rng if rng is not None else np.random.default_rng(0)
         seeds = rng.integers(0, 2**63 - 1, size=4)
         self.transport = transport
@@ -62,6 +70,7 @@ class SimulatedRig:
         self.plant = PressurePlant(clock, tau_s=tau_s)
         self.force_model = ForceModel(self.plant, mechanics, offset_n=force_offset_n,
                                       drift_n_per_s=force_drift_n_per_s, noise_n=force_noise_n,
+                                      end_area_m2=end_area,
                                       rng=np.random.default_rng(seeds[0]))
         self.mensor = MensorDevice(self.plant, controller=pressure_source == "controller",
                                    rng=np.random.default_rng(seeds[1]), noise_pa=pressure_noise_pa,
@@ -170,8 +179,13 @@ class SimulatedRig:
         return self.plant.pressure()
 
     def true_force(self) -> float:
-        """Noise-free wall force now (N, tension positive), before offset, drift and tare."""
+        """Noise-free force on the cell now (N, tension positive; the wall force, or the total force with
+        ``load_cell_measures="total"``), before offset, drift and tare."""
         return self.force_model.true_force()
+
+    def true_wall_force(self) -> float:
+        """Noise-free wall force now (N), whatever the cell measures."""
+        return float(self.force_model.mechanics(self.plant.pressure(), self.force_model.stretch))
 
     # -- faults ----------------------------------------------------------------------------------
     def _server(self, channel: str) -> DeviceServer:

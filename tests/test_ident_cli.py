@@ -51,7 +51,7 @@ def test_identify_json_and_stored_result(tmp_path, capsys, measures):
 
 def test_identify_table(tmp_path, capsys):
     path = _session(tmp_path)
-    rc = main(["identify", str(path), "--model", "fung", "--ends", "free"])
+    rc = main(["identify", str(path), "--model", "fung", "--ends", "free", "--smooth", "2,1"])
     out = capsys.readouterr().out
     assert rc == 0
     assert "alpha12" in out and "kPa" in out and "identification_001" in out

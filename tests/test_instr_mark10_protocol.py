@@ -8,7 +8,7 @@ from acquisition.instrument_errors import DeviceError, GarbledReply, InstrumentE
 from acquisition.mark10 import (Mark10ForceGauge, decode_line, encode, filter_command, parse_force, parse_list,
                                 unit_command)
 from acquisition.serial_link import SerialLink
-from tests.instr_scripted_port import ScriptedPort
+from instr_scripted_port import ScriptedPort
 
 LBF = 4.4482216152605
 LIST_N = b"V1.00;N;CUR;FLTC8;FLTP1;AOUT00;AOFF5;FULL;MIT;POL;B0\r\n"

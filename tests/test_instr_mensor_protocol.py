@@ -11,7 +11,7 @@ from acquisition.instrument_errors import DeviceError, GarbledReply, InstrumentE
 from acquisition.mensor import (MensorPressure, encode_command, encode_query, is_no_error, parse_choice,
                                 parse_pressure, parse_reply, parse_unit_name, parse_yes_no, PTYPES, MODES)
 from acquisition.serial_link import SerialLink
-from tests.instr_scripted_port import ScriptedPort
+from instr_scripted_port import ScriptedPort
 
 MMHG = 133.322387415
 OPEN = [(b"ID?\r\n", b" MENSOR, CPC6050, 610123, 1.00\r\n"), (b"Units?\r\n", b" mmHg\r\n"),

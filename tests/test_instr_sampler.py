@@ -212,3 +212,14 @@ def test_simulated_rig_exposes_controller_state_and_takes_any_mechanics():
             assert rig.target_pa == pytest.approx(10_000.0, rel=1e-6)
             time.sleep(0.1)
             assert f.read().value == pytest.approx(3.0 + 1.0, abs=0.002)
+
+
+def test_total_force_cell_reads_wall_force_minus_pressure_end_load():
+    with SimulatedRig(rng=np.random.default_rng(2), tau_s=0.01, force_noise_n=0.0, load_cell_measures="total",
+                      cannula_radius_m=2e-3, pressure_source="manual") as rig:
+        rig.set_operator_pressure(16_000.0)
+        rig.set_stretch(1.2)
+        time.sleep(0.1)
+        with open_load_cell(rig.load_cell_port) as f:
+            expected = rig.true_wall_force() - 16_000.0 * np.pi * 2e-3**2
+            assert f.read().value == pytest.approx(expected, abs=0.0015)

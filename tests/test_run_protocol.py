@@ -43,6 +43,7 @@ def test_examples_load_in_si(rig):
     assert (spec.radius, spec.length, spec.thickness) == pytest.approx((0.010, 0.035, 0.0013))
     assert len(rig.cameras) >= 4 and rig.pressure.mode == "controller" and rig.load_cell.measures == "wall"
     assert paper.text.startswith("# The seed paper")
+    assert paper.calibration.views == 24 and "ChArUco" in paper.calibration.board
 
 
 @pytest.mark.parametrize("unit,scale", [("mmHg", MMHG), ("kPa", 1e3), ("Pa", 1.0)])
@@ -81,6 +82,8 @@ BAD = [
     (GOOD.replace("stretch_max = 1.4", "stretch_max = 1.0"), ["[preconditioning].stretch_max", "> 1"]),
     (GOOD.replace("dwell_s = 0.5", "dwell_s = -1"), ["[stability].dwell_s", ">= 0"]),
     (GOOD + "[capture]\ncameras = []\n", ["[capture].cameras", "empty"]),
+    (GOOD + "[calibration]\nviews = -2\n", ["[calibration].views", ">= 0"]),
+    (GOOD + "[calibration]\nviews = 4\npattern = 'x'\n", ["[calibration]", "unknown key", "pattern"]),
     ("[[block]]\nstretch = 1.1\n", ["[[block]] #1 .pressures_mmHg", "missing"]),
     ("[[block\nstretch = 1\n", ["not valid TOML"]),
 ]

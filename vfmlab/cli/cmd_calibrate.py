@@ -46,11 +46,12 @@ def _board_spec(board, squares, square_size_mm, marker_size_mm, dictionary, subp
 
 def _table(result) -> Table:
     t = Table(title="Calibration (joint bundle adjustment)")
-    for col in ("camera", "views", "RMS [px]", "init RMS [px]", "fx", "fy", "cx", "cy", "k1", "k2"):
+    for col in ("camera", "views", "RMS (px)", "init RMS (px)", "fx (px)", "fy (px)", "cx (px)", "cy (px)", "k1", "k2"):
         t.add_column(col, justify="right" if col != "camera" else "left")
     for i, (row, cam) in enumerate(zip(result.summary(), result.cameras)):
         t.add_row(row["camera"], str(row["views"]), f"{row['rms_px']:.3f}", f"{result.initial_rms[i]:.3f}",
-                  f"{row['fx']:.1f}", f"{row['fy']:.1f}", f"{row['cx']:.1f}", f"{row['cy']:.1f}",
+                  f"{row['fx']:.1f}±{row['fx_std']:.1f}", f"{row['fy']:.1f}±{row['fy_std']:.1f}",
+                  f"{row['cx']:.1f}±{row['cx_std']:.1f}", f"{row['cy']:.1f}±{row['cy_std']:.1f}",
                   f"{cam.dist[0]:+.4f}", f"{cam.dist[1]:+.4f}")
     return t
 
