@@ -98,13 +98,15 @@ def detect_markers(
     *,
     diameter_range: tuple[float, float] | None = None,
     threshold_sigma: float = 6.0,
-    min_relative_contrast: float = 0.5,
+    min_darkness: float = 0.3,
+    min_relative_contrast: float = 0.6,
     max_elongation: float = 1.6,
     edge_margin: int = 2,
     saturation: float | None | str = "auto",
-    window_margin: float = 2.5,
+    window_margin: float = 2.0,
     iterations: int = 4,
     centroid_threshold: float = 0.2,
+    background_order: int = 3,
 ) -> Detections:
     """Detect dark circular markers with sub-pixel centres.
 
@@ -117,6 +119,10 @@ def detect_markers(
         candidates (with an absolute search range of 3..80 px).
     threshold_sigma : float
         Candidate threshold in robust sigmas of the top-hat background.
+    min_darkness : float
+        Candidate pixels must be at least this fraction darker than their local upper envelope
+        (morphological closing): 0.3 keeps tissue texture and shading out while black markers
+        (~0.9) pass.
     min_relative_contrast : float
         Reject blobs whose relative darkness is below this fraction of the median of the
         accepted markers (grey debris, shadows).
@@ -131,6 +137,9 @@ def detect_markers(
         Centroid window radius = diameter / 2 + window_margin, px.
     iterations : int
         Window re-centring iterations of the centroid.
+    background_order : int
+        Order (1-3) of the 2-D polynomial fitted robustly to the annulus around each blob as
+        the local illumination x albedo; 3 follows smooth tissue texture best.
     centroid_threshold : float
         Fraction of each blob's peak darkness subtracted before the centroid (weights
         ``max(w - t * peak, 0)``), so that background texture inside the window does not pull
@@ -162,7 +171,10 @@ def detect_markers(
     noise = float(np.median(np.abs(lap - np.median(lap)))) * 1.4826 / np.sqrt(1.25) if lap.size else 0.0
     floor = 0.03 * float(np.median(closed[:: max(1, H // 256), :: max(1, W // 256)]))
     thr = med + max(threshold_sigma * mad, floor)
-    mask = (tophat > thr).astype(np.uint8)
+    # relative darkness against the local upper envelope: markers are nearly black, texture and
+    # shading are not; the absolute threshold keeps noise in dark regions (bath) out
+    rel = tophat / np.maximum(closed, 1e-6 * max(1.0, float(closed.max())))
+    mask = ((tophat > thr) & (rel > min_darkness)).astype(np.uint8)
     n_lab, labels, stats, cents = cv2.connectedComponentsWithStats(mask, connectivity=8)
     areas = stats[1:, cv2.CC_STAT_AREA].astype(float)
     ids = np.arange(1, n_lab)
@@ -208,7 +220,7 @@ def detect_markers(
     own = plab == ids[:, None, None]
     other = (plab != 0) & ~own
     yy, xx = np.meshgrid(off.astype(float), off.astype(float), indexing="ij")
-    bg_plane = _annulus_plane(patch, own | other, xx, yy, r_in=0.5 * np.maximum(bw, bh) + 2.0, r_out=half - 0.5)
+    bg_plane = _annulus_plane(patch, own | other, xx, yy, r_in=0.5 * np.maximum(bw, bh) + 2.0, r_out=half - 0.5, order=background_order)
     with np.errstate(divide="ignore", invalid="ignore"):
         dark = 1.0 - patch / np.maximum(bg_plane, 1e-12)
     dark_s = _smooth3(dark)
@@ -308,19 +320,27 @@ def _smooth3(a: np.ndarray) -> np.ndarray:
     return s / 9.0
 
 
-def _annulus_plane(patch, exclude, xx, yy, r_in, r_out) -> np.ndarray:
+def _annulus_plane(patch, exclude, xx, yy, r_in, r_out, order=1) -> np.ndarray:
     """Robust plane fit ``B = a + b x + c y`` to an annulus of each patch; returns B on the patch grid."""
     rr = np.hypot(xx, yy)
     ring = (rr[None] >= np.asarray(r_in)[:, None, None]) & (rr[None] <= r_out) & ~exclude
-    A = np.stack([np.ones_like(xx), xx, yy], axis=-1).reshape(-1, 3)  # (P*P, 3)
-    AA = (A[:, :, None] * A[:, None, :]).reshape(-1, 9)
+    sc = max(float(r_out), 1.0)
+    u, v = xx / sc, yy / sc
+    terms = [np.ones_like(xx), u, v]
+    if order >= 2:
+        terms += [u * u, u * v, v * v]
+    if order >= 3:
+        terms += [u**3, u * u * v, u * v * v, v**3]
+    A = np.stack(terms, axis=-1).reshape(-1, len(terms))  # (P*P, m)
+    m = A.shape[1]
+    AA = (A[:, :, None] * A[:, None, :]).reshape(-1, m * m)
     n = patch.shape[0]
     flat = patch.reshape(n, -1)
     ring_f = ring.reshape(n, -1)
     w = ring_f.astype(float)
-    coef = np.zeros((n, 3))
+    coef = np.zeros((n, m))
     for it in range(3):
-        AtA = (w @ AA).reshape(n, 3, 3) + 1e-9 * np.eye(3)
+        AtA = (w @ AA).reshape(n, m, m) + 1e-9 * np.eye(m)
         Atb = (w * flat) @ A
         coef = np.linalg.solve(AtA, Atb[..., None])[..., 0]
         if it == 2:
