@@ -477,7 +477,6 @@ def _to_board_frame(cams, brv, btv, k):
 def _bundle_adjust(x_cam, x_view, cam_free, ci, vi, X, uv, loss, f_scale):
     """One least-squares solve; Jacobian by grouped central differences (one group per parameter slot)."""
     n_cams, n_views = x_cam.shape[0], x_view.shape[0]
-    view_free = np.ones((n_views, _N_VIEW), bool)
     cam_idx = np.flatnonzero(cam_free.ravel())
     n_cf = cam_idx.size
     n_obs = ci.size
@@ -496,7 +495,6 @@ def _bundle_adjust(x_cam, x_view, cam_free, ci, vi, X, uv, loss, f_scale):
     col_cam.ravel()[cam_idx] = np.arange(n_cf)
     col_view = n_cf + np.arange(n_views * _N_VIEW).reshape(n_views, _N_VIEW)
     rows = np.arange(2 * n_obs)
-    obs_of_row = rows // 2
 
     def jac(x):
         cam, view = unpack(x)
@@ -529,7 +527,6 @@ def _bundle_adjust(x_cam, x_view, cam_free, ci, vi, X, uv, loss, f_scale):
 
     x0 = np.concatenate([x_cam.ravel()[cam_idx], x_view.ravel()])
     dense = x0.size * 2 * n_obs <= 3e7
-    del obs_of_row
     sol = least_squares(
         fun,
         x0,
