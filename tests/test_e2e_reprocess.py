@@ -100,7 +100,8 @@ def test_dask_local_cluster(batch, tmp_path, capsys):
     distributed = pytest.importorskip("dask.distributed")
     paths, bad = batch
     summary = tmp_path / "dask.csv"
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+    # dashboard on a free port: 8787 may be taken by another cluster on this machine
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
                                   silence_logs=40) as cluster:
         rc = main(["reprocess", *map(str, paths), str(bad), "--model", "delfino", "--scheduler",
                    cluster.scheduler_address, "--summary", str(summary)])
