@@ -76,7 +76,8 @@ def plan_runs(stages: Sequence[str], *, models: Sequence[str] = ("fung",), walls
         if stage == "identify":
             for model in models:
                 for wall in walls:
-                    runs.append(Run("identify", {"model": model, "wall": wall, **(identify_settings or {})}))
+                    extra = {k: v for k, v in (identify_settings or {}).items() if v is not None}
+                    runs.append(Run("identify", {"model": model, "wall": wall, **extra}))
         elif stage == "reconstruct":
             runs.append(Run("reconstruct", dict(reconstruct_settings or {})))
         else:  # pragma: no cover - future stages
