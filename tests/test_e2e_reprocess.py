@@ -143,3 +143,10 @@ def test_identify_stage_matches_identify_command(tmp_path, capsys):
             np.testing.assert_array_equal(stage["arrays"][key], value, err_msg=key)
     for key in ("model", "wall", "cost", "converged", "flags", "field_names"):
         assert stage["attrs"][key] == cli["attrs"][key], key
+
+
+def test_unknown_reconstruct_setting_is_refused(tmp_path, capsys):
+    session = make_session(tmp_path / "s.h5", with_results=False)
+    assert main(["reprocess", str(session), "--stages", "reconstruct", "--set", "epipolar=3"]) == 1
+    err = capsys.readouterr().err
+    assert "unknown ['epipolar']" in err and "epipolar_px" in err

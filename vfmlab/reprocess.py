@@ -9,6 +9,7 @@ identification produced (parameters and standard errors across sessions) plus on
 from __future__ import annotations
 
 import csv
+import inspect
 import logging
 import multiprocessing
 import os
@@ -82,6 +83,12 @@ def plan_runs(stages: Sequence[str], *, models: Sequence[str] = ("fung",), walls
             runs.append(Run("reconstruct", dict(reconstruct_settings or {})))
         else:  # pragma: no cover - future stages
             runs.append(Run(stage, {}))
+    for run in runs:  # unknown settings fail now, not once per session
+        accepted = inspect.signature(STAGES[run.stage]).parameters
+        unknown = sorted(set(run.settings) - set(accepted))
+        if unknown:
+            known = sorted(k for k, p in accepted.items() if p.kind == p.KEYWORD_ONLY and k != "invoked_by")
+            raise ValueError(f"{run.stage} settings must be among {known}; got unknown {unknown}")
     return runs
 
 

@@ -77,10 +77,13 @@ def command(sessions, stages, models, walls, ends, optimizer, smooth, set_pairs,
                 raise ValueError
         except ValueError:
             raise CliError(f"--smooth must be two non-negative integers AXIAL,HARMONICS like 4,2; got {smooth!r}") from None
-    runs = plan_runs(stage_list, models=_split(models, "--model", ("fung", "delfino", "hgo", "neohookean")),
-                     walls=_split(walls, "--wall", ("membrane", "thick")),
-                     identify_settings={"ends": ends, "optimizer": optimizer, "smoothing": smoothing},
-                     reconstruct_settings=_parse_set(set_pairs))
+    try:
+        runs = plan_runs(stage_list, models=_split(models, "--model", ("fung", "delfino", "hgo", "neohookean")),
+                         walls=_split(walls, "--wall", ("membrane", "thick")),
+                         identify_settings={"ends": ends, "optimizer": optimizer, "smoothing": smoothing},
+                         reconstruct_settings=_parse_set(set_pairs))
+    except ValueError as exc:
+        raise CliError(f"--set: {exc}" if set_pairs else str(exc)) from None
     where = f"Dask scheduler {scheduler}" if scheduler else (f"{workers} worker processes" if workers > 1 else "serially")
     if not as_json:
         console.print(f"Reprocessing {len(sessions)} session(s) {where}: " + "; ".join(r.label() for r in runs))
