@@ -107,6 +107,9 @@ class Operator(_Protocol):
     def notify(self, message: str) -> None:
         """Tell the operator something (no answer expected)."""
 
+    def ask_text(self, prompt: str) -> str:
+        """Ask for free text (an operator note)."""
+
 
 class AutoOperator:
     """Unattended operator (``--yes``): accepts defaults, never blocks.
@@ -155,6 +158,9 @@ class AutoOperator:
 
     def notify(self, message: str) -> None:
         self.messages.append(message)
+
+    def ask_text(self, prompt: str) -> str:
+        return ""
 
 
 @dataclass
@@ -569,10 +575,17 @@ class SessionRunner:
         prev = self.state.phase
         self._phase("paused", "paused by the operator")
         self._event("pause", "paused by the operator")
-        options = ["resume", "retake", "quit", "abort"] if self._last_step else ["resume", "quit", "abort"]
-        choice = self.operator.choose("Paused. Resume, retake the last step, quit (resume later) or abort?",
-                                      options)
-        self._event("operator", f"operator chose {choice!r}")
+        options = ["resume", "retake", "note", "quit", "abort"] if self._last_step else \
+            ["resume", "note", "quit", "abort"]
+        while True:
+            choice = self.operator.choose("Paused. Resume, retake the last step, add a note, quit (resume later) "
+                                          "or abort?", options)
+            self._event("operator", f"operator chose {choice!r}")
+            if choice != "note":
+                break
+            text = self.operator.ask_text("Note for the session record")
+            if text:
+                self._event("note", text)
         if choice == "abort":
             raise SessionAborted("aborted by the operator")
         if choice == "quit":

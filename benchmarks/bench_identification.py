@@ -2,6 +2,7 @@
 
     OMP_NUM_THREADS=1 PYTHONPATH=. python benchmarks/bench_identification.py [--quick] [--part timing|thick|noise|all]
 
+flat   : bias of flat chord triangles (the paper taken literally) vs cylindrical interpolation.
 timing : time to identify Fung and HGO on 300 markers x 8 pressure steps (clamped membrane tube from
          rig_sim), prepare (mesh + kinematics) and optimisation separately, lsq vs Nelder-Mead, median of repeats.
 thick  : bias of the membrane form vs the thick-wall forms on rig_sim's exact thick-walled tube.
@@ -75,6 +76,69 @@ def bench_timing(repeats):
             sys.stdout.flush()
 
 
+def flat_chord_data(data, positions):
+    """The paper taken literally: flat chord triangles, Cartesian linear interpolation (for comparison only)."""
+    from dataclasses import replace
+
+    from identification.kinematics import align_steps
+    from identification.virtual_fields import paper_fields
+
+    mesh = data.mesh
+    tri = mesh.triangles
+    ref_local = np.column_stack([mesh.r * np.cos(mesh.theta), mesh.r * np.sin(mesh.theta), mesh.z])
+    aligned, _, _ = align_steps(positions, ref_local @ mesh.axis.basis + mesh.axis.origin)
+    x = (aligned - mesh.axis.origin) @ mesh.axis.basis.T  # specimen frame
+    X = ref_local
+    fields = paper_fields(mesh)
+    er = np.column_stack([np.cos(mesh.theta), np.sin(mesh.theta), np.zeros_like(mesh.theta)])
+    ez = np.array([0.0, 0.0, 1.0])
+    u = np.stack([fields.values[k, :, 0:1] * er + fields.values[k, :, 2:3] * ez for k in range(2)])  # (2, n, 3)
+    E0 = X[tri[:, 1]] - X[tri[:, 0]], X[tri[:, 2]] - X[tri[:, 0]]
+    n0 = np.cross(E0[0], E0[1])
+    area0 = 0.5 * np.linalg.norm(n0, axis=1)
+    n0 /= np.linalg.norm(n0, axis=1, keepdims=True)
+    c = X[tri].mean(1)
+    et = np.column_stack([-c[:, 1], c[:, 0], np.zeros(len(c))])
+    e1 = et - (et * n0).sum(1, keepdims=True) * n0
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    e2 = np.cross(n0, e1)
+    D0 = np.stack([np.stack([(E * e1).sum(1), (E * e2).sum(1)], 1) for E in E0], 2)  # (t, 2, 2)
+    D0inv = np.linalg.inv(D0)
+    D = np.stack([x[:, tri[:, 1]] - x[:, tri[:, 0]], x[:, tri[:, 2]] - x[:, tri[:, 0]]], -1)  # (s, t, 3, 2)
+    F = D @ D0inv
+    C = np.swapaxes(F, -1, -2) @ F
+    du = np.stack([u[:, tri[:, 1]] - u[:, tri[:, 0]], u[:, tri[:, 2]] - u[:, tri[:, 0]]], -1) @ D0inv  # (f, t, 3, 2)
+    G = np.swapaxes(F, -1, -2)[None] @ du[:, None]
+    dE = 0.5 * (G + np.swapaxes(G, -1, -2))
+    dV0 = area0 * data.thickness
+    dens = np.stack([dE[..., 0, 0], dE[..., 1, 1], 2 * dE[..., 0, 1]], -1) * dV0[None, None, :, None]
+    nda = 0.5 * np.cross(D[..., 0], D[..., 1])  # (s, t, 3)
+    uc = u[:, tri].mean(2)  # (f, t, 3)
+    pw = data.pressure[None] * np.einsum("stc,ftc->fs", nda, uc)
+    evw = pw + data.end_work
+    return replace(data, c=np.stack([C[..., 0, 0], C[..., 1, 1], C[..., 0, 1]], -1), work_density=dens, evw=evw,
+                   pressure_work=pw, scale=np.sqrt(np.mean(evw**2, axis=1)))
+
+
+def bench_flat():
+    print("\n## Flat chord triangles (paper taken literally) vs cylindrical interpolation, exact homogeneous data\n")
+    print("| model | markers | flat: max gap at true parameters | flat: identified | cylindrical: identified |")
+    print("|---|---|---|---|---|")
+    from identification import internal_virtual_work
+
+    for model in ("fung", "delfino", "hgo"):
+        for n in (100, 300, 1000):
+            sim = simulate_test(model, params_of(model), clamped=False, n_markers=n)
+            data = prepare(sim.positions, sim.pressure, sim.axial_force, thickness=sim.thickness, ends="free")
+            flat = flat_chord_data(data, sim.positions)
+            gap = (internal_virtual_work(flat, model, params_of(model)) - flat.evw) / flat.scale[:, None]
+            res_flat = identify_prepared(flat, model)
+            res_cyl = identify_prepared(data, model)
+            print(f"| {model} | {n} | {np.abs(gap).max():.2%} | {fmt_err(rel_errors(res_flat, params_of(model)))} | "
+                  f"{fmt_err(rel_errors(res_cyl, params_of(model)))} |")
+            sys.stdout.flush()
+
+
 def bench_thick():
     print("\n## Thick wall (e0/R = 0.13): exact homogeneous thick-walled tube, markers on the outer surface\n")
     print("Relative parameter errors of each form (lsq, paper/generic start).\n")
@@ -143,7 +207,7 @@ def bench_noise(n_seeds, models):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="fewer repeats and seeds (10 instead of 50)")
-    ap.add_argument("--part", choices=["timing", "thick", "noise", "all"], default="all")
+    ap.add_argument("--part", choices=["timing", "flat", "thick", "noise", "all"], default="all")
     ap.add_argument("--seeds", type=int, default=None, help="noise seeds (default 50, --quick 10)")
     ap.add_argument("--models", default=",".join(MODELS), help="models for the noise study")
     ap.add_argument("--data", choices=["clamped", "homogeneous"], default="clamped",
@@ -158,6 +222,8 @@ def main(argv=None):
     print(f"# bench_identification ({'quick' if args.quick else 'full'}, {args.data} data), numpy {np.__version__}")
     if args.part in ("timing", "all"):
         bench_timing(repeats)
+    if args.part in ("flat", "all"):
+        bench_flat()
     if args.part in ("thick", "all"):
         bench_thick()
     if args.part in ("noise", "all"):

@@ -33,6 +33,8 @@ GAP_FOR_FLAGS = 0.01
 #: magnitude) still keeps the balance within ``GAP_FOR_FLAGS`` once the others compensate.
 RESOLUTION_LIMIT = 0.3
 LOG_RANGE = 12.0
+#: Estimated marker noise (m) above which unsmoothed data are flagged.
+NOISY_MARKERS = 0.02e-3
 #: RMS normalised gap below which the balance is considered exact (no further starts are tried).
 EXACT_GAP = 1e-5
 #: Typical magnitude of parameters that may be zero or negative (for the scale of their changes).
@@ -290,10 +292,6 @@ def identify_prepared(
             flags.append(f"{nm} is poorly identifiable: a change of {value:.2g} ({unit}) can be compensated by the "
                          f"other parameters within a {GAP_FOR_FLAGS:.0%} virtual-work gap; do not trust its value"
                          + (" (load at two or more axial stretches to constrain it)" if nm == "alpha12" else ""))
-    for i, j in zip(*np.triu_indices(n, 1)):
-        if abs(corr[i, j]) > 0.995:
-            flags.append(f"{model.parameter_names[i]} and {model.parameter_names[j]} are strongly correlated "
-                         f"({corr[i, j]:+.3f}): the data constrain mostly a combination of them")
     for nm, se in stderr.items():
         if model.positive[model.parameter_names.index(nm)] and se > 0.3 * abs(params[nm]):
             flags.append(f"{nm} is uncertain: standard error {se:.3g} is more than 30 % of its value")
@@ -307,6 +305,13 @@ def identify_prepared(
                      "describe this material or the data are too noisy")
     if not ok:
         flags.append(f"the optimiser did not report convergence: {msg}")
+    if data.smoothing is None and data.marker_noise > NOISY_MARKERS:
+        flags.append(f"the markers look noisy (about {data.marker_noise * 1e3:.2g} mm): per-triangle strains are "
+                     "dominated by noise and the exponential laws by a few triangles; smooth the displacements "
+                     "(smoothing=(4, 2), --smooth 4,2) or measure better")
+    if np.any(data.n_outliers):
+        flags.append(f"{int(np.sum(data.n_outliers))} marker observations disagreed with their neighbours "
+                     "(mis-tracked?) and were ignored")
     return IdentificationResult(
         model=model.name, wall=data.wall, optimizer=optimizer, parameters=params, stderr=stderr, correlation=corr,
         resolution=resolution, flags=tuple(flags), cost=float(cost), residuals=res, ivw=ivw, evw=data.evw.copy(),

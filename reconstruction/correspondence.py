@@ -263,6 +263,7 @@ def match_views(
         col[hit] = idx[hit]
         obs[free, c] = col
     obs = np.unique(obs, axis=0)
+    obs = obs[(obs >= 0).sum(axis=1) >= min_views]
     tri, obs = _triangulate_gated(obs, dets, cameras, max_reprojection_px, min_views, prior, sigma_px)
     n_cand = obs.shape[0]
 

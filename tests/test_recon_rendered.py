@@ -24,7 +24,7 @@ MISSING_CAMERA, MISSING_STEP = "cam4", 5
 @pytest.fixture(scope="module")
 def rendered():
     cams = camera_ring(6, image_size=(1224, 1024), seed=3)
-    rv, tv = board_poses(cams, SPEC, 16, seed=0)
+    rv, tv = board_poses(cams, SPEC, 12, seed=0)
     views = render_board_views(cams, SPEC, rv, tv, seed=0)
     calib = calibrate_from_detections(detect_boards(views.images, SPEC), SPEC, {c.name: c.image_size for c in cams},
                                       fix_k3=True)
@@ -155,11 +155,6 @@ def test_cli_import_images_then_reconstruct(rendered, tmp_path, capsys):
     assert m["units"]["positions"] == "m" and m["parameters"]["marker_diameter_mm"] == 0.4
     # same tracks as the library run on the same images
     np.testing.assert_allclose(a["centres"], res.centres[:n], atol=1e-9, equal_nan=True)
-    # the specimen frame puts the axis on z
-    rc = main(["reconstruct", str(out), "--no-store", "--json"])
-    assert rc == 0
-    with open_session(out) as s:
-        assert s.results("markers") == ["markers_001"]
 
 
 def test_cli_errors(rendered, tmp_path, capsys):

@@ -14,7 +14,7 @@ import sys
 import time
 
 from acquisition.session import open_session
-from tests.test_run_session_sim import FAST, ROOT, SPECIMEN
+from test_run_session_sim import FAST, ROOT, SPECIMEN
 
 ANSI = re.compile(rb"\x1b\[[0-9;?]*[a-zA-Z]")
 
@@ -42,13 +42,25 @@ class Terminal:
     def text(self):
         return ANSI.sub(b"", self.raw).decode("utf-8", "replace")
 
-    def expect(self, pattern, timeout=30):
+    def expect(self, pattern, timeout=30, answer_enter=False):
+        """Wait for ``pattern`` (whitespace-normalised text); optionally press Enter at every new
+        "press Enter" prompt meanwhile (the operator keeps setting pressures)."""
         end = time.monotonic() + timeout
         while time.monotonic() < end:
             self.pump()
-            if re.search(pattern, self.text):
+            if answer_enter:
+                self.answer_enter_prompts()
+            if re.search(pattern, re.sub(r"\s+", " ", self.text)):
                 return
         raise AssertionError(f"no {pattern!r} on the terminal:\n{self.text[-3000:]}")
+
+    answered = 0
+
+    def answer_enter_prompts(self):
+        n = self.text.count("press Enter")
+        for _ in range(n - self.answered):
+            self.send(b"\n")
+        self.answered = max(self.answered, n)
 
     def send(self, data):
         os.write(self.master, data)
@@ -83,18 +95,19 @@ def test_operator_session_on_a_real_terminal(tmp_path):
         term.expect(r"Start the test\? Nothing has moved yet\.\s+Choose \(start, cancel\)")
         term.send(b"start\n")
         term.expect(r"Do 1 pressure cycles 0 -> 80 mmHg")  # manual rig: preconditioning by hand
-        answered = 0
         t0 = time.monotonic()
         while _steps(out) < 2:
             assert time.monotonic() - t0 < 40, term.text[-3000:]
             term.pump(0.05)
-            n = term.text.count("press Enter")
-            for _ in range(n - answered):
-                term.send(b"\n")
-            answered = n
+            term.answer_enter_prompts()
         assert "Set the pressure to 20.0 mmHg (2.67 kPa), then press Enter" in term.text
         term.proc.send_signal(signal.SIGINT)
-        term.expect(r"Paused\. Resume, retake the last step, quit \(resume later\) or abort\?")
+        term.expect(r"Paused\. Resume, retake the last step, add a note, quit \(resume later\) or abort\?",
+                    answer_enter=True)
+        term.send(b"note\n")
+        term.expect(r"Note for the session record")
+        term.send(b"clamp slipped a little\n")
+        term.expect(r"add a note.*add a note", timeout=10)
         term.send(b"quit\n")
         term.proc.wait(30)
         term.pump(0.3)
@@ -107,3 +120,4 @@ def test_operator_session_on_a_real_terminal(tmp_path):
     with open_session(out) as s:
         assert s.status == "interrupted" and s.n_steps >= 2
         assert s.instruments["pressure"]["identity"].startswith("MENSOR, CPG2500")  # an indicator: manual rig
+        assert any(e["kind"] == "note" and e["message"] == "clamp slipped a little" for e in s.events())

@@ -10,7 +10,7 @@ from acquisition.cameras import FunctionCamera
 from acquisition.protocol import MMHG, SafetyLimits, parse_protocol
 from acquisition.runner import AutoOperator, SessionRunner, completed_steps
 from acquisition.session import CameraSpec, SessionWriter, SpecimenInfo, open_session
-from tests._run_fakes import FakeRig
+from _run_fakes import FakeRig
 
 PROTO = """
 [preconditioning]
@@ -95,7 +95,8 @@ def test_full_run_writes_every_step_and_vents(tmp_path):
 
 
 def test_retake_supersedes_without_deleting(tmp_path):
-    op = Scripted(["retake"])
+    op = Scripted(["note", "retake"])
+    op.ask_text = lambda prompt: "bubble in the cannula, retaking"
     runner, rig, cams, states = _runner(tmp_path, op)
     fired = []
 
@@ -107,7 +108,8 @@ def test_retake_supersedes_without_deleting(tmp_path):
 
     runner.on_update = on_update
     assert runner.run() == "complete"
-    assert op.asked and op.asked[0][1] == ["resume", "retake", "quit", "abort"]
+    assert op.asked and op.asked[0][1] == ["resume", "retake", "note", "quit", "abort"]
+    assert len(op.asked) == 2  # the note, then the menu again
     with open_session(tmp_path / "s.h5") as s:
         st = s.steps
         assert s.n_steps == 7 and st["supersedes"].tolist().count(1) == 1
@@ -116,6 +118,8 @@ def test_retake_supersedes_without_deleting(tmp_path):
         assert st["target_pressure"][retake] == st["target_pressure"][1]
         assert completed_steps(st) == 6
         assert "retake" in [e["kind"] for e in s.events()]
+        assert {"kind": "note", "message": "bubble in the cannula, retaking"}.items() <= \
+            next(e for e in s.events() if e["kind"] == "note").items()
 
 
 @pytest.mark.parametrize("answer,status,recorded", [("abort", "aborted", "aborted"),

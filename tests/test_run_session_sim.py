@@ -124,7 +124,8 @@ def test_full_session_sigkill_and_resume(tmp_path, capsys):
             # the only gap is the kill window: last sample logged before the kill .. first after the resume
             gaps = np.diff(t)
             assert t[k] <= t_kill + 0.05 < t[k + 1]
-            assert t_kill - t[k] < 0.5, "samples older than 0.5 s before the kill were lost"
+            # the kill window: samples still in memory (drained every 50 ms, and after each capture)
+            assert t_kill - t[k] < 1.5, f"{ch}: samples {t_kill - t[k]:.2f} s before the kill were lost"
             # elsewhere: contiguous seq (checked above) and no hole in time beyond sampler jitter
             assert np.delete(gaps, k).max() < 0.5, (ch, np.delete(gaps, k).max())
             assert np.median(gaps) == pytest.approx(1 / RATE_HZ, rel=0.2)
@@ -250,3 +251,25 @@ def test_ctrl_c_pauses_and_quits_resumably(tmp_path, capsys):
     with open_session(out) as s:
         assert s.status == "complete" and s.n_steps == 4
         np.testing.assert_allclose(s.steps["target_pressure"], np.array([0, 50, 100, 150]) * MMHG)
+
+
+def test_sim_load_cell_reading_follows_the_rig_file(tmp_path):
+    """measures = "total": the simulated cell reads the wall force minus the end thrust p pi r_i^2."""
+    from acquisition.protocol import load_protocol, load_specimen, parse_rig
+    from vfmlab.simrig import SimBench
+
+    spec = load_specimen(SPECIMEN)
+    proto = load_protocol(ROOT / "examples" / "paper-protocol.toml")
+    for measures in ("wall", "total"):
+        rig = parse_rig(RIG.replace('mode = "controller"', 'mode = "manual"')
+                        .replace('measures = "wall"', f'measures = "{measures}"'))
+        with SimBench(rig, spec, proto, time_scale=20) as bench:
+            bench.set_stretch(1.1)
+            bench.set_operator_pressure(100 * MMHG)
+            time.sleep(0.2)  # 13 time constants
+            p = bench.rig.true_pressure()
+            wall = bench.scene.wall_force(p, 1.1)
+            thrust = p * np.pi * (spec.radius - spec.thickness) ** 2
+            expected = wall - (thrust if measures == "total" else 0.0)
+            assert bench.rig.true_force() == pytest.approx(expected, abs=0.01), measures
+            assert wall > 0.5 and thrust > 0.5  # the two cases differ by far more than the tolerance

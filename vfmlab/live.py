@@ -186,6 +186,10 @@ class TerminalOperator:
     def notify(self, message: str) -> None:
         self.console.log(message)
 
+    def ask_text(self, prompt: str) -> str:
+        with self._suspended():
+            return click.prompt(prompt, default="", show_default=False)
+
 
 class _Null:
     def __enter__(self):

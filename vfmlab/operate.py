@@ -182,8 +182,11 @@ def run_session(protocol_path: str, specimen_path: str, out: str, *, rig_path: s
         raise OperateError(f"{out_path}: file exists; refusing to overwrite a session (choose another --out, "
                            f"or 'vfmlab resume {out_path}' to continue it)")
     pc = protocol.preconditioning
-    console.print(f"[bold]{protocol.name}[/]: {protocol.n_steps} steps in {len(protocol.blocks)} block(s) "
-                  f"(L/L0 {', '.join(f'{b.stretch:g}' for b in protocol.blocks)}); preconditioning "
+    test_blocks = protocol.blocks[int(protocol.has_reference):]
+    console.print(f"[bold]{protocol.name}[/]: {protocol.n_steps} steps: "
+                  + ("stress-free reference, then " if protocol.has_reference else "")
+                  + f"{len(test_blocks)} block(s) at L/L0 {', '.join(f'{b.stretch:g}' for b in test_blocks)}; "
+                  f"{protocol.calibration.views} calibration views; preconditioning "
                   f"{pc.pressure_cycles} x 0-{pc.pressure_max / MMHG:.0f} mmHg, {pc.stretch_cycles} x L/L0 "
                   f"1-{pc.stretch_max:g}; specimen {specimen.specimen_id}; rig {rig.name}")
     with contextlib.ExitStack() as stack:

@@ -221,6 +221,10 @@ class SimBench:
         self.rig = SimulatedRig(pressure_source=self.config.pressure.mode,
                                 mechanics=self.scene.wall_force, tau_s=0.3 / self.time_scale,
                                 rng=np.random.default_rng(self.seed))
+        if self.config.load_cell.measures == "total":
+            # a cell behind a closed cannula reads F_wall - p pi r_i^2 (decision 0003)
+            r_i = self.specimen.radius - self.specimen.thickness
+            self.rig.force_model.end_area_m2 = float(np.pi * r_i**2)
         self.rig.__enter__()
         return self
 
