@@ -106,8 +106,8 @@ def process_session(path: str, runs: Sequence[Run], invoked_by: str = "reprocess
         with open_session(path) as session:
             out.specimen = session.specimen.specimen_id
             status = session.status
-        if status in ("running", "interrupted"):
-            raise SessionError(f"{path}: the session is {status}; finish or resume it before reprocessing")
+        if status == "running":  # an interrupted session's completed steps are fine to process
+            raise SessionError(f"{path}: the session is still being written; reprocess it once it has finished")
     except SessionError as exc:
         out.errors.append(str(exc))
         out.seconds = time.perf_counter() - t0
