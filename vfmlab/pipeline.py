@@ -13,7 +13,6 @@ from __future__ import annotations
 import logging
 import os
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -224,7 +223,3 @@ STAGES: dict[str, Callable[..., str]] = {
 
 #: Order in which stages run when several are requested.
 STAGE_ORDER = ("reconstruct", "identify")
-
-
-def session_label(path: str | os.PathLike) -> str:
-    return Path(path).name
