@@ -8,13 +8,14 @@ from reconstruction.correspondence import Correspondence, CylinderPrior, match_v
 from reconstruction.detection import REJECT_REASONS, Detections, detect_markers
 from reconstruction.pipeline import (
     ReconstructionSettings,
+    points_from_detections,
     SeriesResult,
     StepPoints,
     reconstruct_series,
     reconstruct_step,
     track_series,
 )
-from reconstruction.surface import CylinderFit, fit_cylinder, marker_surface_points, surface_normals
+from reconstruction.surface import CylinderFit, fit_cylinder, marker_surface_points, specimen_frame, surface_normals
 from reconstruction.tracking import StepMatch, match_step
 from reconstruction.triangulation import Triangulation, triangulate
 
@@ -22,8 +23,9 @@ __all__ = [
     "Camera", "project_points", "rotation_matrix",
     "Correspondence", "CylinderPrior", "match_views",
     "REJECT_REASONS", "Detections", "detect_markers",
-    "ReconstructionSettings", "SeriesResult", "StepPoints", "reconstruct_series", "reconstruct_step", "track_series",
-    "CylinderFit", "fit_cylinder", "marker_surface_points", "surface_normals",
+    "ReconstructionSettings", "SeriesResult", "StepPoints", "points_from_detections", "reconstruct_series",
+    "reconstruct_step", "track_series",
+    "CylinderFit", "fit_cylinder", "marker_surface_points", "specimen_frame", "surface_normals",
     "StepMatch", "match_step",
     "Triangulation", "triangulate",
 ]
