@@ -42,6 +42,7 @@ from typing import Any, Protocol as _Protocol
 import numpy as np
 
 from acquisition.cameras import Camera, CaptureError, capture_all
+from acquisition.instrument_errors import InstrumentError
 from acquisition.protocol import MMHG, Protocol, SafetyLimits
 
 __all__ = [
@@ -94,11 +95,20 @@ class Operator(_Protocol):
     def precondition(self, message: str) -> None:
         """Manual preconditioning: ask the operator to do it (returns when done)."""
 
+    def place_board(self, index: int, n_views: int) -> None:
+        """Ask for calibration-board pose ``index`` (0-based) of ``n_views`` (returns when placed)."""
+
+    def remove_board(self) -> None:
+        """Ask for the board to be removed (returns when the specimen is in view)."""
+
     def choose(self, reason: str, options: Sequence[str]) -> str:
         """Ask the operator to pick one of ``options`` (``reason`` explains why)."""
 
     def notify(self, message: str) -> None:
         """Tell the operator something (no answer expected)."""
+
+    def ask_text(self, prompt: str) -> str:
+        """Ask for free text (an operator note)."""
 
 
 class AutoOperator:
@@ -112,8 +122,10 @@ class AutoOperator:
 
     def __init__(self, set_pressure: Callable[[float], None] | None = None,
                  set_stretch: Callable[[float], None] | None = None,
-                 on_interrupt: str = "quit"):
+                 on_interrupt: str = "quit", place_board: Callable[[int, int], None] | None = None,
+                 remove_board: Callable[[], None] | None = None):
         self._set_pressure, self._set_stretch = set_pressure, set_stretch
+        self._place_board, self._remove_board = place_board, remove_board
         self.on_interrupt = on_interrupt
         self.messages: list[str] = []
 
@@ -128,6 +140,14 @@ class AutoOperator:
     def precondition(self, message: str) -> None:
         self.messages.append(message)
 
+    def place_board(self, index: int, n_views: int) -> None:
+        if self._place_board is not None:
+            self._place_board(index, n_views)
+
+    def remove_board(self) -> None:
+        if self._remove_board is not None:
+            self._remove_board()
+
     def choose(self, reason: str, options: Sequence[str]) -> str:
         self.messages.append(reason)
         if "retry" in options:
@@ -138,6 +158,9 @@ class AutoOperator:
 
     def notify(self, message: str) -> None:
         self.messages.append(message)
+
+    def ask_text(self, prompt: str) -> str:
+        return ""
 
 
 @dataclass
@@ -250,8 +273,11 @@ class SessionRunner:
         """Ask for a pause at the next safe point (signal-handler safe: sets a flag)."""
         self._pause_requested = True
 
-    def run(self, start_step: int = 0, precondition: bool = True) -> str:
+    def run(self, start_step: int = 0, precondition: bool = True, calibrate: bool = True) -> str:
         """Execute the protocol from planned step ``start_step``; returns the final status.
+
+        ``calibrate``/``precondition``: capture the calibration-board views / run the
+        preconditioning first (only when starting at step 0).
 
         The final status is 'complete', 'aborted' (operator, safety limit or error; the error
         is re-raised after clean-up) or 'interrupted' (operator chose quit; resumable).
@@ -263,6 +289,8 @@ class SessionRunner:
         try:
             self._event("start", f"protocol {self.protocol.name!r}: {self.protocol.n_steps} steps, "
                                  f"starting at step {start_step}")
+            if calibrate and start_step == 0:
+                self._calibration_views()
             if precondition and start_step == 0:
                 self._precondition()
             plan = self.protocol.steps
@@ -383,7 +411,7 @@ class SessionRunner:
             return
         self._phase("setting", f"axial stretch L/L0 -> {stretch:.3f}")
         if self.stage is not None:
-            self.stage(stretch)
+            self._command("stage", self.stage, stretch)
         else:
             self.operator.set_stretch(stretch)
         self._stretch = stretch
@@ -392,10 +420,29 @@ class SessionRunner:
     def _set_pressure(self, target: float) -> None:
         self._phase("setting", f"pressure -> {target / MMHG:.1f} mmHg")
         if self.pressure_mode == "controller":
-            self.pressure.set_setpoint(target)
-            self.pressure.set_mode("control")
+            self._command("pressure controller", self.pressure.set_setpoint, target)
+            self._command("pressure controller", self.pressure.set_mode, "control")
         else:
             self.operator.set_pressure(target)
+
+    def _command(self, what: str, fn: Callable[..., Any], *args: Any, attempts: int = 3) -> Any:
+        """Send a command to an instrument; on an instrument fault pause until it is back, then retry.
+
+        A command that fails ``attempts`` times while the instruments read fine (the device
+        refuses it) aborts the session.
+        """
+        failures = 0
+        while True:
+            try:
+                return fn(*args)
+            except InstrumentError as exc:
+                failures += 1
+                msg = f"{what}: command failed ({type(exc).__name__}: {exc})"
+                self._warn(msg)
+                self._event("fault", msg)
+                if failures >= attempts and self.sampler.healthy:
+                    raise SessionAborted(f"{what} refuses the command after {failures} attempts: {exc}") from exc
+                self._hold(self.retry_delay_s)  # pauses here while the sampler sees the fault
 
     def _wait_stable(self, target: float) -> None:
         stab = self.protocol.stability
@@ -425,6 +472,42 @@ class SessionRunner:
                     return
                 t0 = self.clock()
 
+    def _capture_retrying(self, what: str):
+        """capture_all with the runner's retry policy (automatic retries, then the operator)."""
+        failures = 0
+        while True:
+            self._check_pause()
+            try:
+                return capture_all(self.cameras, self.protocol.capture.timeout_s)
+            except CaptureError as exc:
+                failures += 1
+                self._warn(str(exc))
+                self._event("capture_failed", f"{what}: {exc}")
+                if failures <= self.capture_retries:
+                    self._hold(self.retry_delay_s)
+                    continue
+                if self.operator.choose(f"Capture failed {failures} times in a row: {exc}",
+                                        ["retry", "abort"]) == "abort":
+                    raise SessionAborted(f"aborted after a failed capture: {exc}") from exc
+                failures = 0
+
+    def _calibration_views(self) -> None:
+        cal = self.protocol.calibration
+        if not cal.views:
+            return
+        self._phase("calibrating", f"{cal.views} calibration-board views ({cal.board or 'board'})")
+        self._event("calibration", self.state.message)
+        for k in range(cal.views):
+            self.state.message = f"board view {k + 1}/{cal.views}"
+            self.operator.place_board(k, cal.views)
+            self._pump()
+            result = self._capture_retrying(f"board view {k + 1}")
+            index = self.writer.add_calibration_view(
+                {name: f.pixels for name, f in result.frames.items() if name in self.writer.camera_names})
+            self._event("calibration_view", f"board view {k + 1}/{cal.views} stored as calibration view {index}")
+        self.operator.remove_board()
+        self._event("calibration_done", f"{cal.views} calibration views captured")
+
     def _precondition(self) -> None:
         pc = self.protocol.preconditioning
         if not (pc.pressure_cycles or pc.stretch_cycles):
@@ -437,21 +520,21 @@ class SessionRunner:
         if pc.pressure_cycles:
             self._set_stretch(1.0)
             if self.pressure_mode == "controller":
-                self.pressure.set_mode("control")
+                self._command("pressure controller", self.pressure.set_mode, "control")
                 for i in range(pc.pressure_cycles):
                     self.state.message = f"pressure cycle {i + 1}/{pc.pressure_cycles}"
-                    self.pressure.set_setpoint(pc.pressure_max)
+                    self._command("pressure controller", self.pressure.set_setpoint, pc.pressure_max)
                     self._hold(half)
                     if pc.imaged:
                         self._precondition_capture(1.0, pc.pressure_max)
-                    self.pressure.set_setpoint(0.0)
+                    self._command("pressure controller", self.pressure.set_setpoint, 0.0)
                     self._hold(half)
             else:
                 self.operator.precondition(f"Do {pc.pressure_cycles} pressure cycles 0 -> "
                                            f"{pc.pressure_max / MMHG:.0f} mmHg, then continue")
         if pc.stretch_cycles:
             if self.pressure_mode == "controller":
-                self.pressure.set_setpoint(0.0)
+                self._command("pressure controller", self.pressure.set_setpoint, 0.0)
             if self.stage is not None:
                 for i in range(pc.stretch_cycles):
                     self.state.message = f"stretch cycle {i + 1}/{pc.stretch_cycles}"
@@ -492,10 +575,17 @@ class SessionRunner:
         prev = self.state.phase
         self._phase("paused", "paused by the operator")
         self._event("pause", "paused by the operator")
-        options = ["resume", "retake", "quit", "abort"] if self._last_step else ["resume", "quit", "abort"]
-        choice = self.operator.choose("Paused. Resume, retake the last step, quit (resume later) or abort?",
-                                      options)
-        self._event("operator", f"operator chose {choice!r}")
+        options = ["resume", "retake", "note", "quit", "abort"] if self._last_step else \
+            ["resume", "note", "quit", "abort"]
+        while True:
+            choice = self.operator.choose("Paused. Resume, retake the last step, add a note, quit (resume later) "
+                                          "or abort?", options)
+            self._event("operator", f"operator chose {choice!r}")
+            if choice != "note":
+                break
+            text = self.operator.ask_text("Note for the session record")
+            if text:
+                self._event("note", text)
         if choice == "abort":
             raise SessionAborted("aborted by the operator")
         if choice == "quit":
@@ -598,6 +688,7 @@ class SessionRunner:
     def _finalize(self, status: str, error: BaseException | None) -> None:
         """Safe state, always: vent, close cameras, write the status."""
         self._finalizing = True
+        self.state.stable = False
         self._phase("done", f"session {status}")
         try:
             if self.pressure_mode == "controller":

@@ -129,11 +129,20 @@ def fit_axis(points: np.ndarray, *, toward: np.ndarray | None = None, initial: A
     else:
         _, _, vt = np.linalg.svd(pts - centre, full_matrices=False)
         candidates = [(d0, centre) for d0 in vt]
+
+        def spread(d0):  # relative scatter of the radii about the principal direction, before fitting
+            v = pts - centre
+            r = np.linalg.norm(v - np.outer(v @ d0, d0), axis=1)
+            return np.std(r) / np.mean(r)
+
+        candidates.sort(key=lambda c: spread(c[0]))
     best = None
     for d0, c0 in candidates:
         d, o, r, rms = fit(d0, c0)
         if best is None or rms / r.mean() < best[0]:
             best = (rms / r.mean(), d, o, r, rms)
+        if best[0] < 0.05:  # a tube: the most promising principal direction was right
+            break
     _, d, o, r, rms = best
     if toward is None:
         toward = np.array([0.0, 0.0, 1.0]) if initial is None else initial.direction

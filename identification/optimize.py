@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from typing import Mapping
 
 import numpy as np
-from scipy.optimize import least_squares, minimize
+from scipy.optimize import least_squares, minimize, nnls
 
 from .errors import IdentificationError
 from .models import Model, get_model
@@ -33,6 +33,10 @@ GAP_FOR_FLAGS = 0.01
 #: magnitude) still keeps the balance within ``GAP_FOR_FLAGS`` once the others compensate.
 RESOLUTION_LIMIT = 0.3
 LOG_RANGE = 12.0
+#: Estimated marker noise (m) above which unsmoothed data are flagged.
+NOISY_MARKERS = 0.02e-3
+#: RMS normalised gap below which the balance is considered exact (no further starts are tried).
+EXACT_GAP = 1e-5
 #: Typical magnitude of parameters that may be zero or negative (for the scale of their changes).
 TYPICAL = {"alpha12": 1.0, "phi": 0.5}
 
@@ -204,27 +208,49 @@ def identify_prepared(
         jac = ((r[:n] - r[n:]) / (2 * h)).T
         return np.where(np.isfinite(jac), jac, 0.0)
 
+    def linear_prefit(start: dict) -> dict:
+        """Rescale the stress-like parameters of a start to their best non-negative linear fit."""
+        lin = [i for i, flag in enumerate(model.linear) if flag]
+        if not lin:
+            return start
+        base = np.array([start[n] for n in model.parameter_names], dtype=float)
+        sets = np.repeat(base[None], len(lin), axis=0)
+        for row, i in enumerate(lin):
+            sets[row, [j for j in lin if j != i]] = 0.0
+        n_eval[0] += len(lin)
+        with np.errstate(over="ignore", invalid="ignore"):
+            ivw = internal_virtual_work(data, model, tr.as_dict(sets))  # (n_lin, n_fields, n_steps)
+        A = (ivw / scale[None]).reshape(len(lin), -1).T
+        if not np.all(np.isfinite(A)):
+            return start
+        a, _ = nnls(A, (data.evw / scale).ravel())
+        out = dict(start)
+        for row, i in enumerate(lin):
+            if a[row] > 0:
+                out[model.parameter_names[i]] = float(base[i] * a[row])
+        return out
+
     best = None
     for start in starts:
-        x0 = tr.to_x(start)
+        x0 = tr.to_x(linear_prefit(start) if optimizer == "lsq" else start)
         with np.errstate(over="ignore", invalid="ignore"):
             if optimizer == "lsq":
                 sol = least_squares(residual, x0, jac=jacobian, bounds=(tr.lower, tr.upper), method="trf",
-                                    x_scale=1.0, xtol=1e-10, ftol=1e-12, gtol=1e-12, max_nfev=200)
+                                    x_scale=1.0, xtol=1e-10, ftol=1e-10, gtol=1e-10, max_nfev=200)
                 x, cost, ok, msg = sol.x, float(sol.cost), bool(sol.status > 0), str(sol.message)
             else:
                 def fun(x):
                     r = residual(x)
                     return 0.5 * float(r @ r) if np.all(np.isfinite(r)) else np.inf
 
-                sol = minimize(fun, x0, method="Nelder-Mead",
+                sol = minimize(fun, x0, method="Nelder-Mead", bounds=list(zip(tr.lower, tr.upper)),
                                options={"xatol": 1e-10, "fatol": 1e-22, "maxfev": max_evaluations, "adaptive": True})
                 x, cost, ok, msg = sol.x, float(sol.fun), bool(sol.success), str(sol.message)
         if not np.isfinite(cost):
             continue
         if best is None or cost < best[1]:
             best = (x, cost, ok, msg)
-        if best[1] < 1e-20 * data.evw.size:  # exact balance: further starts cannot do better
+        if best[1] < 0.5 * EXACT_GAP**2 * data.evw.size:  # balance exact to quadrature: no start does better
             break
     if best is None:
         raise IdentificationError(f"the optimiser found no finite cost for model {model.name!r} from {starts}")
@@ -266,10 +292,6 @@ def identify_prepared(
             flags.append(f"{nm} is poorly identifiable: a change of {value:.2g} ({unit}) can be compensated by the "
                          f"other parameters within a {GAP_FOR_FLAGS:.0%} virtual-work gap; do not trust its value"
                          + (" (load at two or more axial stretches to constrain it)" if nm == "alpha12" else ""))
-    for i, j in zip(*np.triu_indices(n, 1)):
-        if abs(corr[i, j]) > 0.995:
-            flags.append(f"{model.parameter_names[i]} and {model.parameter_names[j]} are strongly correlated "
-                         f"({corr[i, j]:+.3f}): the data constrain mostly a combination of them")
     for nm, se in stderr.items():
         if model.positive[model.parameter_names.index(nm)] and se > 0.3 * abs(params[nm]):
             flags.append(f"{nm} is uncertain: standard error {se:.3g} is more than 30 % of its value")
@@ -283,6 +305,13 @@ def identify_prepared(
                      "describe this material or the data are too noisy")
     if not ok:
         flags.append(f"the optimiser did not report convergence: {msg}")
+    if data.smoothing is None and data.marker_noise > NOISY_MARKERS:
+        flags.append(f"the markers look noisy (about {data.marker_noise * 1e3:.2g} mm): per-triangle strains are "
+                     "dominated by noise and the exponential laws by a few triangles; smooth the displacements "
+                     "(smoothing=(4, 2), --smooth 4,2) or measure better")
+    if np.any(data.n_outliers):
+        flags.append(f"{int(np.sum(data.n_outliers))} marker observations disagreed with their neighbours "
+                     "(mis-tracked?) and were ignored")
     return IdentificationResult(
         model=model.name, wall=data.wall, optimizer=optimizer, parameters=params, stderr=stderr, correlation=corr,
         resolution=resolution, flags=tuple(flags), cost=float(cost), residuals=res, ivw=ivw, evw=data.evw.copy(),

@@ -71,6 +71,11 @@ class VFMData:
     wall, ends : str
     mesh : SurfaceMesh
     n_valid_triangles : ndarray, shape (n_steps,)
+    n_outliers : ndarray, shape (n_steps,)
+        Markers set unobserved as mis-tracked, per step.
+    marker_noise : float
+        Estimated marker noise (m, median over steps; ``kinematics.marker_outliers``).
+    smoothing : tuple or None
     pressure, axial_force : ndarray, shape (n_steps,)
     """
 
@@ -86,6 +91,9 @@ class VFMData:
     ends: str
     mesh: SurfaceMesh
     n_valid_triangles: np.ndarray
+    n_outliers: np.ndarray
+    marker_noise: float
+    smoothing: tuple | None
     pressure: np.ndarray
     axial_force: np.ndarray
     thickness: float
@@ -163,6 +171,7 @@ def prepare(
     quadrature: int = 1,
     toward: np.ndarray | None = None,
     smoothing: tuple[int, int] | None = None,
+    reject_outliers: bool = True,
 ) -> VFMData:
     """Build the virtual-work balance from measured data.
 
@@ -197,6 +206,9 @@ def prepare(
     smoothing : (int, int), optional
         Smooth each step's displacement field on Legendre(Z) x Fourier(Theta) of these degrees
         before differentiating (for noisy markers; see ``kinematics.smooth_cylindrical``).
+    reject_outliers : bool
+        Treat markers that disagree with their neighbours in a step (mis-tracked) as unobserved
+        there (``kinematics.marker_outliers``); counts in ``VFMData.n_outliers``.
     """
     if wall not in WALLS:
         raise ValueError(f"wall must be one of {WALLS}; got {wall!r}")
@@ -211,7 +223,7 @@ def prepare(
         fields = paper_fields(mesh)
     check_fields(fields, mesh)
     aligned, _, _ = align_steps(x, reference)
-    st = surface_state(mesh, aligned, quadrature, smoothing)
+    st = surface_state(mesh, aligned, quadrature, smoothing, reject_outliers)
     geo = st.geometry
     tri = mesh.triangles
     n_steps, n_tri = st.valid.shape
@@ -292,6 +304,7 @@ def prepare(
         dV0 = np.where(valid, dA0 * e0 * sw, 0.0)  # (s, t, q)
         C = np.where(valid[..., None, None], C, np.eye(2))
         cs.append(np.stack([C[..., 0, 0], C[..., 1, 1], C[..., 0, 1]], -1).reshape(n_steps, -1, 3))
+        dE = np.where(valid[None, ..., None, None], dE, 0.0)  # excluded triangles may hold NaN geometry
         dens.append((np.stack([dE[..., 0, 0], dE[..., 1, 1], 2.0 * dE[..., 0, 1]], -1)
                      * dV0[None, ..., None]).reshape(fields.n_fields, n_steps, -1, 3))
     c = np.concatenate(cs, axis=1)
@@ -299,8 +312,9 @@ def prepare(
 
     # External work: pressure on the loaded surface (markers for membrane, lumen for thick)
     _, _, _, normal_da, u_here = layer(1.0 if wall == "membrane" else 0.0)
-    pw = np.einsum("stqc,fstqc->fst", normal_da, u_here)
-    pw = np.where(st.valid[None], pw, 0.0).sum(-1)
+    with np.errstate(invalid="ignore"):
+        pw = np.einsum("stqc,fstqc->fst", normal_da, u_here)
+    pw = np.where(st.valid[None], np.nan_to_num(pw), 0.0).sum(-1)
     pressure_work = p[None] * pw
 
     # Axial force across the top measured boundary
@@ -343,7 +357,8 @@ def prepare(
         log.warning("triangles excluded for unobserved markers per step: %s", (n_tri - n_valid).tolist())
     return VFMData(c=c, work_density=work_density, evw=evw, pressure_work=pressure_work, end_work=end_work,
                    end_force=n_end, scale=scale, field_names=tuple(fields.names), wall=wall, ends=ends, mesh=mesh,
-                   n_valid_triangles=n_valid, pressure=p, axial_force=f, thickness=e0)
+                   n_valid_triangles=n_valid, n_outliers=st.outliers.sum(axis=1),
+                   marker_noise=float(np.nanmedian(st.noise)), smoothing=smoothing, pressure=p, axial_force=f, thickness=e0)
 
 
 def internal_virtual_work(data: VFMData, model: str | Model, parameters) -> np.ndarray:
@@ -354,7 +369,8 @@ def internal_virtual_work(data: VFMData, model: str | Model, parameters) -> np.n
     batched = any(v.ndim > 0 for v in vals.values())
     if batched:
         vals = {k: np.reshape(v, (-1, 1, 1)) for k, v in vals.items()}
-    s11, s22, s12 = pk2_components(model, data.c[..., 0], data.c[..., 1], data.c[..., 2], vals)
+    c = data.c[None] if batched else data.c
+    s11, s22, s12 = pk2_components(model, c[..., 0], c[..., 1], c[..., 2], vals)
     S = np.stack(np.broadcast_arrays(s11, s22, s12), -1)
     if batched:
         return np.einsum("fspc,espc->efs", data.work_density, S)

@@ -77,6 +77,11 @@ class CalibrationResult:
     message : str
     initial_rms : ndarray, shape (n_cams,)
         Per-camera RMS of the independent ``cv2.calibrateCamera`` initialisations, px.
+    parameter_std : ndarray, shape (n_cams, 15)
+        Standard deviations of (fx, fy, cx, cy [px], k1, k2, p1, p2, k3, rvec [rad], tvec [m]) of
+        each camera from the final solve's covariance ``s^2 (J^T J)^-1`` (NaN for fixed parameters;
+        it assumes independent pixel noise, so it is a lower bound when residuals are correlated).
+        Pose uncertainties refer to the adjustment gauge (the reference camera fixed).
     """
 
     cameras: list[Camera]
@@ -91,9 +96,10 @@ class CalibrationResult:
     converged: bool
     message: str
     initial_rms: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    parameter_std: np.ndarray = field(default_factory=lambda: np.zeros((0, _N_CAM)))
 
     def summary(self) -> list[dict]:
-        """One row per camera: name, views used, RMS (px), fx, fy, cx, cy."""
+        """One row per camera: name, views used, RMS (px), fx, fy, cx, cy and their standard deviations (px)."""
         rows = []
         for i, c in enumerate(self.cameras):
             rows.append(
@@ -105,6 +111,8 @@ class CalibrationResult:
                     fy=float(c.K[1, 1]),
                     cx=float(c.K[0, 2]),
                     cy=float(c.K[1, 2]),
+                    **{f"{k}_std": float(self.parameter_std[i, j]) if self.parameter_std.shape[0] > i else float("nan")
+                       for j, k in enumerate(("fx", "fy", "cx", "cy"))},
                 )
             )
         return rows
@@ -186,6 +194,47 @@ def _init_camera(uv_c, obj, size, min_points, name):
     return K, np.asarray(dist, float).ravel()[:5], poses, float(rms)
 
 
+def _angle(Ra: np.ndarray, Rb: np.ndarray) -> float:
+    """Angle (rad) of the rotation between two rotation matrices."""
+    return float(np.arccos(np.clip((np.trace(Ra.T @ Rb) - 1) / 2, -1.0, 1.0)))
+
+
+def _reversal_symmetry(obj: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """(R, t) with ``R @ obj[k] + t = obj[n-1-k]`` if the target is symmetric under reversal, else None."""
+    a, b = obj, obj[::-1]
+    ca, cb = a.mean(0), b.mean(0)
+    U, _, Vt = np.linalg.svd((a - ca).T @ (b - cb))
+    R = Vt.T @ np.diag([1, 1, np.sign(np.linalg.det(Vt.T @ U.T))]) @ U.T
+    t = cb - R @ ca
+    scale = max(np.ptp(a, axis=0).max(), 1e-300)
+    return (R, t) if np.abs(a @ R.T + t - b).max() < 1e-6 * scale else None
+
+
+def _relative_pose(pi: dict, pj: dict, views: np.ndarray, flip) -> tuple[np.ndarray, np.ndarray]:
+    """Camera i -> camera j pose from shared views, robust to bad views (and to reversed targets if ``flip``).
+
+    The candidate (per view, per order hypothesis) agreeing with most views within 2 deg wins;
+    the agreeing candidates are averaged.
+    """
+    cands = []
+    for v in views:
+        Ri, ti = pi[v]
+        hyps = [pj[v]] if flip is None else [pj[v], (pj[v][0] @ flip[0], pj[v][0] @ flip[1] + pj[v][1])]
+        for Rj, tj in hyps:
+            R = Rj @ Ri.T
+            cands.append((v, R, tj - R @ ti))
+    tol = np.deg2rad(2.0)
+    best = max(range(len(cands)), key=lambda k: len({c[0] for c in cands if _angle(c[1], cands[k][1]) < tol}))
+    chosen = {}
+    for v, R, t in cands:
+        d = _angle(R, cands[best][1])
+        if d < tol and (v not in chosen or d < chosen[v][0]):
+            chosen[v] = (d, R, t)
+    Rs = np.array([c[1] for c in chosen.values()])
+    ts = np.array([c[2] for c in chosen.values()])
+    return _mean_rotation(Rs), np.median(ts, axis=0)
+
+
 def _spanning_tree(n_cams: int, weights: np.ndarray, root: int) -> list[tuple[int, int]]:
     """Maximum spanning tree edges (parent, child) by Prim's algorithm from ``root``."""
     inside = {root}
@@ -218,6 +267,7 @@ def calibrate_cameras(
     min_outlier_px: float = 0.5,
     fix_k3: bool = False,
     max_rounds: int = 3,
+    resolve_flips: bool = False,
 ) -> CalibrationResult:
     """Calibrate N cameras jointly from synchronised views of a rigid target.
 
@@ -247,6 +297,10 @@ def calibrate_cameras(
         Keep k3 at zero (recommended with few views or short lenses).
     max_rounds : int
         Rounds of outlier rejection and re-solve.
+    resolve_flips : bool
+        The target is symmetric under reversal of its point order (chessboards and symmetric circle
+        grids: OpenCV may number a view from either end, and two cameras may disagree). Each camera's
+        view is re-ordered when the reversed order agrees better with the other cameras.
 
     Returns
     -------
@@ -283,19 +337,37 @@ def calibrate_cameras(
                 both = usable[i] & usable[j]
                 shared[i, j] = np.minimum(counts[i], counts[j])[both].sum()
     edges = _spanning_tree(n_cams, shared, reference)
+    flip = _reversal_symmetry(obj[np.flatnonzero(usable.any(0))[0]]) if resolve_flips and usable.any() else None
+    if resolve_flips and flip is None:
+        log.warning("resolve_flips: the target is not symmetric under reversal of its point order; nothing to resolve")
     Rw = {reference: np.eye(3)}
     tw = {reference: np.zeros(3)}
     for i, j in edges:
         vs = np.flatnonzero(usable[i] & usable[j])
-        Rji = np.array([poses[j][v][0] @ poses[i][v][0].T for v in vs])
-        tji = np.array([poses[j][v][1] - Rji[k] @ poses[i][v][1] for k, v in enumerate(vs)])
-        R = _mean_rotation(Rji)
-        t = np.median(tji, axis=0)
+        R, t = _relative_pose(poses[i], poses[j], vs, flip)
         Rw[j] = R @ Rw[i]
         tw[j] = R @ tw[i] + t
     missing = [names[c] for c in range(n_cams) if c not in Rw]
     if missing:
         raise CalibrationError(f"cameras {missing} share no board view with the others (directly or through other cameras)")
+    n_flipped = 0
+    if flip is not None:
+        uv = uv.copy()
+        for v in np.flatnonzero(usable.sum(0) > 1):
+            a = int(np.argmax(np.where(usable[:, v], counts[:, v], -1)))
+            Ra = Rw[a].T @ poses[a][v][0]
+            for c in np.flatnonzero(usable[:, v]):
+                if c == a:
+                    continue
+                Rc0 = Rw[c].T @ poses[c][v][0]
+                Rc1 = Rc0 @ flip[0]
+                if _angle(Rc1, Ra) < _angle(Rc0, Ra):
+                    Rcv, tcv = poses[c][v]
+                    poses[c][v] = (Rcv @ flip[0], Rcv @ flip[1] + tcv)
+                    uv[c, v] = uv[c, v, ::-1]
+                    n_flipped += 1
+        if n_flipped:
+            log.info("resolve_flips: reversed the point order of %d camera views to match the other cameras", n_flipped)
     # board poses in the world from the camera seeing most points
     view_ok = usable.any(0)
     Vp = np.full((n_views, 6), np.nan)
@@ -328,6 +400,7 @@ def calibrate_cameras(
         sol = _bundle_adjust(x_cam, x_view, cam_free, ci, vmap[vi], obj[vi, pi], uv[ci, vi, pi], loss if rnd == 0 else "linear", f_scale)
         x_cam, x_view = sol["cam"], sol["view"]
         converged, message = sol["success"], sol["message"]
+        cam_std = sol["cam_std"]
         res = _project(x_cam, x_view, ci_all, vmap[vi_all], obj[vi_all, pi_all]) - uv[ci_all, vi_all, pi_all]
         norm = np.linalg.norm(res, axis=-1)
         s = 1.4826 * np.median(norm[inlier])
@@ -379,6 +452,7 @@ def calibrate_cameras(
         converged=bool(converged),
         message=str(message),
         initial_rms=np.array(init_rms),
+        parameter_std=cam_std,
     )
 
 
@@ -403,7 +477,6 @@ def _to_board_frame(cams, brv, btv, k):
 def _bundle_adjust(x_cam, x_view, cam_free, ci, vi, X, uv, loss, f_scale):
     """One least-squares solve; Jacobian by grouped central differences (one group per parameter slot)."""
     n_cams, n_views = x_cam.shape[0], x_view.shape[0]
-    view_free = np.ones((n_views, _N_VIEW), bool)
     cam_idx = np.flatnonzero(cam_free.ravel())
     n_cf = cam_idx.size
     n_obs = ci.size
@@ -422,7 +495,6 @@ def _bundle_adjust(x_cam, x_view, cam_free, ci, vi, X, uv, loss, f_scale):
     col_cam.ravel()[cam_idx] = np.arange(n_cf)
     col_view = n_cf + np.arange(n_views * _N_VIEW).reshape(n_views, _N_VIEW)
     rows = np.arange(2 * n_obs)
-    obs_of_row = rows // 2
 
     def jac(x):
         cam, view = unpack(x)
@@ -455,7 +527,6 @@ def _bundle_adjust(x_cam, x_view, cam_free, ci, vi, X, uv, loss, f_scale):
 
     x0 = np.concatenate([x_cam.ravel()[cam_idx], x_view.ravel()])
     dense = x0.size * 2 * n_obs <= 3e7
-    del obs_of_row
     sol = least_squares(
         fun,
         x0,
@@ -471,7 +542,20 @@ def _bundle_adjust(x_cam, x_view, cam_free, ci, vi, X, uv, loss, f_scale):
         max_nfev=200,
     )
     cam, view = unpack(sol.x)
-    return dict(cam=cam, view=view, success=sol.status > 0, message=sol.message, cost=sol.cost)
+    # standard deviations of the camera parameters from the Gauss-Newton covariance s^2 (J^T J)^-1
+    cam_std = np.full((n_cams, _N_CAM), np.nan)
+    dof = 2 * n_obs - x0.size
+    if dof > 0:
+        J = jac(sol.x)
+        JtJ = J.T @ J
+        JtJ = JtJ.toarray() if sp.issparse(JtJ) else np.asarray(JtJ)
+        s2 = float(np.sum(fun(sol.x) ** 2)) / dof
+        try:
+            cov_diag = np.diag(np.linalg.inv(JtJ))[:n_cf]
+            cam_std.ravel()[cam_idx] = np.sqrt(np.clip(cov_diag * s2, 0, None))
+        except np.linalg.LinAlgError:
+            log.warning("bundle adjustment: singular normal matrix; parameter uncertainties unavailable")
+    return dict(cam=cam, view=view, success=sol.status > 0, message=sol.message, cost=sol.cost, cam_std=cam_std)
 
 
 def reprojection_errors(cameras: list[Camera], board_rvecs, board_tvecs, image_points, object_points) -> np.ndarray:
@@ -506,6 +590,10 @@ def detections_to_arrays(detections: dict[str, list[BoardDetection]], spec: Boar
 def calibrate_from_detections(
     detections: dict[str, list[BoardDetection]], spec: BoardSpec, image_sizes: dict[str, tuple[int, int]], **kwargs
 ) -> CalibrationResult:
-    """:func:`calibrate_cameras` on board detections ``{camera: [BoardDetection per view]}``."""
+    """:func:`calibrate_cameras` on board detections ``{camera: [BoardDetection per view]}``.
+
+    Point-order flips are resolved by default for chessboards and symmetric circle grids.
+    """
     names, uv, obj = detections_to_arrays(detections, spec)
+    kwargs.setdefault("resolve_flips", spec.kind in ("chessboard", "circles"))
     return calibrate_cameras(uv, obj, [image_sizes[n] for n in names], names, **kwargs)

@@ -84,20 +84,25 @@ def _cam_from_parts(name, size, K, dist, rvec, tvec, scale, where) -> Camera:
 def cameras_to_toml(cameras: list[Camera], *, units: str = "mm", metadata: dict | None = None) -> str:
     """aniposelib ``calibration.toml`` text for ``cameras`` with translations in ``units``."""
     s = _scale(units, "cameras_to_toml")
-    doc = {}
+    lines = []
     for i, c in enumerate(cameras):
-        doc[f"cam_{i}"] = {
-            "name": c.name,
-            "size": [int(c.image_size[0]), int(c.image_size[1])],
-            "matrix": c.K.tolist(),
-            "distortions": c.dist.tolist(),
-            "rotation": c.rvec.tolist(),
-            "translation": (c.tvec / s).tolist(),
-        }
+        lines += [
+            f"[cam_{i}]",
+            f"name = {tomli_w.dumps({'v': c.name})[4:].strip()}",
+            f"size = [{int(c.image_size[0])}, {int(c.image_size[1])}]",
+            "matrix = [" + ", ".join(_floats(row) for row in c.K) + "]",
+            f"distortions = {_floats(c.dist)}",
+            f"rotation = {_floats(c.rvec)}",
+            f"translation = {_floats(c.tvec / s)}",
+            "",
+        ]
     meta = dict(metadata or {})
     meta["units"] = units
-    doc["metadata"] = _jsonable(meta)
-    return tomli_w.dumps(doc)
+    return "\n".join(lines) + tomli_w.dumps({"metadata": _jsonable(meta)})
+
+
+def _floats(values) -> str:
+    return "[" + ", ".join(repr(float(v)) for v in values) + "]"
 
 
 def cameras_from_toml(text: str, *, units: str | None = None) -> tuple[list[Camera], dict]:

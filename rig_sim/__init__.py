@@ -4,6 +4,7 @@ Implements the interfaces of the stage packages; the stage packages never import
 """
 
 from .cameras import camera_ring, look_at
+from .imaging import render_simulated_steps, specimen_frame
 from .instruments import SimulatedRig
 from .render import MarkerTruth, RenderedFrame, SceneStyle, render_markers
 from .sensor import SensorModel, expose
@@ -17,6 +18,8 @@ __all__ = [
     "RenderedFrame",
     "SceneStyle",
     "render_markers",
+    "render_simulated_steps",
+    "specimen_frame",
     "SensorModel",
     "expose",
     "MarkerLayout",

@@ -60,8 +60,10 @@ def make_session(path: Path, *, n_markers: int = 160, with_results: bool = True,
     write_result(path, "calibration",
                  {"camera_names": np.array([c.name for c in cams]), "K": np.tile(np.eye(3), (4, 1, 1)),
                   "dist": np.zeros((4, 5)), "rvec": np.zeros((4, 3)), "tvec": np.zeros((4, 3)),
-                  "image_size": np.tile([64, 48], (4, 1)), "rms": np.array([0.21, 0.25, 0.19, 0.31])},
-                 {"board": "charuco"}, units={"rms": "px"})
+                  "image_size": np.tile([64, 48], (4, 1)), "rms": np.array([0.21, 0.25, 0.19, 0.31]),
+                  "rms_per_view": np.abs(np.random.default_rng(seed).normal(0.25, 0.08, (4, 6)))},
+                 {"board": "charuco"}, attrs={"rms_total": 0.245, "n_observations": 2304, "n_outliers": 3,
+                                              "converged": True}, units={"rms": "px"})
     rng = np.random.default_rng(seed + 1)
     visible = rng.random(pos.shape[:2]) > 0.03
     visible[0] = True

@@ -14,7 +14,7 @@ PAPER = {
     "fung": {"beta": 5e3, "alpha11": 14.5, "alpha22": 7.0, "alpha12": 0.1},
     "delfino": {"beta": 1.5e3, "alpha": 4.6},
     "hgo": {"c": 0.4e3, "k1": 8.7e3, "k2": 5.4, "phi": np.deg2rad(27.0)},
-    "neohookean": {"mu": 20e3},
+    "neohookean": {"mu": 200e3},
 }
 R0, L0, E0 = 10e-3, 35e-3, 1.3e-3
 

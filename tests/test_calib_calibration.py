@@ -53,6 +53,13 @@ def test_charuco_calibration_recovers_truth(charuco):
     assert res.rms.shape == (4,) and res.rms_per_view.shape == (4, 24)
     assert res.n_outliers <= 0.01 * res.n_observations
     assert res.n_observations > 1000
+    # reported uncertainties are honest: intrinsic errors within a few standard deviations
+    std = res.parameter_std
+    assert std.shape == (4, 15) and np.isnan(std[0, 9:]).all() and np.isnan(std[:, 8]).all()  # gauge, fixed k3
+    for a, b, sd in zip(res.cameras, cams, std):
+        err = np.array([a.K[0, 0] - b.K[0, 0], a.K[1, 1] - b.K[1, 1], a.K[0, 2] - b.K[0, 2], a.K[1, 2] - b.K[1, 2]])
+        assert (np.abs(err) < 4 * sd[:4]).all()  # measured |err| / std <= 2.1
+        assert (sd[:4] < 5).all()  # px
     est = _aligned(res, views)
     for a, b in zip(est, cams):
         np.testing.assert_allclose(np.diag(a.K)[:2], np.diag(b.K)[:2], rtol=2e-3)  # measured <= 0.07 %
@@ -166,3 +173,19 @@ def test_real_stereo_corner_spacing(stereo):
     assert abs(err.mean()) < 0.002
     assert err.std() < 0.0082
     assert np.abs(err).max() < 0.047
+
+
+def test_reversed_point_order_resolved(charuco):
+    """Chessboard-like targets may be numbered from either end, differently per camera: resolve_flips fixes it."""
+    cams, views, det, res = charuco
+    names, uv, obj = detections_to_arrays(det, SPEC)
+    seen = np.isfinite(uv).all(-1).sum(-1) >= 6
+    shared = np.argwhere(seen & (seen.sum(0) >= 2)[None, :])
+    flipped = shared[::3]  # every third (camera, view) of the shared views
+    uv2 = uv.copy()
+    for c, v in flipped:
+        uv2[c, v] = uv[c, v, ::-1]
+    res2 = calibrate_cameras(uv2, obj, [c.image_size for c in cams], names, fix_k3=True, resolve_flips=True)
+    assert res2.n_outliers == res.n_outliers and res2.rms_total == pytest.approx(res.rms_total, rel=1e-6)
+    for a, b in zip(res2.cameras, res.cameras):
+        np.testing.assert_allclose(a.K, b.K, atol=1e-3)

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from _calib_sim import SPEC, rendered_charuco
+from _calib_sim import rendered_charuco
 from acquisition.session import CameraSpec, SessionWriter, SpecimenInfo, open_session
 from reconstruction.calibration_io import cameras_from_arrays, cameras_from_toml, cameras_from_yaml
 from vfmlab.cli import main
@@ -75,3 +75,42 @@ def test_calibrate_errors(tmp_path, capsys):
     (tmp_path / "camA").mkdir()
     assert main(["calibrate", "--images", str(tmp_path), "-o", str(tmp_path / "c.json")]) == 1
     assert ".toml" in capsys.readouterr().err
+
+
+def test_import_aniposelib_into_session_and_convert(tmp_path, capsys):
+    from rig_sim.cameras import camera_ring
+    from reconstruction.calibration_io import cameras_to_toml
+
+    cams = camera_ring(3, image_size=(640, 480))
+    toml_text = cameras_to_toml(cams).replace('units = "mm"\n', "")  # as aniposelib writes it: no unit
+    src = tmp_path / "calibration.toml"
+    src.write_text(toml_text)
+    path = tmp_path / "s.h5"
+    with SessionWriter.create(path, SpecimenInfo("t", 0.01, 0.035, 0.001),
+                              cameras=[CameraSpec(c.name, "sim", 640, 480) for c in cams[::-1]]):
+        pass
+    out = tmp_path / "converted.yaml"
+    rc = main(["calibrate", str(path), "--import", str(src), "-o", str(out), "--units", "m", "--json"])
+    captured = capsys.readouterr()
+    assert rc == 0, captured.err
+    assert json.loads(captured.out)["stored_as"] == "calibration_001"
+    with open_session(path) as s:
+        stored = cameras_from_arrays(s.latest("calibration")["arrays"])
+        order = s.camera_names
+    assert [c.name for c in stored] == order  # session order
+    by_name = {c.name: c for c in stored}
+    np.testing.assert_allclose(by_name["cam0"].tvec, cams[0].tvec, atol=1e-15)  # mm in the file -> m
+    back, meta = cameras_from_yaml(out.read_text())
+    np.testing.assert_allclose(back[1].tvec, cams[1].tvec, atol=1e-15)
+    # wrong unit option changes the scale; a session camera missing from the file is refused
+    rc = main(["calibrate", str(path), "--import", str(src), "--import-units", "m", "--json"])
+    assert rc == 0
+    with open_session(path) as s:
+        again = {c.name: c for c in cameras_from_arrays(s.latest("calibration")["arrays"])}
+    np.testing.assert_allclose(again["cam0"].tvec, cams[0].tvec * 1e3)
+    capsys.readouterr()
+    path2 = tmp_path / "s2.h5"
+    with SessionWriter.create(path2, SpecimenInfo("t", 0.01, 0.035, 0.001), cameras=[CameraSpec("other", "sim", 640, 480)]):
+        pass
+    assert main(["calibrate", str(path2), "--import", str(src)]) == 1
+    assert "'other'" in capsys.readouterr().err

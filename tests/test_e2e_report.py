@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from _e2e_data import make_session
+from tests._e2e_data import make_session
 from vfmlab.cli import main
 from vfmlab.report import SECTION_FAILED, build_report
 
@@ -61,8 +61,8 @@ def test_report_without_results_says_what_is_missing(tmp_path):
     assert "No identification is stored" in text
 
 
-def test_report_cli(report, tmp_path, capsys):
-    session, _ = report
+def test_report_cli(tmp_path, capsys):
+    session = make_session(tmp_path / "bare.h5", with_results=False)
     assert main(["report", str(session), "-o", str(tmp_path / "cli")]) == 0
     assert "report.html" in capsys.readouterr().out
     assert (tmp_path / "cli" / "report.html").exists()

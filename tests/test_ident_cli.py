@@ -10,7 +10,7 @@ from ident_synth import E0, PAPER, R0, homogeneous, lam_t_for_pressures
 from vfmlab.cli import main
 
 
-def _session(tmp_path, *, measures="wall", force_nan=False, zero_pressure=False, n_markers=300):
+def _session(tmp_path, *, measures="wall", force_nan=False, zero_pressure=False, n_markers=300, hidden_step=None):
     ps = np.linspace(0, 20e3, 6)[1:]
     lt = np.concatenate([[1.0], lam_t_for_pressures("delfino", PAPER["delfino"], ps, 1.1)])
     lz = np.concatenate([[1.0], np.full(len(ps), 1.1)])
@@ -27,7 +27,10 @@ def _session(tmp_path, *, measures="wall", force_nan=False, zero_pressure=False,
         for i in range(len(p)):
             w.add_step(StepRecord(0, float(lz[i]), float(p[i]), float(p[i]), float(f[i]), float(i), 1.7e9 + i))
     n = len(p)
-    write_result(path, "markers", {"positions": pos, "visible": np.ones(pos.shape[:2], bool),
+    visible = np.ones(pos.shape[:2], bool)
+    if hidden_step is not None:
+        visible[hidden_step] = False
+    write_result(path, "markers", {"positions": pos, "visible": visible,
                                    "marker_id": np.arange(pos.shape[1]), "step_index": np.arange(n)},
                  {"method": "synthetic"})
     return path
@@ -51,7 +54,7 @@ def test_identify_json_and_stored_result(tmp_path, capsys, measures):
 
 def test_identify_table(tmp_path, capsys):
     path = _session(tmp_path)
-    rc = main(["identify", str(path), "--model", "fung", "--ends", "free"])
+    rc = main(["identify", str(path), "--model", "fung", "--ends", "free", "--smooth", "2,1"])
     out = capsys.readouterr().out
     assert rc == 0
     assert "alpha12" in out and "kPa" in out and "identification_001" in out
@@ -61,6 +64,7 @@ def test_identify_table(tmp_path, capsys):
     ({"force_nan": True}, "axial force is missing"),
     ({"zero_pressure": True}, "zero pressure"),
     ({"n_markers": 8}, "at least 12"),
+    ({"hidden_step": 3}, "steps [3] have no observed marker"),
 ])
 def test_identify_degenerate_sessions_exit_nonzero(tmp_path, capsys, kwargs, match):
     path = _session(tmp_path, **kwargs)

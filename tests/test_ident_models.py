@@ -41,7 +41,7 @@ def _analytic(model, C, p):
 
 
 @pytest.mark.parametrize("model", ["fung", "delfino", "hgo", "neohookean"])
-def test_complex_step_stress_matches_closed_form(model):
+def test_automatic_stress_matches_closed_form(model):
     C = _random_C(200)
     S = pk2_stress(model, C, PAPER[model])
     ref = _analytic(model, C, PAPER[model])

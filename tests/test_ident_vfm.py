@@ -165,3 +165,52 @@ def test_degenerate_inputs_raise_clear_errors():
         prepare(pos, p, f, thickness=-1.0)
     with pytest.raises(ValueError, match="wall must be one of"):
         prepare(pos, p, f, thickness=E0, wall="shell")
+
+
+def test_smoothing_tames_marker_noise():
+    pos, p, f = _single_stretch("fung")
+    rng = np.random.default_rng(3)
+    noisy = pos + rng.normal(0.0, 0.05e-3, pos.shape)
+    smooth = identify(noisy, p, f, thickness=E0, model="fung", ends="free", smoothing=(4, 2))
+    raw = prepare(noisy, p, f, thickness=E0, ends="free")
+    assert raw.marker_noise == pytest.approx(0.05e-3, rel=0.15)
+    assert any("markers look noisy" in fl for fl in identify_prepared(raw, "fung").flags)
+    for name in ("beta", "alpha11", "alpha22"):
+        assert smooth.parameters[name] == pytest.approx(PAPER["fung"][name], rel=0.05), smooth.parameters
+    # exact homogeneous data lie in the smoothing basis: smoothing then changes nothing
+    exact = identify(pos, p, f, thickness=E0, model="fung", ends="free", smoothing=(4, 2))
+    assert exact.parameters["beta"] == pytest.approx(PAPER["fung"]["beta"], rel=1e-6)
+
+
+def test_laplace_curves_match_the_model_on_homogeneous_data():
+    from identification import laplace_curves
+    from ident_synth import cauchy_hoop_axial
+
+    pos, p, f = _single_stretch("fung")
+    mesh = build_mesh(pos[0])
+    cur = laplace_curves(mesh, pos, p, f, thickness=E0, model="fung", parameters=PAPER["fung"])
+    lt = np.linalg.norm(pos[:, :, :2], axis=-1).mean(1) / R0
+    assert np.allclose(cur.E11, 0.5 * (lt**2 - 1), atol=1e-12)
+    assert np.allclose(cur.E22[1:], 0.5 * (LZ**2 - 1), atol=1e-12)
+    s_t, s_z = cauchy_hoop_axial("fung", PAPER["fung"], lt, np.array([1.0] + [LZ] * 7))
+    assert np.allclose(cur.sigma11_laplace, s_t, rtol=1e-9)  # eq. 13 is exact for a homogeneous tube
+    assert np.allclose(cur.sigma22_laplace, s_z, rtol=1e-9)  # eq. 15
+    # the paper's model curves are uniaxial-strain predictions (E22 = 0, resp. E11 = 0)
+    s11_uni, _ = cauchy_hoop_axial("fung", PAPER["fung"], lt, 1.0)
+    assert np.allclose(cur.sigma11_model, s11_uni, rtol=1e-9)
+
+
+
+def test_a_mistracked_marker_only_costs_its_triangles(caplog):
+    pos, p, f = _single_stretch("delfino")
+    pos = pos.copy()
+    z = pos[4, :, 2]
+    i, j = np.argsort(np.abs(z))[:2]  # two markers near mid-length swap identities in step 4
+    pos[4, [i, j]] = pos[4, [j, i]]
+    data = prepare(pos, p, f, thickness=E0, ends="free")
+    assert data.n_valid_triangles[4] < data.n_valid_triangles[3]
+    assert data.n_outliers[4] == 2 and data.n_outliers.sum() == 2
+    assert "disagreeing with their neighbours" in caplog.text
+    res = identify_prepared(data, "delfino")
+    assert np.isfinite(res.cost)
+    assert res.parameters["alpha"] == pytest.approx(PAPER["delfino"]["alpha"], rel=0.01)

@@ -9,7 +9,7 @@ from acquisition.cameras import FunctionCamera
 from acquisition.protocol import MMHG, parse_protocol
 from acquisition.runner import AutoOperator, RunnerState, SessionRunner
 from acquisition.session import CameraSpec, SessionWriter, SpecimenInfo
-from run_fakes import FakeRig
+from _run_fakes import FakeRig
 from vfmlab.live import LiveView, TerminalOperator, format_duration, render_state
 
 

@@ -10,7 +10,7 @@ from acquisition.cameras import FunctionCamera
 from acquisition.protocol import MMHG, SafetyLimits, parse_protocol
 from acquisition.runner import AutoOperator, SessionRunner, completed_steps
 from acquisition.session import CameraSpec, SessionWriter, SpecimenInfo, open_session
-from run_fakes import FakeRig
+from _run_fakes import FakeRig
 
 PROTO = """
 [preconditioning]
@@ -95,7 +95,8 @@ def test_full_run_writes_every_step_and_vents(tmp_path):
 
 
 def test_retake_supersedes_without_deleting(tmp_path):
-    op = Scripted(["retake"])
+    op = Scripted(["note", "retake"])
+    op.ask_text = lambda prompt: "bubble in the cannula, retaking"
     runner, rig, cams, states = _runner(tmp_path, op)
     fired = []
 
@@ -107,7 +108,8 @@ def test_retake_supersedes_without_deleting(tmp_path):
 
     runner.on_update = on_update
     assert runner.run() == "complete"
-    assert op.asked and op.asked[0][1] == ["resume", "retake", "quit", "abort"]
+    assert op.asked and op.asked[0][1] == ["resume", "retake", "note", "quit", "abort"]
+    assert len(op.asked) == 2  # the note, then the menu again
     with open_session(tmp_path / "s.h5") as s:
         st = s.steps
         assert s.n_steps == 7 and st["supersedes"].tolist().count(1) == 1
@@ -116,6 +118,8 @@ def test_retake_supersedes_without_deleting(tmp_path):
         assert st["target_pressure"][retake] == st["target_pressure"][1]
         assert completed_steps(st) == 6
         assert "retake" in [e["kind"] for e in s.events()]
+        assert {"kind": "note", "message": "bubble in the cannula, retaking"}.items() <= \
+            next(e for e in s.events() if e["kind"] == "note").items()
 
 
 @pytest.mark.parametrize("answer,status,recorded", [("abort", "aborted", "aborted"),
@@ -233,3 +237,40 @@ def test_imaged_preconditioning_rows_do_not_count_as_protocol_steps(tmp_path):
         np.testing.assert_allclose(st["target_pressure"][:2], 80 * MMHG)
         assert st["stretch"][2:4].tolist() == [1.4, 1.4]
         assert completed_steps(st) == 3
+
+
+def test_calibration_views_are_captured_first(tmp_path):
+    placed = []
+    op = AutoOperator(place_board=lambda k, n: placed.append((k, n)), remove_board=lambda: placed.append("off"))
+    proto = PROTO.replace("[capture]", "[calibration]\nviews = 3\nboard = \"test board\"\n[capture]")
+    runner, rig, cams, _ = _runner(tmp_path, op, proto=proto)
+    assert runner.run() == "complete"
+    assert placed == [(0, 3), (1, 3), (2, 3), "off"]
+    with open_session(tmp_path / "s.h5") as s:
+        assert s.calibration_images("cam1").shape == (3, 12, 16) and s.n_steps == 6
+        kinds = [e["kind"] for e in s.events()]
+        assert kinds.index("calibration_done") < kinds.index("preconditioning_done")
+
+
+def test_pressure_controller_unplugged_while_commanding(tmp_path):
+    """The controller's port vanishes just as the next setpoint is sent: pause, then resend when back."""
+    runner, rig, cams, states = _runner(tmp_path, retry_delay_s=0.05)
+    orig = runner.on_update
+    done = []
+
+    def on_update(state):
+        orig(state)
+        if state.steps_done == 4 and not done:
+            done.append(time.monotonic())
+            rig.set_fault("pressure", "controller port vanished")
+            threading.Timer(0.4, rig.clear_fault, args=("pressure",)).start()
+
+    runner.on_update = on_update
+    assert runner.run() == "complete"
+    with open_session(tmp_path / "s.h5") as s:
+        assert s.n_steps == 6 and s.status == "complete"
+        faults = [e["message"] for e in s.events() if e["kind"] == "fault"]
+        assert any("pressure controller: command failed (Disconnected" in m for m in faults)
+        st = s.steps
+        assert st["t_monotonic"][4] > done[0] + 0.4  # step 5 waited for the controller
+        assert np.all(np.abs(st["pressure"] - st["target_pressure"]) < 0.5 * MMHG)

@@ -40,7 +40,15 @@ timeout_s = 20
 stretches = [1.1, 1.2]
 pressures_mmHg = [0, 20, 40, 60, 80, 100, 125, 150]
 """
+# the simulated rig at reduced resolution (the default --sim rig renders 640x480)
+RIG = (ROOT / "examples" / "sim-rig.toml").read_text().replace("width = 640, height = 480", "width = 320, height = 240")
 PLAN = [(b, s, p * MMHG) for b, s in enumerate((1.1, 1.2)) for p in (0, 20, 40, 60, 80, 100, 125, 150)]
+
+
+def _rig(tmp_path):
+    path = tmp_path / "rig.toml"
+    path.write_text(RIG)
+    return str(path)
 
 
 def _env():
@@ -62,7 +70,8 @@ def test_full_session_sigkill_and_resume(tmp_path, capsys):
     out = tmp_path / "s.h5"
     t0 = time.monotonic()
     proc = subprocess.Popen([sys.executable, "-m", "vfmlab", "run", str(proto), "--specimen", str(SPECIMEN),
-                             "--out", str(out), "--sim", "--yes", "--sim-speed", "5", "--no-detect"],
+                             "--out", str(out), "--rig", _rig(tmp_path), "--sim", "--yes", "--sim-speed", "5",
+                             "--no-detect"],
                             env=_env(), cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     try:
         while _n_steps(out) < 6:
@@ -115,14 +124,16 @@ def test_full_session_sigkill_and_resume(tmp_path, capsys):
             # the only gap is the kill window: last sample logged before the kill .. first after the resume
             gaps = np.diff(t)
             assert t[k] <= t_kill + 0.05 < t[k + 1]
-            assert t_kill - t[k] < 0.5, "samples older than 0.5 s before the kill were lost"
+            # the kill window: samples still in memory (drained every 50 ms, and after each capture)
+            assert t_kill - t[k] < 1.5, f"{ch}: samples {t_kill - t[k]:.2f} s before the kill were lost"
             # elsewhere: contiguous seq (checked above) and no hole in time beyond sampler jitter
             assert np.delete(gaps, k).max() < 0.5, (ch, np.delete(gaps, k).max())
             assert np.median(gaps) == pytest.approx(1 / RATE_HZ, rel=0.2)
         assert pre_kill_last <= t_kill
 
 
-def test_pulled_load_cell_pauses_and_resumes(tmp_path):
+@pytest.mark.parametrize("channel,name", [("force", "load cell"), ("pressure", "pressure transducer")])
+def test_pulled_instrument_pauses_and_resumes(tmp_path, channel, name):
     proto = tmp_path / "short.toml"
     proto.write_text(FAST.replace("pressure_cycles = 8", "pressure_cycles = 0")
                      .replace("stretch_cycles = 8", "stretch_cycles = 0")
@@ -134,26 +145,25 @@ def test_pulled_load_cell_pauses_and_resumes(tmp_path):
     def observer(state, bench):
         if state.steps_done == 2 and seen["pulled"] is None:
             seen["pulled"] = time.monotonic()
-            bench.sim.rig.fault("force").unplug()
-            threading.Timer(1.0, bench.sim.rig.fault("force").replug).start()
-        if state.phase == "paused" and "load cell" in state.message:
+            bench.sim.rig.fault(channel).unplug()
+            threading.Timer(1.0, bench.sim.rig.fault(channel).replug).start()
+        if state.phase == "paused" and name in state.message:
             seen["paused"] = True
 
     console = Console(file=io.StringIO(), width=120)
-    outcome = run_session(str(proto), str(SPECIMEN), str(out), sim=True, yes=True, sim_speed=5, console=console,
-                          observer=observer)
+    outcome = run_session(str(proto), str(SPECIMEN), str(out), rig_path=_rig(tmp_path), sim=True, yes=True,
+                          sim_speed=5, console=console, observer=observer)
     assert outcome.status == "complete" and seen["paused"]
     with open_session(out) as s:
         assert s.status == "complete" and s.n_steps == 4
         events = s.events()
         kinds = [e["kind"] for e in events]
         assert "fault" in kinds and "recovered" in kinds
-        fault = next(e for e in events if e["kind"] == "fault")
-        assert "load cell disconnected" in fault["message"]
+        assert any(f"{name} disconnected" in e["message"] for e in events if e["kind"] == "fault")
         st = s.steps
         # the step after the pull was captured only once the load cell was back, with a valid force
         assert np.all(np.isfinite(st["force"])) and st["t_monotonic"][2] > seen["pulled"] + 0.9
-        f = s.log("force")["t_monotonic"]
+        f = s.log(channel)["t_monotonic"]
         gap = np.diff(f).max()
         assert 0.9 < gap < 3.0  # the outage is visible in the log and bounded
 
@@ -216,7 +226,8 @@ def test_ctrl_c_pauses_and_quits_resumably(tmp_path, capsys):
                      .replace("[0, 20, 40, 60, 80, 100, 125, 150]", "[0, 50, 100, 150]"))
     out = tmp_path / "c.h5"
     proc = subprocess.Popen([sys.executable, "-m", "vfmlab", "run", str(proto), "--specimen", str(SPECIMEN),
-                             "--out", str(out), "--sim", "--yes", "--sim-speed", "5", "--no-detect"],
+                             "--out", str(out), "--rig", _rig(tmp_path), "--sim", "--yes", "--sim-speed", "5",
+                             "--no-detect"],
                             env=_env(), cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     t0 = time.monotonic()
     try:
@@ -240,3 +251,25 @@ def test_ctrl_c_pauses_and_quits_resumably(tmp_path, capsys):
     with open_session(out) as s:
         assert s.status == "complete" and s.n_steps == 4
         np.testing.assert_allclose(s.steps["target_pressure"], np.array([0, 50, 100, 150]) * MMHG)
+
+
+def test_sim_load_cell_reading_follows_the_rig_file(tmp_path):
+    """measures = "total": the simulated cell reads the wall force minus the end thrust p pi r_i^2."""
+    from acquisition.protocol import load_protocol, load_specimen, parse_rig
+    from vfmlab.simrig import SimBench
+
+    spec = load_specimen(SPECIMEN)
+    proto = load_protocol(ROOT / "examples" / "paper-protocol.toml")
+    for measures in ("wall", "total"):
+        rig = parse_rig(RIG.replace('mode = "controller"', 'mode = "manual"')
+                        .replace('measures = "wall"', f'measures = "{measures}"'))
+        with SimBench(rig, spec, proto, time_scale=20) as bench:
+            bench.set_stretch(1.1)
+            bench.set_operator_pressure(100 * MMHG)
+            time.sleep(0.2)  # 13 time constants
+            p = bench.rig.true_pressure()
+            wall = bench.scene.wall_force(p, 1.1)
+            thrust = p * np.pi * (spec.radius - spec.thickness) ** 2
+            expected = wall - (thrust if measures == "total" else 0.0)
+            assert bench.rig.true_force() == pytest.approx(expected, abs=0.01), measures
+            assert wall > 0.5 and thrust > 0.5  # the two cases differ by far more than the tolerance

@@ -35,6 +35,7 @@ class Bench:
     cameras : list of open Camera, in rig-file order
     stage : callable(stretch) or None (no motorised stage: the operator sets it)
     operator_pressure : callable(Pa) or None (simulated operator's hand, for unattended manual mode)
+    place_board, remove_board : callables or None (simulated hand with the calibration board)
     sim : SimBench or None
     """
 
@@ -45,6 +46,8 @@ class Bench:
     cameras: list[Camera]
     stage: Any = None
     operator_pressure: Any = None
+    place_board: Any = None
+    remove_board: Any = None
     sim: Any = None
     _stack: contextlib.ExitStack = field(default_factory=contextlib.ExitStack, repr=False)
 
@@ -122,7 +125,9 @@ def open_bench(config: RigConfig, sim: Any = None, *, rate_hz: float = 50.0) -> 
         stack.callback(sampler.stop)
         bench = Bench(config, pressure, load_cell, sampler, cameras,
                       stage=sim.set_stretch if sim is not None else None,
-                      operator_pressure=sim.set_operator_pressure if sim is not None else None, sim=sim,
+                      operator_pressure=sim.set_operator_pressure if sim is not None else None,
+                      place_board=sim.place_board if sim is not None else None,
+                      remove_board=sim.remove_board if sim is not None else None, sim=sim,
                       _stack=stack)
         return bench
     except BaseException:

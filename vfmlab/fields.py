@@ -23,7 +23,7 @@ from scipy.spatial import Delaunay
 log = logging.getLogger(__name__)
 
 __all__ = ["SurfaceMesh2", "SurfaceFields", "surface_mesh", "triangle_kinematics", "model_stress",
-           "laplace_stress", "midspan_radius", "compute_fields"]
+           "laplace_stress", "midspan_radius", "compute_fields", "stress_strain_curves"]
 
 
 class FieldsError(ValueError):
@@ -44,6 +44,8 @@ class SurfaceMesh2:
         Mean reference radius of the markers.
     source : str
         Which implementation built it.
+    raw : object
+        The ``identification.SurfaceMesh`` when that package built it, else None.
     """
 
     triangles: np.ndarray
@@ -51,6 +53,7 @@ class SurfaceMesh2:
     z: np.ndarray
     radius: float
     source: str
+    raw: Any = None
 
 
 def _identification_build_mesh():
@@ -103,7 +106,7 @@ def surface_mesh(reference: np.ndarray) -> SurfaceMesh2:
     mesh = build(reference)
     s = mesh.axis.radius * mesh.theta
     return SurfaceMesh2(np.asarray(mesh.triangles), np.where(mesh.used, s, np.nan),
-                        np.where(mesh.used, mesh.z, np.nan), float(mesh.axis.radius), "identification.build_mesh")
+                        np.where(mesh.used, mesh.z, np.nan), float(mesh.axis.radius), "identification.build_mesh", mesh)
 
 
 def triangle_kinematics(positions: np.ndarray, triangles: np.ndarray, reference_step: int = 0) -> dict[str, np.ndarray]:
@@ -150,6 +153,28 @@ def triangle_kinematics(positions: np.ndarray, triangles: np.ndarray, reference_
             "lam1": lam1, "lam2": lam2, "e1": e1, "e2": e2, "centroid": x[:, tri].mean(axis=2)}
 
 
+def surface_kinematics(mesh: SurfaceMesh2, positions: np.ndarray) -> tuple[dict[str, np.ndarray], str]:
+    """Per-triangle strains on ``mesh``: ``identification.membrane_kinematics`` (cylindrical interpolation,
+    rigid motion removed) when the identification package built the mesh, else :func:`triangle_kinematics`.
+
+    Returns the dict of :func:`triangle_kinematics` (``F`` then in current cylindrical components
+    (r, theta, z) and ``frame`` = "cylindrical") and a description of the source.
+    """
+    if mesh.raw is None:
+        kin = triangle_kinematics(positions, mesh.triangles)
+        kin["frame"] = "projected"
+        return kin, "vfmlab.fields.triangle_kinematics (flat triangles)"
+    from identification import membrane_kinematics
+
+    with np.errstate(invalid="ignore", divide="ignore"):  # unobserved triangles are NaN by design
+        k = membrane_kinematics(mesh.raw, positions)
+    C = k.C
+    return ({"F": k.F, "E11": k.E[..., 0, 0], "E22": k.E[..., 1, 1], "E12": k.E[..., 0, 1],
+             "lam1": np.sqrt(C[..., 0, 0]), "lam2": np.sqrt(C[..., 1, 1]), "centroid": k.centroid,
+             "frame": "cylindrical"},
+            "identification.membrane_kinematics (cylindrical interpolation, as used by the identification)")
+
+
 def model_stress(model: str, parameters: Mapping[str, float], kin: Mapping[str, np.ndarray]) -> dict[str, np.ndarray] | None:
     """Cauchy stresses (Pa) s11 (circumferential), s22 (axial), each (n_steps, n_tri), from the model.
 
@@ -165,6 +190,8 @@ def model_stress(model: str, parameters: Mapping[str, float], kin: Mapping[str, 
     sig = np.full(F.shape[:-2] + (3, 3), np.nan)
     if ok.any():
         sig[ok] = cauchy_stress(model, F[ok], dict(parameters))
+    if kin.get("frame") == "cylindrical":  # F maps to (r, theta, z) components
+        return {"s11": sig[..., 1, 1], "s22": sig[..., 2, 2]}
     e1, e2 = kin["e1"], kin["e2"]
     s11 = np.einsum("...i,...ij,...j->...", e1, sig, e1)
     s22 = np.einsum("...i,...ij,...j->...", e2, sig, e2)
@@ -240,12 +267,12 @@ def compute_fields(markers: Mapping[str, Any], step_table: Mapping[str, np.ndarr
         raise FieldsError(f"markers step_index must hold {len(pos)} rows of the step table (0..{n_table - 1}); "
                           f"got {rows.tolist()}")
     mesh = surface_mesh(pos[0])
-    kin = triangle_kinematics(pos, mesh.triangles)
+    kin, kin_source = surface_kinematics(mesh, pos)
     fields = SurfaceFields(
         steps=rows, pressure=np.asarray(step_table["pressure"], float)[rows],
         force=np.asarray(step_table["force"], float)[rows], stretch=np.asarray(step_table["stretch"], float)[rows],
         positions=pos, marker_id=np.asarray(arrays.get("marker_id", np.arange(pos.shape[1]))), mesh=mesh, kin=kin,
-        sources={"mesh": mesh.source, "strain": "vfmlab.fields.triangle_kinematics (flat triangles)"})
+        sources={"mesh": mesh.source, "strain": kin_source})
     for ident in identifications:
         model = str(ident["attrs"].get("model", ""))
         names = [str(n) for n in ident["arrays"].get("parameter_names", [])]
@@ -261,3 +288,58 @@ def compute_fields(markers: Mapping[str, Any], step_table: Mapping[str, np.ndarr
             fields.stress[ident["name"]] = {"model": model, **stress}
             fields.sources["stress"] = "identification.models.cauchy_stress"
     return fields
+
+
+def stress_strain_curves(fields: SurfaceFields, force: np.ndarray, thickness: float, load_cell_measures: str,
+                         identifications: list[Mapping[str, Any]] = (), band: float = 0.2) -> dict[str, Any]:
+    """Mean mid-span stress-strain curves and their Laplace-law estimates (paper appendices A, B).
+
+    Uses ``identification.laplace_curves`` (the paper's definitions: mean mid-span radius, length
+    between the end rows, model curves at E22 = 0 resp. E11 = 0) when the identification package
+    built the mesh; otherwise the per-triangle means of :func:`triangle_kinematics` over the
+    mid-span band and :func:`laplace_stress`, with each model's median stress on those triangles.
+
+    ``force`` (n_steps,) N is the load-cell reading; a "total" reading is corrected to the wall force.
+    Returns ``E11, E22, s11, s22, radius`` (n_steps,) and ``models`` {label: {"s11", "s22"}}, and
+    ``source``.
+    """
+    p = fields.pressure
+    mesh = fields.mesh
+    r_i = mesh.radius - thickness
+    wall_force = force + p * np.pi * r_i**2 if load_cell_measures == "total" else np.asarray(force, float)
+    if mesh.raw is not None:
+        from identification import laplace_curves
+
+        models: dict[str, dict[str, np.ndarray]] = {}
+        base = None
+        for ident in identifications:
+            a = ident["arrays"]
+            names = [str(n) for n in a.get("parameter_names", [])]
+            model = str(ident["attrs"].get("model", ""))
+            try:
+                c = laplace_curves(mesh.raw, fields.positions, p, wall_force, thickness=thickness, model=model,
+                                   parameters=dict(zip(names, np.asarray(a["parameters"], float))), band=band)
+            except (ValueError, KeyError) as exc:
+                log.warning("no model curve for %s: %s", ident.get("name"), exc)
+                continue
+            base = base or c
+            models[f"{ident['name']} ({model})"] = {"s11": c.sigma11_model, "s22": c.sigma22_model}
+        if base is None:  # the Laplace estimates do not depend on the model
+            base = laplace_curves(mesh.raw, fields.positions, p, wall_force, thickness=thickness, model="neohookean",
+                                  parameters={"mu": 1.0}, band=band)
+        return {"E11": base.E11, "E22": base.E22, "s11": base.sigma11_laplace, "s22": base.sigma22_laplace,
+                "radius": base.radius, "models": models,
+                "source": "identification.laplace_curves (model curves at E22 = 0 resp. E11 = 0, as in the paper)"}
+    zc = np.nanmean(mesh.z[mesh.triangles], axis=1)
+    lo, hi = np.nanmin(mesh.z), np.nanmax(mesh.z)
+    sel = np.abs(zc - 0.5 * (lo + hi)) <= 0.5 * band * (hi - lo)
+    with np.errstate(all="ignore"):
+        lam1, lam2 = np.nanmean(fields.kin["lam1"][:, sel], axis=1), np.nanmean(fields.kin["lam2"][:, sel], axis=1)
+        radius = midspan_radius(fields.positions, band)
+        lap = laplace_stress(p, force, radius, lam1, lam2, thickness, load_cell_measures)
+        models = {f"{name} ({st['model']})": {"s11": np.nanmedian(st["s11"][:, sel], axis=1),
+                                              "s22": np.nanmedian(st["s22"][:, sel], axis=1)}
+                  for name, st in fields.stress.items()}
+        return {"E11": np.nanmean(fields.kin["E11"][:, sel], axis=1), "E22": np.nanmean(fields.kin["E22"][:, sel], axis=1),
+                "s11": lap["s11"], "s22": lap["s22"], "radius": radius, "models": models,
+                "source": "vfmlab.fields (mid-span triangle means; models: median stress on those triangles)"}

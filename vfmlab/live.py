@@ -28,7 +28,7 @@ from acquisition.runner import RunnerState
 __all__ = ["render_state", "LiveView", "TerminalOperator", "format_duration"]
 
 _PHASE_STYLE = {"paused": "bold yellow", "done": "bold green", "capturing": "bold cyan", "stabilising": "cyan",
-                "preconditioning": "magenta", "setting": "blue"}
+                "preconditioning": "magenta", "setting": "blue", "calibrating": "magenta"}
 
 
 def format_duration(seconds: float) -> str:
@@ -102,7 +102,7 @@ class LiveView:
         return self
 
     def __exit__(self, *exc: object) -> None:
-        self._live.update(render_state(self.state, self.title), refresh=True)
+        self._live.update(render_state(self.state, self.title), refresh=False)
         self._live.stop()
         self._active = False
 
@@ -132,10 +132,17 @@ class LiveView:
 
 
 class TerminalOperator:
-    """Asks the operator at the terminal (click prompts), with the live view suspended."""
+    """Asks the operator at the terminal (click prompts), with the live view suspended.
 
-    def __init__(self, console: Console, view: LiveView | None = None):
+    ``hand_pressure`` / ``hand_stretch``: optional callables run after the operator confirms
+    (the simulated rig's valve and stage, so ``--sim`` without ``--yes`` behaves like the rig).
+    """
+
+    def __init__(self, console: Console, view: LiveView | None = None, hand_pressure=None, hand_stretch=None,
+                 hand_board=None, hand_unboard=None):
         self.console, self.view = console, view
+        self.hand_pressure, self.hand_stretch = hand_pressure, hand_stretch
+        self.hand_board, self.hand_unboard = hand_board, hand_unboard
 
     def _suspended(self):
         return self.view.suspend() if self.view is not None else _Null()
@@ -144,15 +151,32 @@ class TerminalOperator:
         with self._suspended():
             click.prompt(f"Set the pressure to {target / MMHG:.1f} mmHg ({target / 1e3:.2f} kPa), then press Enter",
                          default="", show_default=False)
+        if self.hand_pressure is not None:
+            self.hand_pressure(target)
 
     def set_stretch(self, stretch: float) -> None:
         with self._suspended():
             click.prompt(f"Set the axial stretch to L/L0 = {stretch:.3f}, then press Enter", default="",
                          show_default=False)
+        if self.hand_stretch is not None:
+            self.hand_stretch(stretch)
 
     def precondition(self, message: str) -> None:
         with self._suspended():
             click.prompt(f"{message} (press Enter when done)", default="", show_default=False)
+
+    def place_board(self, index: int, n_views: int) -> None:
+        with self._suspended():
+            click.prompt(f"Calibration: place the board in pose {index + 1}/{n_views} (vary position and tilt; "
+                         "seen by at least two cameras), then press Enter", default="", show_default=False)
+        if self.hand_board is not None:
+            self.hand_board(index, n_views)
+
+    def remove_board(self) -> None:
+        with self._suspended():
+            click.prompt("Calibration done: remove the board, then press Enter", default="", show_default=False)
+        if self.hand_unboard is not None:
+            self.hand_unboard()
 
     def choose(self, reason: str, options: Sequence[str]) -> str:
         with self._suspended():
@@ -161,6 +185,10 @@ class TerminalOperator:
 
     def notify(self, message: str) -> None:
         self.console.log(message)
+
+    def ask_text(self, prompt: str) -> str:
+        with self._suspended():
+            return click.prompt(prompt, default="", show_default=False)
 
 
 class _Null:

@@ -44,19 +44,19 @@ measures = "wall"
 [[camera]]
 name = "cam0"
 backend = "sim"
-settings = { width = 320, height = 240 }
+settings = { width = 640, height = 480 }
 [[camera]]
 name = "cam1"
 backend = "sim"
-settings = { width = 320, height = 240 }
+settings = { width = 640, height = 480 }
 [[camera]]
 name = "cam2"
 backend = "sim"
-settings = { width = 320, height = 240 }
+settings = { width = 640, height = 480 }
 [[camera]]
 name = "cam3"
 backend = "sim"
-settings = { width = 320, height = 240 }
+settings = { width = 640, height = 480 }
 [safety]
 max_pressure_mmHg = 200
 max_stretch = 1.5
@@ -130,15 +130,17 @@ def _sigint_pauses(runner: SessionRunner, console: Console):
 
 
 def _execute(runner_kwargs: dict[str, Any], protocol: Protocol, writer: SessionWriter, bench: Bench,
-             console: Console, yes: bool, start_step: int, precondition: bool,
+             console: Console, yes: bool, start_step: int, precondition: bool, calibrate: bool,
              detector: Callable[[np.ndarray], int] | None,
              observer: Callable[[RunnerState, Bench], None] | None = None) -> SessionRunner:
     live = console.is_terminal
     view = LiveView(console, title=f"vfmlab run · {writer.path.name}") if live else None
     if yes:
-        operator = AutoOperator(set_pressure=bench.operator_pressure, set_stretch=bench.stage)
+        operator = AutoOperator(set_pressure=bench.operator_pressure, set_stretch=bench.stage,
+                                place_board=bench.place_board, remove_board=bench.remove_board)
     else:
-        operator = TerminalOperator(console, view)
+        operator = TerminalOperator(console, view, hand_pressure=bench.operator_pressure, hand_stretch=bench.stage,
+                                    hand_board=bench.place_board, hand_unboard=bench.remove_board)
     last = {"steps": start_step}
 
     def on_update(state: RunnerState) -> None:
@@ -156,7 +158,7 @@ def _execute(runner_kwargs: dict[str, Any], protocol: Protocol, writer: SessionW
                            operator=operator, pressure_mode=bench.config.pressure.mode, stage=bench.stage,
                            safety=bench.config.safety, detector=detector, on_update=on_update, **runner_kwargs)
     with _sigint_pauses(runner, console), (view if view is not None else contextlib.nullcontext()):
-        runner.run(start_step=start_step, precondition=precondition)
+        runner.run(start_step=start_step, precondition=precondition, calibrate=calibrate)
     runner.state.message = runner.status
     return runner
 
@@ -180,8 +182,11 @@ def run_session(protocol_path: str, specimen_path: str, out: str, *, rig_path: s
         raise OperateError(f"{out_path}: file exists; refusing to overwrite a session (choose another --out, "
                            f"or 'vfmlab resume {out_path}' to continue it)")
     pc = protocol.preconditioning
-    console.print(f"[bold]{protocol.name}[/]: {protocol.n_steps} steps in {len(protocol.blocks)} block(s) "
-                  f"(L/L0 {', '.join(f'{b.stretch:g}' for b in protocol.blocks)}); preconditioning "
+    test_blocks = protocol.blocks[int(protocol.has_reference):]
+    console.print(f"[bold]{protocol.name}[/]: {protocol.n_steps} steps: "
+                  + ("stress-free reference, then " if protocol.has_reference else "")
+                  + f"{len(test_blocks)} block(s) at L/L0 {', '.join(f'{b.stretch:g}' for b in test_blocks)}; "
+                  f"{protocol.calibration.views} calibration views; preconditioning "
                   f"{pc.pressure_cycles} x 0-{pc.pressure_max / MMHG:.0f} mmHg, {pc.stretch_cycles} x L/L0 "
                   f"1-{pc.stretch_max:g}; specimen {specimen.specimen_id}; rig {rig.name}")
     with contextlib.ExitStack() as stack:
@@ -205,7 +210,8 @@ def run_session(protocol_path: str, specimen_path: str, out: str, *, rig_path: s
                 load_cell_measures=rig.load_cell.measures)
         except (SessionError, OSError) as exc:
             raise OperateError(str(exc)) from None
-        runner = _execute(runner_kwargs, protocol, writer, bench, console, yes, 0, True, detector, observer)
+        runner = _execute(runner_kwargs, protocol, writer, bench, console, yes, 0, True, True, detector,
+                          observer)
     return _report(runner, out_path, console)
 
 
@@ -241,6 +247,7 @@ def resume_session(path: str, *, rig_path: str | None = None, sim: bool = False,
         raise OperateError(str(exc)) from None
     specimen = SpecimenFile(info.specimen_id, info.radius, info.length, info.thickness, info.notes)
     done_pre = "preconditioning_done" in kinds or start > 0
+    done_cal = "calibration_done" in kinds or "preconditioning" in kinds or start > 0
     console.print(f"Resuming {path}: {start}/{protocol.n_steps} steps done"
                   + ("" if done_pre else "; preconditioning will be redone"))
     if start >= protocol.n_steps:
@@ -267,8 +274,8 @@ def resume_session(path: str, *, rig_path: str | None = None, sim: bool = False,
             raise OperateError(str(exc)) from None
         writer.add_event("resume", f"resuming at step {start}/{protocol.n_steps}; instruments "
                                    f"{bench.pressure.identity!r}, {bench.load_cell.identity!r}")
-        runner = _execute(runner_kwargs, protocol, writer, bench, console, yes, start, not done_pre, detector,
-                          observer)
+        runner = _execute(runner_kwargs, protocol, writer, bench, console, yes, start, not done_pre, not done_cal,
+                          detector, observer)
     return _report(runner, Path(path), console)
 
 

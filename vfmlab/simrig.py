@@ -102,6 +102,9 @@ class SimScene:
         self._lock = threading.Lock()
         self._cache: tuple[float, tuple[float, float], list[np.ndarray]] | None = None
         self.renders = 0
+        self.board_view: int | None = None  # calibration board in view (pose index), or None
+        self._board_poses: tuple[np.ndarray, np.ndarray] | None = None
+        self._board_images: dict[int, list[np.ndarray]] = {}
 
     # -- mechanics ---------------------------------------------------------------------------
     def _weights(self, pressure: float, stretch: float):
@@ -142,11 +145,39 @@ class SimScene:
         return pts, nrm, SurfaceOfRevolution(z, r)
 
     # -- rendering ---------------------------------------------------------------------------
+    def place_board(self, index: int, n_views: int) -> None:
+        """Put the calibration board (``reconstruction.targets.BoardSpec()`` defaults, the
+        ``vfmlab calibrate`` defaults) in pose ``index`` of ``n_views`` seeded poses."""
+        with self._lock:
+            if self._board_poses is None or len(self._board_poses[0]) != n_views:
+                from reconstruction.targets import BoardSpec
+                from rig_sim.board import board_poses
+
+                self._board_poses = board_poses(self.cameras, BoardSpec(), n_views, seed=self.seed)
+                self._board_images = {}
+            self.board_view = int(index)
+
+    def remove_board(self) -> None:
+        with self._lock:
+            self.board_view = None
+
+    def _board(self, k: int) -> list[np.ndarray]:
+        if k not in self._board_images:
+            from reconstruction.targets import BoardSpec
+            from rig_sim.board import render_board_views
+
+            rv, tv = self._board_poses
+            views = render_board_views(self.cameras, BoardSpec(), rv[k:k + 1], tv[k:k + 1], seed=self.seed + k)
+            self._board_images[k] = [views.images[c.name][0] for c in self.cameras]
+        return self._board_images[k]
+
     def images(self, pressure: float, stretch: float, max_age_s: float = 0.2) -> list[np.ndarray]:
         """All cameras' images at the state; one render is shared by the cameras of a capture."""
         from rig_sim import render_markers
 
         with self._lock:
+            if self.board_view is not None:
+                return self._board(self.board_view)
             now = time.monotonic()
             if self._cache is not None and now - self._cache[0] < max_age_s:
                 return self._cache[2]
@@ -190,6 +221,10 @@ class SimBench:
         self.rig = SimulatedRig(pressure_source=self.config.pressure.mode,
                                 mechanics=self.scene.wall_force, tau_s=0.3 / self.time_scale,
                                 rng=np.random.default_rng(self.seed))
+        if self.config.load_cell.measures == "total":
+            # a cell behind a closed cannula reads F_wall - p pi r_i^2 (decision 0003)
+            r_i = self.specimen.radius - self.specimen.thickness
+            self.rig.force_model.end_area_m2 = float(np.pi * r_i**2)
         self.rig.__enter__()
         return self
 
@@ -211,6 +246,13 @@ class SimBench:
         """The motorised stage of the simulated rig."""
         self.rig.set_stretch(stretch)
         self.stretch = float(stretch)
+
+    def place_board(self, index: int, n_views: int) -> None:
+        """The operator's hand placing the calibration board."""
+        self.scene.place_board(index, n_views)
+
+    def remove_board(self) -> None:
+        self.scene.remove_board()
 
     def set_operator_pressure(self, pa: float) -> None:
         """The operator's hand on the valve (manual pressure mode)."""

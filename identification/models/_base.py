@@ -9,8 +9,10 @@ second Piola-Kirchhoff stress is then
     S_ab = 2 dW_hat / dC_ab,    W_hat(C11, C22, C12) = W(C11, C22, C12, 1 / det C)
 
 which equals ``2 dW/dC_ab - p C^-1_ab`` with the pressure ``p`` eliminated by ``S33 = 0``. The
-derivative is taken by complex step (exact to rounding, no subtractive cancellation), for every
-model alike; a new model is one small module with its energy and a registry entry.
+derivative is taken by forward-mode automatic differentiation (vector dual numbers, ``_dual.py``:
+exact, one evaluation for all three components), for every model alike; a new model is one small
+module with its energy and a registry entry. Energies must therefore be written with arithmetic,
+``np.exp/log/sqrt/sin/cos``, ``np.where`` and ``np.real`` only.
 """
 
 from __future__ import annotations
@@ -22,8 +24,7 @@ import numpy as np
 
 __all__ = ["Model", "register", "get_model", "available_models", "pk2_stress", "cauchy_stress", "strain_energy"]
 
-_STEP = 1e-30
-
+from ._dual import seed
 
 @dataclass(frozen=True)
 class Model:
@@ -38,11 +39,13 @@ class Model:
     units : tuple of str
         SI unit of each parameter (``"Pa"``, ``"1"``, ``"rad"``).
     energy : callable
-        ``energy(c11, c22, c12, c33, **parameters) -> W`` [Pa], elementwise, complex-safe.
+        ``energy(c11, c22, c12, c33, **parameters) -> W`` [Pa], elementwise (works on dual numbers).
     initial_guess : dict
         A generic starting point for the optimiser (SI).
     positive : tuple of bool
         Parameters that must be > 0 (optimised on a log scale).
+    linear : tuple of bool
+        Stress-like parameters W is proportional to (the optimiser fits them linearly at each start).
     lower, upper : tuple of float
         Bounds for the parameters that are not log-scaled (ignored for positive ones).
     """
@@ -53,17 +56,20 @@ class Model:
     energy: Callable[..., np.ndarray]
     initial_guess: Mapping[str, float]
     positive: tuple[bool, ...]
+    linear: tuple[bool, ...] = field(default=())
     lower: tuple[float, ...] = field(default=())
     upper: tuple[float, ...] = field(default=())
     description: str = ""
 
     def __post_init__(self) -> None:
         n = len(self.parameter_names)
+        if not self.linear:
+            object.__setattr__(self, "linear", (False,) * n)
         if not self.lower:
             object.__setattr__(self, "lower", (-np.inf,) * n)
         if not self.upper:
             object.__setattr__(self, "upper", (np.inf,) * n)
-        for name, value in (("units", self.units), ("positive", self.positive), ("lower", self.lower),
+        for name, value in (("units", self.units), ("positive", self.positive), ("linear", self.linear), ("lower", self.lower),
                             ("upper", self.upper)):
             if len(value) != n:
                 raise ValueError(f"Model {self.name!r}: {name} needs {n} entries; got {len(value)}")
@@ -119,23 +125,19 @@ def _energy_hat(model: Model, c11, c22, c12, parameters):
 def strain_energy(model: str | Model, C: np.ndarray, parameters: Mapping[str, float]) -> np.ndarray:
     """Strain energy density W [Pa] at in-plane ``C`` of shape ``(..., 2, 2)``."""
     model = get_model(model)
-    return np.real(_energy_hat(model, *_components(C), model.check_parameters(parameters)))
+    return np.asarray(_energy_hat(model, *_components(C), model.check_parameters(parameters)), dtype=float)
 
 
 def pk2_components(model: Model, c11, c22, c12, parameters: Mapping[str, np.ndarray]):
     """``(S11, S22, S12)`` [Pa] from C components; parameters may be arrays that broadcast.
 
-    This is the hot path of the identification (no validation).
+    This is the hot path of the identification (no validation). Parameter arrays must not have
+    more dimensions than the C components (prepend axes of length 1 to C for batches).
     """
-    h = _STEP
-    c11 = np.asarray(c11, dtype=float)
-    c22 = np.asarray(c22, dtype=float)
-    c12 = np.asarray(c12, dtype=float)
-    s11 = 2.0 * np.imag(_energy_hat(model, c11 + 1j * h, c22, c12, parameters)) / h
-    s22 = 2.0 * np.imag(_energy_hat(model, c11, c22 + 1j * h, c12, parameters)) / h
+    w = _energy_hat(model, *seed(c11, c22, c12), parameters)
+    grad = np.broadcast_to(w.d, (3,) + np.shape(w.v))
     # c12 stands for both off-diagonal entries of C: dW/dc12 = 2 dW/dC_12 = S_12.
-    s12 = np.imag(_energy_hat(model, c11, c22, c12 + 1j * h, parameters)) / h
-    return s11, s22, s12
+    return 2.0 * grad[0], 2.0 * grad[1], grad[2]
 
 
 def pk2_stress(model: str | Model, C: np.ndarray, parameters: Mapping[str, float]) -> np.ndarray:

@@ -26,6 +26,7 @@ DELFINO = register(
         energy=energy,
         initial_guess={"beta": 10e3, "alpha": 1.0},
         positive=(True, True),
+        linear=(True, False),
         description="Delfino/Demiray isotropic exponential",
     )
 )

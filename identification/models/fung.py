@@ -32,6 +32,7 @@ FUNG = register(
         # The paper's footnote (Fung 1993): beta = 29 kPa, alpha11 = 2.5, alpha22 = 0.5, alpha12 = 0.17.
         initial_guess={"beta": 29e3, "alpha11": 2.5, "alpha22": 0.5, "alpha12": 0.17},
         positive=(True, True, True, False),
+        linear=(True, False, False, False),
         lower=(0.0, 0.0, 0.0, -50.0),
         upper=(np.inf, np.inf, np.inf, 50.0),
         description="2-D Fung exponential (anisotropic)",

@@ -40,6 +40,7 @@ HGO = register(
         energy=energy,
         initial_guess={"c": 2e3, "k1": 20e3, "k2": 1.0, "phi": np.deg2rad(40.0)},
         positive=(True, True, True, False),
+        linear=(True, True, False, False),
         lower=(0.0, 0.0, 0.0, 0.0),
         upper=(np.inf, np.inf, np.inf, 0.5 * np.pi),
         description="Holzapfel-Gasser-Ogden, two fibre families at +/- phi (tension only)",

@@ -24,6 +24,7 @@ NEOHOOKEAN = register(
         energy=energy,
         initial_guess={"mu": 10e3},
         positive=(True,),
+        linear=(True,),
         description="neo-Hookean (isotropic baseline)",
     )
 )

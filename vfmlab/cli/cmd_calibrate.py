@@ -46,13 +46,68 @@ def _board_spec(board, squares, square_size_mm, marker_size_mm, dictionary, subp
 
 def _table(result) -> Table:
     t = Table(title="Calibration (joint bundle adjustment)")
-    for col in ("camera", "views", "RMS [px]", "init RMS [px]", "fx", "fy", "cx", "cy", "k1", "k2"):
+    for col in ("camera", "views", "RMS (px)", "init RMS (px)", "fx (px)", "fy (px)", "cx (px)", "cy (px)", "k1", "k2"):
         t.add_column(col, justify="right" if col != "camera" else "left")
     for i, (row, cam) in enumerate(zip(result.summary(), result.cameras)):
         t.add_row(row["camera"], str(row["views"]), f"{row['rms_px']:.3f}", f"{result.initial_rms[i]:.3f}",
-                  f"{row['fx']:.1f}", f"{row['fy']:.1f}", f"{row['cx']:.1f}", f"{row['cy']:.1f}",
+                  f"{row['fx']:.1f}±{row['fx_std']:.1f}", f"{row['fy']:.1f}±{row['fy_std']:.1f}",
+                  f"{row['cx']:.1f}±{row['cx_std']:.1f}", f"{row['cy']:.1f}±{row['cy_std']:.1f}",
                   f"{cam.dist[0]:+.4f}", f"{cam.dist[1]:+.4f}")
     return t
+
+
+def _import(path: Path, file_units: str, session, store: bool, out, units: str, as_json: bool) -> None:
+    """``--import``: read a calibration file, check it against the session's cameras, store and/or convert it."""
+    from reconstruction.calibration_io import (CalibrationFileError, cameras_from_toml, cameras_from_yaml,
+                                               cameras_to_arrays, cameras_to_toml, cameras_to_yaml)
+
+    try:
+        text = path.read_text()
+        reader = cameras_from_toml if path.suffix.lower() == ".toml" else cameras_from_yaml
+        cams, meta = reader(text, units=file_units)
+    except (CalibrationFileError, UnicodeDecodeError) as exc:
+        raise CliError(f"--import {path}: {exc}") from None
+    stored = None
+    if session is not None and store:
+        from acquisition.session import SessionError, write_result
+        from vfmlab.cli._sessions import cli_session
+
+        with cli_session(session) as s:
+            wanted = s.camera_names
+            sizes = {c.name: (c.width, c.height) for c in s.cameras}
+        names = [c.name for c in cams]
+        missing = [n for n in wanted if n not in names]
+        if missing:
+            raise CliError(f"--import {path}: the session's cameras {missing} are not in the file (it has {names})")
+        bad = [c.name for c in cams if c.name in sizes and tuple(sizes[c.name]) != tuple(c.image_size)]
+        if bad:
+            raise CliError(f"--import {path}: image size differs from the session's for cameras {bad}")
+        cams = [next(c for c in cams if c.name == n) for n in wanted]
+        rms = meta.get("rms_px")
+        rms = np.asarray(rms, float) if isinstance(rms, list) and len(rms) == len(names) else None
+        arrays = cameras_to_arrays(cams, None if rms is None else [rms[names.index(c.name)] for c in cams])
+        try:
+            stored = write_result(session, "calibration", arrays,
+                                  {"source": str(path), "imported": True, "file_units": meta.get("units", file_units)},
+                                  {"converged": True, "n_observations": 0, "n_outliers": 0},
+                                  units={"K": "px", "tvec": "m", "rvec": "rad", "rms": "px", "image_size": "px"})
+        except SessionError as exc:
+            raise CliError(str(exc)) from None
+    if out is not None:
+        meta = {k: v for k, v in meta.items() if k != "units"}
+        meta["imported_from"] = str(path)
+        writer = cameras_to_toml if out.suffix.lower() == ".toml" else cameras_to_yaml
+        out.write_text(writer(cams, units=units, metadata=meta))
+    summary = {"cameras": [c.name for c in cams], "imported_from": str(path), "stored_as": stored,
+               "out": str(out) if out else None}
+    if as_json:
+        print_json(summary)
+        return
+    console.print(f"imported {len(cams)} cameras from {path}: {', '.join(c.name for c in cams)}")
+    if stored:
+        console.print(f"stored as {stored} in {session}")
+    if out is not None:
+        console.print(f"wrote {out}")
 
 
 @click.command()
@@ -80,9 +135,14 @@ def _table(result) -> Table:
               help="Length unit of the translations in --out.")
 @click.option("--store/--no-store", default=True, show_default=True,
               help="Store the result in SESSION (as a new 'calibration' result) when a session is given.")
+@click.option("--import", "import_file", type=click.Path(exists=True, dir_okay=False, path_type=Path),
+              help="Take the calibration from a file instead of board images: aniposelib calibration.toml or "
+                   "OpenCV FileStorage .yaml/.yml/.xml/.json (store it in SESSION and/or convert it with -o).")
+@click.option("--import-units", type=click.Choice(["m", "cm", "mm", "um"]), default="mm", show_default=True,
+              help="Length unit of an imported file's translations when the file does not say (aniposelib does not).")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
 def command(session, images_dir, board, squares, square_size_mm, marker_size_mm, dictionary, subpix_window, reference,
-            world_view, fix_k3, out, units, store, as_json):
+            world_view, fix_k3, out, units, store, import_file, import_units, as_json):
     """Calibrate the cameras jointly from calibration-board images.
 
     Each camera is initialised alone (OpenCV), camera poses are chained through shared board
@@ -96,10 +156,15 @@ def command(session, images_dir, board, squares, square_size_mm, marker_size_mm,
     from reconstruction.calibration_io import cameras_to_arrays, cameras_to_toml, cameras_to_yaml
     from reconstruction.targets import detect_board
 
-    if session is None and images_dir is None:
-        raise CliError("give a SESSION (its calibration images) or --images DIR")
     if out is not None and out.suffix.lower() not in (".toml", ".yaml", ".yml"):
         raise CliError(f"--out must end in .toml, .yaml or .yml; got {out.name!r}")
+    if import_file is not None:
+        if images_dir is not None:
+            raise CliError("--import and --images exclude each other: calibrate from images or import a calibration")
+        _import(import_file, import_units, session, store, out, units, as_json)
+        return
+    if session is None and images_dir is None:
+        raise CliError("give a SESSION (its calibration images) or --images DIR")
     spec = _board_spec(board, squares, square_size_mm, marker_size_mm, dictionary, subpix_window)
 
     detections: dict = {}

@@ -57,8 +57,11 @@ def load_session_data(session) -> dict:
               help="clamped: tube tied on cannulae beyond the markers (pressure on the unmeasured strip counted).")
 @click.option("--optimizer", type=click.Choice(["lsq", "nelder-mead"]), default="lsq", show_default=True,
               help="lsq: fast least squares with several starts; nelder-mead: the paper's simplex.")
+@click.option("--smooth", default=None, metavar="AXIAL,HARMONICS",
+              help="Smooth the measured displacements (Legendre degree along the axis, Fourier harmonics around) "
+                   "before differentiating; e.g. 4,2 for noisy markers (>~0.02 mm).")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON (SI units) for scripts.")
-def command(session_path, model, wall, ends, optimizer, as_json):
+def command(session_path, model, wall, ends, optimizer, smooth, as_json):
     """Identify MODEL parameters from the latest marker tracks of SESSION and store the result in it.
 
     Units: parameters in SI (Pa, rad); the table shows kPa and degrees.
@@ -67,11 +70,19 @@ def command(session_path, model, wall, ends, optimizer, as_json):
     from identification import IdentificationError, identify
     from vfmlab.cli._sessions import cli_session
 
+    smoothing = None
+    if smooth:
+        try:
+            smoothing = tuple(int(v) for v in smooth.split(","))
+            if len(smoothing) != 2 or min(smoothing) < 0:
+                raise ValueError
+        except ValueError:
+            raise CliError(f"--smooth must be two non-negative integers AXIAL,HARMONICS like 4,2; got {smooth!r}")
     with cli_session(session_path) as session:
         data = load_session_data(session)
     try:
         result = identify(data["positions"], data["pressure"], data["force"], thickness=data["thickness"],
-                          model=model, wall=wall, ends=ends, optimizer=optimizer)
+                          model=model, wall=wall, ends=ends, optimizer=optimizer, smoothing=smoothing)
     except IdentificationError as exc:
         raise CliError(f"{session_path}: cannot identify: {exc}") from None
     names = list(result.parameters)
@@ -85,7 +96,7 @@ def command(session_path, model, wall, ends, optimizer, as_json):
         "residuals": result.residuals,
         "step_index": data["rows"],
     }
-    settings = {"model": model, "wall": wall, "ends": ends, "optimizer": optimizer,
+    settings = {"model": model, "wall": wall, "ends": ends, "optimizer": optimizer, "smoothing": smoothing,
                 "markers_result": data["markers_result"], "thickness": data["thickness"],
                 "force_correction": data["notes"]}
     attrs = {"model": model, "wall": wall, "cost": result.cost, "converged": result.converged,

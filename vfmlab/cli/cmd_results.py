@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import click
+from rich.markup import escape
 from rich.table import Table
 
 from acquisition.session import SessionError
@@ -12,8 +13,13 @@ from vfmlab.cli._common import CliError, console, print_json
 from vfmlab.cli._sessions import cli_session
 
 
-def _settings_text(settings: dict, limit: int = 60) -> str:
-    text = ", ".join(f"{k}={json.dumps(v)}" for k, v in sorted(settings.items()))
+KEY_SETTINGS = {"identification": ("optimizer", "ends", "markers_result")}
+
+
+def _settings_text(kind: str, settings: dict, limit: int = 120) -> str:
+    keys = KEY_SETTINGS.get(kind)
+    items = [(k, settings[k]) for k in keys if k in settings] if keys else sorted(settings.items())
+    text = ", ".join(f"{k}={v}" if isinstance(v, str) else f"{k}={json.dumps(v)}" for k, v in items)
     return text if len(text) <= limit else text[: limit - 1] + "…"
 
 
@@ -54,24 +60,26 @@ def command(session, kind, compare, as_json):
     if not data:
         console.print(f"{session}: no results{' of kind ' + kind if kind else ''} yet.")
         return
-    table = Table(title=f"Results in {session}")
-    table.add_column("name", no_wrap=True)
-    for col in ("date (UTC)", "version", "settings", "summary"):
-        table.add_column(col, overflow="fold")
+    console.print(f"[bold]{escape(str(session))}[/]: {len(data)} result(s), oldest first")
     for row in data:
+        console.print(f"[bold cyan]{row['name']}[/]  {row['date'][:19].replace('T', ' ')} UTC  "
+                      f"vfmlab {escape(row['version'])}", soft_wrap=True)
+        console.print(f"    settings: {escape(_settings_text(row['kind'], row['settings']))}", soft_wrap=True)
         if row["kind"] == "identification":
-            summary = (f"{row['model']} ({row['wall']}) cost {_num(row['cost'])}"
-                       f"{'' if row['converged'] else ' NOT CONVERGED'}: "
-                       + ", ".join(f"{n}={_num(p['value'])}±{_num(p['stderr'])}" for n, p in row["parameters"].items()))
+            params = ", ".join(f"{n} = {_num(p['value'])} ± {_num(p['stderr'])}" for n, p in row["parameters"].items())
+            state = "converged" if row["converged"] else "[red]NOT converged[/]"
+            console.print(f"    {row['model']} ({row['wall']}), cost {_num(row['cost'])}, {state}: {params}",
+                          soft_wrap=True)
+            flags = row["flags"] if isinstance(row["flags"], list) else [f"{k}: {v}" for k, v in row["flags"].items()]
+            for flag in flags:
+                console.print(f"    [yellow]warning:[/] {escape(str(flag))}", soft_wrap=True)
         elif row["kind"] == "markers" and "n_markers" in row:
-            summary = f"{row['n_markers']} markers × {row['n_steps']} steps, {row['completeness'] * 100:.1f} % seen"
+            console.print(f"    {row['n_markers']} markers × {row['n_steps']} steps, "
+                          f"{row['completeness'] * 100:.1f} % of marker-steps reconstructed")
         elif row["kind"] == "calibration" and "rms_px" in row:
-            summary = f"{len(row['rms_px'])} cameras, RMS " + ", ".join(f"{v:.2f}" for v in row["rms_px"]) + " px"
-        else:
-            summary = ""
-        table.add_row(row["name"], row["date"][:16].replace("T", " "), row["version"], _settings_text(row["settings"]),
-                      summary)
-    console.print(table)
+            console.print(f"    {len(row['rms_px'])} cameras, reprojection RMS "
+                          + ", ".join(f"{c} {v:.3f}" for c, v in zip(row["cameras"], row["rms_px"])) + " px",
+                          soft_wrap=True)
 
 
 def _print_comparison(data: dict) -> None:

@@ -17,7 +17,7 @@ import numpy as np
 
 from acquisition.session import Session, open_session
 from vfmlab import __version__
-from vfmlab.fields import FieldsError, SurfaceFields, compute_fields, laplace_stress, midspan_radius
+from vfmlab.fields import FieldsError, compute_fields, stress_strain_curves
 from vfmlab.report import figures
 
 log = logging.getLogger(__name__)
@@ -183,8 +183,21 @@ def _sec_calibration(ctx: _Context, rep: _Report) -> str:
     out = [f"<p>Result <code>{html.escape(cal['name'])}</code> ({html.escape(str(cal['attrs'].get('date', '')))}), "
            f"{len(names)} cameras; reprojection RMS error {np.nanmin(rms):.3f}–{np.nanmax(rms):.3f} px "
            f"(mean {np.nanmean(rms):.3f} px).</p>"]
-    out.append(rep.figure(figures.calibration_rms(names, rms), "calibration_rms",
-                          "Reprojection RMS error of the calibration-board corners per camera."))
+    at = cal["attrs"]
+    extra = []
+    if "rms_total" in at:
+        extra.append(f"overall {_fmt(float(at['rms_total']), 3)} px")
+    if "n_observations" in at:
+        extra.append(f"{int(at['n_observations'])} corner observations")
+    if "n_outliers" in at:
+        extra.append(f"{int(at['n_outliers'])} outliers rejected")
+    if "converged" in at:
+        extra.append("converged" if bool(at["converged"]) else "<b>did not converge</b>")
+    if extra:
+        out.append(f"<p>Bundle adjustment: {', '.join(extra)}.</p>")
+    out.append(rep.figure(figures.calibration_rms(names, rms, a.get("rms_per_view")), "calibration_rms",
+                          "Reprojection RMS error of the calibration-board corners per camera (bars) and per "
+                          "board view (dots)."))
     return "".join(out)
 
 
@@ -228,7 +241,8 @@ def _sec_strain(ctx: _Context, rep: _Report) -> str:
     if len(shown) < len(f.positions) - 1:
         out.append(f"<p>{len(shown)} of {len(f.positions) - 1} loaded steps are shown.</p>")
     for comp, name in (("E11", "circumferential"), ("E22", "axial")):
-        fig = figures.surface_maps(f, f.kin[comp], title=f"{comp}: {name} strain", label=f"{comp} (%)", scale=100)
+        fig = figures.surface_maps(f, f.kin[comp], title=f"{comp}: {name} strain", label=f"{comp} (%)", scale=100,
+                                    min_span=0.05)
         out.append(rep.figure(fig, f"strain_{comp}", f"{name.capitalize()} Green–Lagrange strain {comp} at each step "
                                                      "(paper Fig. 3)."))
     return "".join(out)
@@ -248,7 +262,7 @@ def _sec_stress(ctx: _Context, rep: _Report) -> str:
     for name, st in f.stress.items():
         for comp, label in (("s11", "circumferential σθθ"), ("s22", "axial σzz")):
             fig = figures.surface_maps(f, st[comp], title=f"{name} ({st['model']}): {label}",
-                                       label=f"{label} (kPa)", scale=1e-3)
+                                       label=f"{label.split()[1]} (kPa)", scale=1e-3, min_span=0.1)
             out.append(rep.figure(fig, f"stress_{name}_{comp}", f"{label} from {name} ({st['model']})."))
     return "".join(out)
 
@@ -263,20 +277,20 @@ def _sec_virtual_work(ctx: _Context, rep: _Report) -> str:
                                            "each virtual field and model (paper Figs. 5–6).")
 
 
-def _midspan_means(f: SurfaceFields, band: float = 0.2) -> np.ndarray:
-    """Triangles whose reference centroid lies in the middle ``band`` of the marker span, (n_tri,) bool."""
-    zc = np.nanmean(f.mesh.z[f.mesh.triangles], axis=1)
-    lo, hi = np.nanmin(f.mesh.z), np.nanmax(f.mesh.z)
-    return np.abs(zc - 0.5 * (lo + hi)) <= 0.5 * band * (hi - lo)
+def _curves(ctx: _Context) -> dict[str, Any]:
+    if getattr(ctx, "_curves_cache", None) is None:
+        ctx._curves_cache = stress_strain_curves(ctx.fields, ctx.fields.force, ctx.session.specimen.thickness,
+                                                 ctx.session.load_cell_measures, ctx.latest_idents)
+    return ctx._curves_cache
 
 
 def _sec_pressure_radius(ctx: _Context, rep: _Report) -> str:
     f = ctx.fields
     if f is None:
         return ctx.no_fields()
-    r = midspan_radius(f.positions)
+    r = _curves(ctx)["radius"]
     out = [rep.figure(figures.pressure_radius(f.pressure, r, f.stretch), "pressure_radius",
-                      "Pressure against the radius of the mid-span markers (middle 20 % of the marked length).")]
+                      "Pressure against the mean radius of the mid-span markers (middle 20 % of the marked length).")]
     out.append(_table(["step", "pressure (mmHg)", "λz", "mid-span radius (mm)"],
                       [[k, f"{p / figures.MMHG:.1f}", f"{s:.3f}", _fmt(ri * 1e3, 5)]
                        for k, (p, s, ri) in enumerate(zip(f.pressure, f.stretch, r))], numeric={0, 1, 2, 3}))
@@ -287,24 +301,17 @@ def _sec_stress_strain(ctx: _Context, rep: _Report) -> str:
     f = ctx.fields
     if f is None:
         return ctx.no_fields()
-    sel = _midspan_means(f)
-    with np.errstate(all="ignore"):
-        strain = {"E11": np.nanmean(f.kin["E11"][:, sel], axis=1), "E22": np.nanmean(f.kin["E22"][:, sel], axis=1)}
-        lam1, lam2 = np.nanmean(f.kin["lam1"][:, sel], axis=1), np.nanmean(f.kin["lam2"][:, sel], axis=1)
-        lap = laplace_stress(f.pressure, f.force, midspan_radius(f.positions), lam1, lam2,
-                             ctx.session.specimen.thickness, ctx.session.load_cell_measures)
-        models = {f"{name} ({st['model']})": {"s11": np.nanmedian(st["s11"][:, sel], axis=1),
-                                              "s22": np.nanmedian(st["s22"][:, sel], axis=1)}
-                  for name, st in f.stress.items()}
-    out = ["<p>Laplace-law estimates: σθθ = p r / h and σzz = N / (2π r h) with the current thickness "
-           "h = H / (λθ λz) (incompressible thin wall) and the wall force N "
-           f"({'load-cell reading + p π r²' if ctx.session.load_cell_measures == 'total' else 'load-cell reading'}); "
-           "models: median over the mid-span triangles.</p>"]
-    if not models:
-        out.append(_absent("No identified model stresses are available; only the Laplace-law estimates are shown."))
-    out.append(rep.figure(figures.stress_strain(strain, lap, models, f.stretch), "stress_strain",
-                          "Mean mid-span stress against strain, identified models against the Laplace-law estimates "
-                          "(paper Fig. 8)."))
+    c = _curves(ctx)
+    total = ctx.session.load_cell_measures == "total"
+    out = ["<p>Laplace-law estimates (global equilibrium of a thin incompressible tube): σθθ = p r / h and "
+           "σzz = N / (2π r h), with r the mean mid-span radius, h = H / (λθ λz) the current thickness and N the "
+           f"wall force ({'load-cell reading + p π r_i²' if total else 'load-cell reading'}). "
+           f"Computed by {html.escape(c['source'])}.</p>"]
+    if not c["models"]:
+        out.append(_absent("No identified model is available; only the Laplace-law estimates are shown."))
+    out.append(rep.figure(figures.stress_strain({"E11": c["E11"], "E22": c["E22"]}, c, c["models"], f.stretch),
+                          "stress_strain", "Mean mid-span stress against strain: identified models against the "
+                                           "Laplace-law estimates (paper Fig. 8)."))
     return "".join(out)
 
 

@@ -15,6 +15,7 @@ from matplotlib import colormaps
 from matplotlib.cm import ScalarMappable
 from matplotlib.colors import ListedColormap, Normalize, TwoSlopeNorm
 from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator, ScalarFormatter
 from matplotlib.tri import Triangulation
 
 from vfmlab.fields import SurfaceFields
@@ -33,19 +34,31 @@ def _step_label(pressure: float, stretch: float) -> str:
     return f"{pressure / MMHG:.0f} mmHg, λz {stretch:.3f}"
 
 
-def calibration_rms(camera_names: Sequence[str], rms: np.ndarray) -> Figure:
-    """Bar chart of the reprojection RMS error (px) per camera."""
-    fig = _figure(max(4.0, 0.6 * len(camera_names) + 2), 3.0)
+def calibration_rms(camera_names: Sequence[str], rms: np.ndarray, per_view: np.ndarray | None = None) -> Figure:
+    """Bar chart of the reprojection RMS error (px) per camera; per-view errors as dots if given.
+
+    ``per_view`` (n_cams, n_views) px, NaN where the camera did not see the board.
+    """
+    fig = _figure(max(4.5, 0.6 * len(camera_names) + 2.5), 3.2)
     ax = fig.add_subplot()
     x = np.arange(len(camera_names))
-    ax.bar(x, rms, color="tab:blue")
+    ax.bar(x, rms, color="tab:blue", alpha=0.8, label="camera RMS")
+    top = float(np.nanmax(rms)) if np.isfinite(rms).any() else 1.0
+    pv = None if per_view is None else np.asarray(per_view, float)
+    if pv is not None and pv.ndim == 2 and pv.shape[0] == len(x) and np.isfinite(pv).any():
+        jitter = np.linspace(-0.25, 0.25, pv.shape[1]) if pv.shape[1] > 1 else np.zeros(1)
+        xx = x[:, None] + jitter[None, :]
+        ax.plot(xx[np.isfinite(pv)], pv[np.isfinite(pv)], ".", color="k", ms=3, label="per board view")
+        top = max(top, float(np.nanmax(pv)))
+        ax.legend(loc="upper right")
     for xi, v in zip(x, rms):
-        ax.annotate(f"{v:.2f}", (xi, v), ha="center", va="bottom", fontsize=8)
+        ax.annotate(f"{v:.2f}", (xi, v), ha="center", va="bottom", fontsize=8, xytext=(0, 2),
+                    textcoords="offset points")
     ax.set_xticks(x, [str(c) for c in camera_names], rotation=45 if len(x) > 8 else 0)
     ax.set_xlabel("camera")
     ax.set_ylabel("reprojection RMS error (px)")
     ax.set_title("Calibration quality")
-    ax.set_ylim(0, max(float(np.nanmax(rms)) * 1.2, 1e-3))
+    ax.set_ylim(0, max(top * 1.25, 1e-3))
     ax.grid(axis="y", alpha=0.3)
     return fig
 
@@ -63,6 +76,7 @@ def protocol_steps(steps: Mapping[str, np.ndarray], log: Mapping[str, np.ndarray
     if (~active).any():
         ax.plot(k[~active], steps["pressure"][~active] / MMHG, "x", color="grey", label="superseded (retaken)")
     ax.set_xlabel("step")
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.set_ylabel("pressure (mmHg)")
     ax2 = ax.twinx()
     ax2.plot(k, steps["stretch"], "s--", color="tab:blue", ms=4, label="axial stretch")
@@ -89,6 +103,7 @@ def markers_per_step(visible: np.ndarray, pressure: np.ndarray) -> Figure:
     ax1.bar(np.arange(n_steps), visible.sum(axis=1), color="tab:green")
     ax1.axhline(n_markers, color="k", lw=0.8, ls="--", label=f"all {n_markers} markers")
     ax1.set_xlabel("step")
+    ax1.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax1.set_ylabel("markers reconstructed")
     ax1.set_title("Markers per step")
     ax1.legend(loc="lower right")
@@ -136,14 +151,18 @@ def mesh_3d(fields: SurfaceFields) -> Figure:
     return fig
 
 
-def _limits(values: np.ndarray) -> tuple[float, float]:
+def _limits(values: np.ndarray, min_span: float = 0.0) -> tuple[float, float]:
+    """1st-99th percentile range, widened to at least ``min_span`` and 0.2 % of the magnitude
+    (so that round-off on uniform fields is not blown up into a pattern)."""
     finite = np.asarray(values)[np.isfinite(values)]
     if finite.size == 0:
         return 0.0, 1.0
-    lo, hi = np.percentile(finite, [1, 99])
-    if hi <= lo:
-        hi = lo + 1e-9 + abs(lo) * 1e-6
-    return float(lo), float(hi)
+    lo, hi = (float(v) for v in np.percentile(finite, [1, 99]))
+    span = max(min_span, 2e-3 * max(abs(lo), abs(hi)), 1e-12)
+    if hi - lo < span:
+        mid = 0.5 * (lo + hi)
+        lo, hi = mid - span / 2, mid + span / 2
+    return lo, hi
 
 
 def unrolled_triangulation(fields: SurfaceFields) -> Triangulation:
@@ -167,7 +186,7 @@ def map_steps(n_steps: int) -> np.ndarray:
 
 
 def surface_maps(fields: SurfaceFields, values: np.ndarray, *, title: str, label: str, scale: float,
-                 diverging: bool = False) -> Figure:
+                 diverging: bool = False, min_span: float = 0.0) -> Figure:
     """Small multiples of a per-triangle quantity ``values`` (n_steps, n_tri) on the unrolled surface.
 
     Each panel has its own colour scale (1st-99th percentile of that step) so that the spatial
@@ -178,12 +197,22 @@ def surface_maps(fields: SurfaceFields, values: np.ndarray, *, title: str, label
     nrows = int(np.ceil(len(steps) / ncols))
     tri = unrolled_triangulation(fields)
     aspect = (np.nanmax(tri.y) - np.nanmin(tri.y)) / max(np.nanmax(tri.x) - np.nanmin(tri.x), 1e-9)
-    panel_w = 3.3
-    fig = _figure(panel_w * ncols + 0.3, (panel_w * 0.8 * aspect + 1.25) * nrows + 0.4)
-    axes = np.atleast_1d(fig.subplots(nrows, ncols, sharex=True, sharey=True, squeeze=False)).ravel()
+    panel_w, cb_w = 2.9, 1.3  # inches: map, colorbar with its labels and the next map's y labels
+    panel_h = panel_w * aspect
+    row_h = panel_h + 0.85
+    width, height = ncols * (panel_w + cb_w) + 0.7, nrows * row_h + 0.55
+    # Manual layout (constrained layout costs more than drawing for these small multiples).
+    fig = Figure(figsize=(width, height), dpi=110)
     v = values[steps] * scale
-    for ax, k, vk in zip(axes, steps, v):
-        lo, hi = _limits(vk)
+    axes = []
+    for i, (k, vk) in enumerate(zip(steps, v)):
+        row, col = divmod(i, ncols)
+        left = 0.7 + col * (panel_w + cb_w)
+        bottom = height - 0.55 - row * row_h - 0.3 - panel_h
+        ax = fig.add_axes((left / width, bottom / height, panel_w / width, panel_h / height))
+        cax = fig.add_axes(((left + panel_w + 0.08) / width, bottom / height, 0.1 / width, panel_h / height))
+        axes.append(ax)
+        lo, hi = _limits(vk, min_span)
         if diverging and lo < 0 < hi:
             norm, cmap = TwoSlopeNorm(0.0, lo, hi), colormaps["RdBu_r"]
         else:
@@ -195,19 +224,19 @@ def surface_maps(fields: SurfaceFields, values: np.ndarray, *, title: str, label
         t = Triangulation(tri.x, tri.y, tri.triangles, mask=bad)
         ax.tripcolor(t, facecolors=np.where(bad, 0.0, vk), norm=norm, cmap=cmap, edgecolors="none")
         ax.set_title(f"step {k}: {_step_label(fields.pressure[k], fields.stretch[k])}", fontsize=9)
-        ax.set_aspect("equal")
-        cb = fig.colorbar(ScalarMappable(norm, cmap), ax=ax, orientation="horizontal", shrink=0.85, pad=0.02,
-                          aspect=30)
-        cb.set_label(label, fontsize=8)
+        ax.set_aspect("auto")
+        ax.set_xlim(np.nanmin(tri.x), np.nanmax(tri.x))
+        ax.set_ylim(np.nanmin(tri.y), np.nanmax(tri.y))
+        ax.tick_params(labelsize=8)
+        ax.set_xlabel("R θ (mm)", fontsize=8, labelpad=1)
+        if col == 0:
+            ax.set_ylabel("z (mm)", fontsize=9)
+        cb = fig.colorbar(ScalarMappable(norm, cmap), cax=cax)
+        cb.formatter = ScalarFormatter(useOffset=False)
+        cb.update_ticks()
         cb.ax.tick_params(labelsize=7)
-    for ax in axes[len(steps):]:
-        ax.set_visible(False)
-    for ax in axes.reshape(nrows, ncols)[:, 0]:
-        ax.set_ylabel("z (mm)")
-    for ax in axes.reshape(nrows, ncols)[-1, :]:
-        ax.set_xlabel("R θ (mm)")
-        ax.tick_params(labelbottom=True)
-    fig.suptitle(f"{title} (grey: triangle not measured)")
+        cb.set_label(label, fontsize=8)
+    fig.suptitle(f"{title} (grey: triangle not measured)", y=1 - 0.15 / height, va="top")
     return fig
 
 
@@ -220,13 +249,17 @@ def virtual_work(idents: Sequence[Mapping[str, Any]], pressure: np.ndarray) -> F
     axes = np.atleast_1d(fig.subplots(1, len(panels), squeeze=False)).ravel()
     for ax, r in zip(axes, panels):
         ivw, evw, names = _vw_arrays(r)
+        unit = str(r.get("units", {}).get("ivw", "J"))
+        peak = float(np.nanmax(np.abs(np.concatenate([ivw.ravel(), evw.ravel()])))) if ivw.size else 1.0
+        factor, prefix = (1e3, "m") if unit == "J" and 0 < peak < 1 else (1.0, "")
         k = np.arange(ivw.shape[1])
         for j in range(ivw.shape[0]):
             color = f"C{j}"
-            ax.plot(k, ivw[j] * 1e3, "o-", color=color, label=f"{names[j]}: internal")
-            ax.plot(k, evw[j] * 1e3, "s--", mfc="none", color=color, label=f"{names[j]}: external")
+            ax.plot(k, ivw[j] * factor, "o-", color=color, label=f"{names[j]}: internal")
+            ax.plot(k, evw[j] * factor, "s--", mfc="none", color=color, label=f"{names[j]}: external")
         ax.set_xlabel("step")
-        ax.set_ylabel("virtual work (mJ)")
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+        ax.set_ylabel(f"virtual work ({prefix}{unit})")
         ax.set_title(f"{r['name']}: {r['attrs'].get('model', '?')}")
         ax.grid(alpha=0.3)
         ax.legend()

@@ -65,6 +65,9 @@ class FakeRig:
         return self._sp + (self._p0 - self._sp) * math.exp(-(t - self._tset) / self.tau_s)
 
     def set_setpoint(self, pa):
+        if "pressure" in self.fault:
+            from acquisition.instrument_errors import Disconnected
+            raise Disconnected(f"pressure port gone: {self.fault['pressure']}")
         self._gen()
         now = time.monotonic()
         self._p0, self._tset, self._sp = self.true_pressure(now), now, float(pa)
