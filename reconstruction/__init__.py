@@ -20,12 +20,13 @@ from reconstruction.pipeline import (
     ReconstructionSettings,
     SeriesResult,
     StepPoints,
+    points_from_detections,
     reconstruct_series,
     reconstruct_step,
     track_series,
 )
+from reconstruction.surface import CylinderFit, fit_cylinder, marker_surface_points, specimen_frame, surface_normals
 from reconstruction.targets import BoardDetection, BoardSpec, TargetError, detect_board, detect_boards
-from reconstruction.surface import CylinderFit, fit_cylinder, marker_surface_points, surface_normals
 from reconstruction.tracking import StepMatch, match_step
 from reconstruction.triangulation import Triangulation, triangulate
 
@@ -37,8 +38,9 @@ __all__ = [
     "Camera", "project_points", "rotation_matrix",
     "Correspondence", "CylinderPrior", "match_views",
     "REJECT_REASONS", "Detections", "detect_markers",
-    "ReconstructionSettings", "SeriesResult", "StepPoints", "reconstruct_series", "reconstruct_step", "track_series",
-    "CylinderFit", "fit_cylinder", "marker_surface_points", "surface_normals",
+    "ReconstructionSettings", "SeriesResult", "StepPoints", "points_from_detections", "reconstruct_series",
+    "reconstruct_step", "track_series",
+    "CylinderFit", "fit_cylinder", "marker_surface_points", "specimen_frame", "surface_normals",
     "StepMatch", "match_step",
     "Triangulation", "triangulate",
 ]

@@ -58,6 +58,13 @@ class ReconstructionSettings:
         Surface normal estimate for the marker-centre offset.
     guided_gate_px : float
         Image-space gate when searching lost markers near their predicted projection.
+    min_facing : float
+        A camera can see a marker only if the cosine between the outward normal and the direction
+        to the camera exceeds this (views beyond the limb are partly occluded by the tube).
+    outlier_factor, outlier_floor : float
+        A tracked point farther from its prediction (previous position + neighbours' motion) than
+        ``max(outlier_factor * s, outlier_floor)`` (``s`` = median + 1.4826 MAD of all the step's
+        prediction residuals; floor in m) is rejected as a bad measurement and reported NaN.
     min_view_cos : float
         Views at grazing incidence (cosine between the surface normal and the direction to the
         camera below this) are dropped when at least two better views remain: near the limb the
@@ -74,6 +81,9 @@ class ReconstructionSettings:
     normals: str = "local"
     guided_gate_px: float = 4.0
     min_view_cos: float = 0.35
+    min_facing: float = 0.0
+    outlier_factor: float = 6.0
+    outlier_floor: float = 15e-6
     sigma_px: float | None = None
     detection: dict = field(default_factory=dict)
 
@@ -185,7 +195,7 @@ def _bootstrap_prior(dets, cameras, settings: ReconstructionSettings, loose: Cyl
     tol = max(4.0 * spread, 0.04 * cyl.radius, 2.0 * settings.marker_diameter)
     half = float(np.max(np.abs(z))) * 1.3 + 2 * marker_spacing(res.points[clean])
     return CylinderPrior(radius=cyl.radius, tolerance=tol, half_length=half, axis_point=cyl.axis_point,
-                         axis_direction=cyl.axis_direction)
+                         axis_direction=cyl.axis_direction, min_facing=settings.min_facing)
 
 
 def points_from_detections(
@@ -194,8 +204,14 @@ def points_from_detections(
     settings: ReconstructionSettings,
     *,
     loose_prior: CylinderPrior | None = None,
+    quality: Sequence[np.ndarray] | None = None,
 ) -> StepPoints:
-    """Correspondence + triangulation of one step's detections (pixel centres per camera)."""
+    """Correspondence + triangulation of one step's detections (pixel centres per camera).
+
+    ``quality`` (per camera, ``(n_i,)``, as :attr:`Detections.quality`): views with quality below
+    0.75 (centres recovered from merged blobs) and grazing views are left out of the final
+    triangulation of a point when it keeps at least two other views.
+    """
     dets = [np.asarray(d, dtype=float).reshape(-1, 2) for d in detections]
     # without a prior the specimen is found from markers seen in >= 3 views, in any world frame
     prior = _bootstrap_prior(dets, cameras, settings, loose_prior)
@@ -204,7 +220,7 @@ def points_from_detections(
         R = settings.specimen_radius + rho
         if prior is None:
             log.warning("no specimen found from >= 3-view markers; assuming the axis is the world z axis")
-            prior = CylinderPrior(radius=R, tolerance=settings.prior_tolerance * R)
+            prior = CylinderPrior(radius=R, tolerance=settings.prior_tolerance * R, min_facing=settings.min_facing)
         elif loose_prior is None and abs(prior.radius - R) > 0.5 * R:
             log.warning("fitted marker-centre radius %.3f mm differs from the expected %.3f mm", prior.radius * 1e3, R * 1e3)
     res = match_views(
@@ -216,6 +232,11 @@ def points_from_detections(
     if prior is not None and obs.shape[0] and settings.min_view_cos > -1:
         cosv = _view_cosines(t.points, prior, cameras)  # (n, n_cams)
         good = (obs >= 0) & (cosv >= settings.min_view_cos)
+        if quality is not None:
+            for c, q in enumerate(quality):
+                if q is not None and len(q):
+                    qc = np.where(obs[:, c] >= 0, np.asarray(q)[np.maximum(obs[:, c], 0)], 1.0)
+                    good[:, c] &= qc >= 0.75
         drop = (obs >= 0) & ~good & (good.sum(axis=1) >= 2)[:, None]
         if np.any(drop):
             obs = np.where(drop, -1, obs)
@@ -282,7 +303,7 @@ class SeriesResult:
     diagnostics : dict of ndarray
         ``detected`` (n_steps, n_cameras), ``rejects`` (n_steps, n_cameras, n_reasons) with
         ``reject_reasons``, ``reconstructed``, ``tracked``, ``lost``, ``recovered``,
-        ``unassigned``, ``swaps``, ``ambiguous`` (n_steps,), ``sigma_px`` (n_steps,),
+        ``unassigned``, ``swaps``, ``ambiguous``, ``outliers`` (n_steps,), ``sigma_px`` (n_steps,),
         ``reprojection_rms_median`` (n_steps,) px.
     """
 
@@ -386,6 +407,7 @@ def track_series(
         "recovered": np.zeros(n_steps, np.int64),
         "unassigned": np.zeros(n_steps, np.int64),
         "swaps": np.zeros(n_steps, np.int64),
+        "outliers": np.zeros(n_steps, np.int64),
         "ambiguous": np.zeros(n_steps, np.int64),
         "sigma_px": np.full(n_steps, np.nan),
         "reprojection_rms_median": np.full(n_steps, np.nan),
@@ -401,7 +423,12 @@ def track_series(
 
     if progress:
         progress(0, n_steps, "correspondence")
-    ref = points_from_detections(detections[0], cameras, settings)
+    def quality(k):
+        if detection_stats is None:
+            return None
+        return [d.quality if d is not None else None for d in detection_stats[k]]
+
+    ref = points_from_detections(detections[0], cameras, settings, quality=quality(0))
     n = ref.centres.shape[0]
     if n == 0:
         raise ValueError("no markers were reconstructed in the reference step (step 0)")
@@ -421,8 +448,9 @@ def track_series(
         loose = None
         if prior is not None:
             loose = CylinderPrior(radius=prior.radius, tolerance=settings.prior_tolerance * prior.radius,
-                                  axis_point=prior.axis_point, axis_direction=prior.axis_direction)
-        step = points_from_detections(detections[k], cameras, settings, loose_prior=loose)
+                                  axis_point=prior.axis_point, axis_direction=prior.axis_direction,
+                                  min_facing=settings.min_facing)
+        step = points_from_detections(detections[k], cameras, settings, loose_prior=loose, quality=quality(k))
         diag["reconstructed"][k] = step.centres.shape[0]
         diag["sigma_px"][k] = step.sigma_px
         if step.centres.shape[0]:
@@ -436,6 +464,15 @@ def track_series(
             diag["swaps"][k] = m.swaps.shape[0]
             diag["ambiguous"][k] = int(m.ambiguous.sum())
             gate = m.gate
+            # a point far from where its neighbours say it should be is a bad measurement (a
+            # partly occluded or merged view in a 2-view point): NaN rather than a wrong position
+            r = m.residual[np.isfinite(m.residual)]
+            if r.size >= 10:
+                scale = 1.4826 * np.median(np.abs(r - np.median(r))) + np.median(r)
+                limit = max(settings.outlier_factor * scale, settings.outlier_floor)
+                bad = np.isfinite(m.residual) & (m.residual > limit)
+                a = np.where(bad, -1, a)
+                diag["outliers"][k] = int(bad.sum())
         else:
             a, pred, gate = np.full(n, -1, np.int64), carried.copy(), 0.35 * marker_spacing(carried)
         ok = a >= 0
