@@ -19,6 +19,9 @@ Protocol file layout (see ``examples/paper-protocol.toml``)::
     [test]              stretches = [...], pressures_<u> = [...]    (same levels at each stretch)
     [[block]]           stretch, pressures_<u>                      (or explicit blocks)
     [capture]           cameras = ["all"] or names, timeout_s
+    [calibration]       views (board poses captured before the test), board (description)
+    [reference]         capture = true: first capture the stress-free reference state
+                        (L/L0 = 1, p = 0) as block 0 (identification's reference step)
 """
 
 from __future__ import annotations
@@ -36,6 +39,7 @@ __all__ = [
     "Stability",
     "TestBlock",
     "CaptureSettings",
+    "CalibrationViews",
     "Protocol",
     "PortConfig",
     "CameraConfig",
@@ -117,6 +121,22 @@ class TestBlock:
 
 
 @dataclass(frozen=True)
+class CalibrationViews:
+    """Calibration-board views captured before preconditioning (stored in the session).
+
+    Attributes
+    ----------
+    views : int
+        Number of board poses (0 = none; calibrate from another session or folder).
+    board : str
+        Description of the board for the operator and the record (e.g. "ChArUco 8x6, 4.5 mm").
+    """
+
+    views: int = 0
+    board: str = ""
+
+
+@dataclass(frozen=True)
 class CaptureSettings:
     """Which cameras to capture (``("all",)`` = every camera of the rig) and the timeout, s."""
 
@@ -133,7 +153,9 @@ class Protocol:
     preconditioning: Preconditioning = field(default_factory=Preconditioning)
     stability: Stability = field(default_factory=Stability)
     capture: CaptureSettings = field(default_factory=CaptureSettings)
+    calibration: CalibrationViews = field(default_factory=CalibrationViews)
     description: str = ""
+    has_reference: bool = False  # blocks[0] is the stress-free reference capture (L/L0 = 1, p = 0)
     text: str = field(default="", compare=False, repr=False)
     source: str = field(default="<protocol>", compare=False, repr=False)
 
@@ -161,7 +183,7 @@ class Protocol:
                 f"{src}: [preconditioning].stretch_max: {pc.stretch_max} is above the rig's stretch limit "
                 f"{lim.max_stretch} ({rig.source}: [safety].max_stretch)"
             )
-        for i, blk in enumerate(self.blocks):
+        for i, blk in enumerate(self.blocks[int(self.has_reference):]):
             top = max(blk.pressures)
             if top > lim.max_pressure:
                 raise ConfigError(
@@ -201,6 +223,7 @@ class PortConfig:
     mode : str
         ``"controller"`` (the rig sets pressure, Mensor ``Setpt``) or ``"manual"`` (operator).
     baudrate : int
+        0 = the driver's default (Mensor 9600, Mark-10 115200).
     measures : str
         Load cell only: ``"wall"`` or ``"total"`` (force on the wall alone, or including the
         pressure end-thrust).
@@ -211,7 +234,7 @@ class PortConfig:
     port: str
     serial_number: str = ""
     mode: str = "manual"
-    baudrate: int = 9600
+    baudrate: int = 0
     measures: str = "wall"
     settings: dict = field(default_factory=dict, compare=False)
 
@@ -235,12 +258,31 @@ class SafetyLimits:
 
 
 @dataclass(frozen=True)
+class SimulationConfig:
+    """The simulated specimen behind a ``port = "sim"`` rig (ignored by real rigs).
+
+    ``material`` names one of rig_sim's constitutive laws, used with the seed paper's Table-1
+    parameters; ``clamped`` solves the tube with both ends on cannulae (heterogeneous strain)
+    instead of the homogeneous membrane.
+    """
+
+    material: str = "fung"
+    n_markers: int = 300
+    clamped: bool = False
+    seed: int = 0
+
+
+SIMULATED_MATERIALS = ("fung", "delfino", "hgo", "neohookean")
+
+
+@dataclass(frozen=True)
 class RigConfig:
     name: str
     pressure: PortConfig
     load_cell: PortConfig
     cameras: tuple[CameraConfig, ...]
     safety: SafetyLimits = field(default_factory=SafetyLimits)
+    simulation: SimulationConfig = field(default_factory=SimulationConfig)
     text: str = field(default="", compare=False, repr=False)
     source: str = field(default="<rig>", compare=False, repr=False)
 
@@ -482,8 +524,22 @@ def parse_protocol(data: dict | str, text: str = "", source: str = "<protocol>",
                 t.fail(f"cameras[{i}]", f"expected a camera name (string); got {c!r}")
         cap = CaptureSettings(tuple(cams), t.number("timeout_s", cap.timeout_s, lo=0.0, lo_open=True))
         t.done()
+    has_reference = False
+    t = top.table("reference")
+    if t is not None:
+        has_reference = t.get("capture", False, bool)
+        if has_reference:
+            blocks.insert(0, TestBlock(1.0, (0.0,)))
+        t.done()
+
+    calib = CalibrationViews()
+    t = top.table("calibration")
+    if t is not None:
+        calib = CalibrationViews(t.integer("views", 0), t.get("board", "", str))
+        t.done()
     top.done()
-    proto = Protocol(name, tuple(blocks), pre, stab, cap, description, text, source)
+    proto = Protocol(name, tuple(blocks), pre, stab, cap, calib, description=description, text=text,
+                     source=source, has_reference=has_reference)
     if rig is not None:
         proto.check_against(rig)
     return proto
@@ -547,8 +603,18 @@ def parse_rig(data: dict | str, text: str = "", source: str = "<rig>") -> RigCon
         if safety.max_pressure <= 0:
             t.fail("max_pressure_mmHg", "expected a limit > 0")
         t.done()
+    simulation = SimulationConfig()
+    t = top.table("simulation")
+    if t is not None:
+        material = t.get("material", simulation.material, str)
+        if material not in SIMULATED_MATERIALS:
+            t.fail("material", f"expected one of {list(SIMULATED_MATERIALS)}; got {material!r}")
+        simulation = SimulationConfig(material, t.integer("n_markers", simulation.n_markers, lo=10),
+                                      t.get("clamped", simulation.clamped, bool),
+                                      t.integer("seed", simulation.seed))
+        t.done()
     top.done()
-    return RigConfig(name, pressure, load_cell, tuple(cams), safety, text, source)
+    return RigConfig(name, pressure, load_cell, tuple(cams), safety, simulation, text, source)
 
 
 def _port(t: _Table, is_load_cell: bool) -> PortConfig:
@@ -564,7 +630,7 @@ def _port(t: _Table, is_load_cell: bool) -> PortConfig:
         mode = t.get("mode", "manual", str)
         if mode not in ("controller", "manual"):
             t.fail("mode", f"expected 'controller' or 'manual'; got {mode!r}")
-    baud = t.integer("baudrate", 9600, lo=1)
+    baud = t.integer("baudrate", 0, lo=1)
     settings = t.get("settings", {}, dict)
     t.done()
     return PortConfig(port, serial, mode, baud, measures, dict(settings))

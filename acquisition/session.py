@@ -77,7 +77,7 @@ _EVENT_KIND_DTYPE = "S32"
 _EVENT_MESSAGE_DTYPE = "S512"
 _STATUS_DTYPE = "S16"
 _LOG_CHUNK = 4096
-_STATUSES = ("running", "complete", "aborted")
+_STATUSES = ("running", "complete", "aborted", "interrupted")
 
 
 class SessionError(Exception):
@@ -330,12 +330,15 @@ class SessionWriter:
             f = h5py.File(path, "a", libver="latest")
         except OSError as exc:
             raise SessionError(f"{path}: cannot reopen for writing: {exc}") from None
+        trimmed = _trim_partial_records(f["entry"])
         f["entry"].attrs["writer_pid"] = os.getpid()
         f["entry"].attrs["writer_host"] = socket.gethostname()
         f.flush()
         f.swmr_mode = True
+        f["entry/status"][()] = np.bytes_(b"running")
         writer = cls(f, path)
-        writer.add_event("resume", f"session resumed by pid {os.getpid()}")
+        writer.add_event("resume", f"session resumed by pid {os.getpid()}"
+                         + (f"; dropped partial records: {', '.join(trimmed)}" if trimmed else ""))
         return writer
 
     # -- appending -----------------------------------------------------------------------
@@ -465,6 +468,30 @@ class SessionWriter:
         self.close("complete" if exc_type is None else "aborted")
 
 
+def _trim_partial_records(entry: h5py.Group) -> list[str]:
+    """Cut every table a killed writer may have left half-appended back to its complete rows.
+
+    Log and event columns are appended one after another, and a step's frames are written before
+    its table row, so after a kill the datasets of one table can differ in length by one append.
+    Returns a description of what was dropped (empty if nothing).
+    """
+    dropped = []
+    tables = [entry["log"][channel] for channel in _LOG_CHANNELS] + [entry["events"]]
+    for group in tables:
+        n = min(ds.shape[0] for ds in group.values())
+        for name, ds in group.items():
+            if ds.shape[0] > n:
+                dropped.append(f"{ds.name}[{n}:{ds.shape[0]}]")
+                ds.resize((n,) + ds.shape[1:])
+    steps = entry["steps"]
+    n_rows = min(steps[name].shape[0] for name in _STEP_COLUMNS)
+    for ds in [steps[name] for name in _STEP_COLUMNS] + list(steps["images"].values()):
+        if ds.shape[0] > n_rows:
+            dropped.append(f"{ds.name}[{n_rows}:{ds.shape[0]}]")
+            ds.resize((n_rows,) + ds.shape[1:])
+    return dropped
+
+
 # -- reading ---------------------------------------------------------------------------------
 
 def _decode(value: Any) -> Any:
@@ -518,12 +545,12 @@ class Session:
 
     @property
     def recorded_status(self) -> str:
-        """The status the writer last recorded: running | complete | aborted."""
+        """The status the writer last recorded: running | complete | aborted | interrupted."""
         return str(_read(self._entry["status"]))
 
     @property
     def status(self) -> str:
-        """complete | aborted | running (writer alive) | interrupted (writer gone while running)."""
+        """complete | aborted | interrupted (recorded, or the writer died while running) | running."""
         status = self.recorded_status
         if status == "running":
             pid = int(self._entry.attrs.get("writer_pid", -1))
@@ -594,7 +621,9 @@ class Session:
     # -- steps, images, logs ---------------------------------------------------------------
     @property
     def n_steps(self) -> int:
-        return int(self._entry["steps/block"].shape[0])
+        """Complete step rows (a writer killed mid-append may have left a longer column)."""
+        steps = self._entry["steps"]
+        return int(min(steps[name].shape[0] for name in _STEP_COLUMNS))
 
     @property
     def steps(self) -> dict[str, np.ndarray]:
@@ -799,8 +828,10 @@ def write_result(
     with open_session(path) as session:
         if session.status == "running":
             raise SessionError(f"{path}: the session is still being written; add results once it has finished")
-        if session.status == "interrupted":
-            raise SessionError(f"{path}: the session was interrupted; resume or close it before adding results")
+        interrupted = session.status == "interrupted"
+    if interrupted:
+        # The writer is gone: clearing its "open for write" flag is safe, and resume still works after.
+        clear_consistency_flags(path)
     try:
         f = h5py.File(path, "a", libver="latest")
     except OSError as exc:

@@ -24,6 +24,8 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy.optimize import least_squares
+from scipy.special import erfc
 
 __all__ = ["Detections", "REJECT_DTYPE", "REJECT_REASONS", "detect_markers"]
 
@@ -48,7 +50,8 @@ class Detections:
     contrast : ndarray, shape (n,)
         Relative darkness at the core, ``1 - I_core / I_background`` (0..1).
     quality : ndarray, shape (n,)
-        Roundness: minor / major axis of the half-contrast area (1 = circle).
+        Roundness: minor / major axis of the half-contrast area (1 = circle); 0.5 for the two
+        centres recovered from a split merged blob.
     precision : ndarray, shape (n,)
         Estimated 1-sigma centre uncertainty per coordinate from image noise, px.
     rejects : structured ndarray, dtype REJECT_DTYPE, shape (n_rejects,)
@@ -98,13 +101,16 @@ def detect_markers(
     *,
     diameter_range: tuple[float, float] | None = None,
     threshold_sigma: float = 6.0,
-    min_relative_contrast: float = 0.5,
+    min_darkness: float = 0.3,
+    min_relative_contrast: float = 0.6,
     max_elongation: float = 1.6,
     edge_margin: int = 2,
     saturation: float | None | str = "auto",
-    window_margin: float = 2.5,
+    window_margin: float = 2.0,
     iterations: int = 4,
     centroid_threshold: float = 0.2,
+    background_order: int = 3,
+    split_merged: bool = True,
 ) -> Detections:
     """Detect dark circular markers with sub-pixel centres.
 
@@ -117,6 +123,10 @@ def detect_markers(
         candidates (with an absolute search range of 3..80 px).
     threshold_sigma : float
         Candidate threshold in robust sigmas of the top-hat background.
+    min_darkness : float
+        Candidate pixels must be at least this fraction darker than their local upper envelope
+        (morphological closing): 0.3 keeps tissue texture and shading out while black markers
+        (~0.9) pass.
     min_relative_contrast : float
         Reject blobs whose relative darkness is below this fraction of the median of the
         accepted markers (grey debris, shadows).
@@ -131,6 +141,13 @@ def detect_markers(
         Centroid window radius = diameter / 2 + window_margin, px.
     iterations : int
         Window re-centring iterations of the centroid.
+    split_merged : bool
+        Fit two overlapping blurred discs to blobs classified as ``merged`` (two markers touching
+        or overlapping in projection, common in oblique views) and return both centres with
+        ``quality = 0.5``; blobs the fit does not explain stay rejected as ``merged``.
+    background_order : int
+        Order (1-3) of the 2-D polynomial fitted robustly to the annulus around each blob as
+        the local illumination x albedo; 3 follows smooth tissue texture best.
     centroid_threshold : float
         Fraction of each blob's peak darkness subtracted before the centroid (weights
         ``max(w - t * peak, 0)``), so that background texture inside the window does not pull
@@ -162,7 +179,10 @@ def detect_markers(
     noise = float(np.median(np.abs(lap - np.median(lap)))) * 1.4826 / np.sqrt(1.25) if lap.size else 0.0
     floor = 0.03 * float(np.median(closed[:: max(1, H // 256), :: max(1, W // 256)]))
     thr = med + max(threshold_sigma * mad, floor)
-    mask = (tophat > thr).astype(np.uint8)
+    # relative darkness against the local upper envelope: markers are nearly black, texture and
+    # shading are not; the absolute threshold keeps noise in dark regions (bath) out
+    rel = tophat / np.maximum(closed, 1e-6 * max(1.0, float(closed.max())))
+    mask = ((tophat > thr) & (rel > min_darkness)).astype(np.uint8)
     n_lab, labels, stats, cents = cv2.connectedComponentsWithStats(mask, connectivity=8)
     areas = stats[1:, cv2.CC_STAT_AREA].astype(float)
     ids = np.arange(1, n_lab)
@@ -208,7 +228,7 @@ def detect_markers(
     own = plab == ids[:, None, None]
     other = (plab != 0) & ~own
     yy, xx = np.meshgrid(off.astype(float), off.astype(float), indexing="ij")
-    bg_plane = _annulus_plane(patch, own | other, xx, yy, r_in=0.5 * np.maximum(bw, bh) + 2.0, r_out=half - 0.5)
+    bg_plane = _annulus_plane(patch, own | other, xx, yy, r_in=0.5 * np.maximum(bw, bh) + 2.0, r_out=half - 0.5, order=background_order)
     with np.errstate(divide="ignore", invalid="ignore"):
         dark = 1.0 - patch / np.maximum(bg_plane, 1e-12)
     dark_s = _smooth3(dark)
@@ -258,47 +278,121 @@ def detect_markers(
     if np.any(good):
         cref = float(np.median(peak[good]))
         reason[good & (peak < min_relative_contrast * cref)] = "low_contrast"
-    bad = reason != ""
+    split_c, split_d, split_a, split_p = np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros(0)
+    if split_merged:
+        cand = np.flatnonzero(reason == "merged")
+        parts = []
+        for i in cand:  # merged blobs are few; each is a small 8-parameter fit
+            fit = _fit_two_discs(dark[i], other[i], xx, yy, (mx[i], my[i]), (sxx[i], syy[i], sxy[i]), 0.5 * dref, lo, hi)
+            if fit is not None:
+                parts.append((i, fit))
+                reason[i] = "split"
+        if parts:
+            split_c = np.concatenate([ci[i].astype(float) + f[0] for i, f in parts])
+            split_d = np.concatenate([2 * f[1] for _, f in parts])
+            split_a = np.concatenate([np.full(2, f[2]) for _, f in parts])
+            split_p = np.concatenate([f[3] for _, f in parts])
+    bad = (reason != "") & (reason != "split")
     if np.any(bad):
         rec = _records(cxy[bad], diam[bad], peak[bad], "")
         rec["reason"] = reason[bad]
         rejects.append(rec)
     good = reason == ""
-    if not np.any(good):
+    if not np.any(good) and split_c.shape[0] == 0:
         return _empty(noise, _concat(rejects))
 
     # 3. sub-pixel centroid of normalised darkness in a soft circular window
     g = np.flatnonzero(good)
-    d_g = dark[g]
-    d_g = np.where(other[g], 0.0, d_g)
-    if centroid_threshold > 0:
-        d_g = np.maximum(d_g - centroid_threshold * peak[g][:, None, None], 0.0)
-    rw = 0.5 * diam[g] + window_margin
-    c = np.stack([mx[g], my[g]], axis=1)  # relative to the patch centre pixel
-    for _ in range(max(1, iterations)):
-        rr = np.hypot(xx[None] - c[:, 0, None, None], yy[None] - c[:, 1, None, None])
-        win = np.clip(rw[:, None, None] + 0.5 - rr, 0.0, 1.0)
-        wgt = d_g * win
-        s = wgt.sum((1, 2))
-        c = np.stack([(wgt * xx).sum((1, 2)) / s, (wgt * yy).sum((1, 2)) / s], axis=1)
-    # noise-limited precision: var(cx) = sigma_rel^2 sum(win (x - cx)^2) / s^2
-    sigma_rel = noise / np.maximum(np.median(bg_plane[g], axis=(1, 2)), 1e-12)
-    prec = sigma_rel * np.sqrt((win * ((xx[None] - c[:, 0, None, None]) ** 2)).sum((1, 2))) / np.abs(s)
-    centres = ci[g].astype(float) + c
-    ok = np.all(np.isfinite(centres), axis=1)
-    if not np.all(ok):
-        rejects.append(_records(cxy[g][~ok], diam[g][~ok], peak[g][~ok], "low_contrast"))
-    q = np.sqrt(l2 / np.maximum(l1, 1e-12))[g]
-    order = np.lexsort((centres[ok, 0], centres[ok, 1]))
+    centres, prec, q, ok = np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros(0, bool)
+    if g.size:
+        d_g = dark[g]
+        d_g = np.where(other[g], 0.0, d_g)
+        if centroid_threshold > 0:
+            d_g = np.maximum(d_g - centroid_threshold * peak[g][:, None, None], 0.0)
+        rw = 0.5 * diam[g] + window_margin
+        c = np.stack([mx[g], my[g]], axis=1)  # relative to the patch centre pixel
+        for _ in range(max(1, iterations)):
+            rr = np.hypot(xx[None] - c[:, 0, None, None], yy[None] - c[:, 1, None, None])
+            win = np.clip(rw[:, None, None] + 0.5 - rr, 0.0, 1.0)
+            wgt = d_g * win
+            s = wgt.sum((1, 2))
+            c = np.stack([(wgt * xx).sum((1, 2)) / s, (wgt * yy).sum((1, 2)) / s], axis=1)
+        # noise-limited precision: var(cx) = sigma_rel^2 sum(win (x - cx)^2) / s^2
+        sigma_rel = noise / np.maximum(np.median(bg_plane[g], axis=(1, 2)), 1e-12)
+        prec = sigma_rel * np.sqrt((win * ((xx[None] - c[:, 0, None, None]) ** 2)).sum((1, 2))) / np.abs(s)
+        centres = ci[g].astype(float) + c
+        ok = np.all(np.isfinite(centres), axis=1)
+        if not np.all(ok):
+            rejects.append(_records(cxy[g][~ok], diam[g][~ok], peak[g][~ok], "low_contrast"))
+        q = np.sqrt(l2 / np.maximum(l1, 1e-12))[g]
+    centres = np.concatenate([centres[ok], split_c])
+    diameter = np.concatenate([diam[g][ok], split_d])
+    contrast = np.concatenate([peak[g][ok], split_a])
+    quality = np.concatenate([q[ok], np.full(split_c.shape[0], 0.5)])
+    precision = np.concatenate([prec[ok], split_p])
+    order = np.lexsort((centres[:, 0], centres[:, 1]))
     return Detections(
-        centres=centres[ok][order],
-        diameter=diam[g][ok][order],
-        contrast=peak[g][ok][order],
-        quality=q[ok][order],
-        precision=prec[ok][order],
+        centres=centres[order],
+        diameter=diameter[order],
+        contrast=contrast[order],
+        quality=quality[order],
+        precision=precision[order],
         rejects=_concat(rejects),
         noise=noise,
     )
+
+
+def _fit_two_discs(dark, other, xx, yy, m, cov, r0, dmin, dmax):
+    """Fit the union of two blurred discs to a merged blob's darkness patch.
+
+    Model: ``a * (1 - (1 - D1)(1 - D2))`` with ``D = erfc((|x - c| - r) / (sqrt(2) s)) / 2``
+    (the silhouette of two overlapping spheres is the union of their outlines). Returns
+    (centres (2, 2) relative to the patch centre, radii (2,), contrast, precision (2,)) or None
+    when the fit is not a clean pair of marker-sized discs.
+    """
+    sxx, syy, sxy = cov
+    tr = sxx + syy
+    disc = np.sqrt(max((sxx - syy) ** 2 / 4 + sxy**2, 0.0))
+    l1, l2 = tr / 2 + disc, max(tr / 2 - disc, 1e-12)
+    ang = 0.5 * np.arctan2(2 * sxy, sxx - syy)
+    e = np.array([np.cos(ang), np.sin(ang)])
+    half_sep = np.sqrt(max(l1 - l2, 1e-12))
+    c1 = np.array(m) + half_sep * e
+    c2 = np.array(m) - half_sep * e
+    x0 = np.array([c1[0], c1[1], c2[0], c2[1], r0, r0, 0.9, 0.8])
+    near = (np.hypot(xx - m[0], yy - m[1]) <= half_sep + r0 + 4) & ~other
+    X, Y, D = xx[near], yy[near], dark[near]
+
+    def model(p):
+        d1 = np.hypot(X - p[0], Y - p[1])
+        d2 = np.hypot(X - p[2], Y - p[3])
+        s = abs(p[7]) + 0.3
+        u1 = 0.5 * erfc((d1 - p[4]) / (np.sqrt(2) * s))
+        u2 = 0.5 * erfc((d2 - p[5]) / (np.sqrt(2) * s))
+        return p[6] * (1 - (1 - u1) * (1 - u2))
+
+    try:
+        sol = least_squares(lambda p: model(p) - D, x0, method="lm", max_nfev=200)
+    except ValueError:  # pragma: no cover - too few pixels
+        return None
+    p = sol.x
+    r = np.abs(p[4:6])
+    cen = p[:4].reshape(2, 2)
+    sep = np.linalg.norm(cen[0] - cen[1])
+    rms = np.sqrt(np.mean(sol.fun**2))
+    # both spheres are the same size at about the same distance: radii must agree with each other
+    # and with the expected marker radius
+    if not (sol.success and np.all(2 * r >= dmin) and np.all(2 * r <= dmax) and sep > 0.6 * r.sum()
+            and abs(r[0] - r[1]) < 0.12 * r.mean() and abs(r.mean() - r0) < 0.3 * r0
+            and rms < 0.05 * abs(p[6]) and np.all(np.isfinite(p))):
+        return None
+    J = sol.jac
+    try:
+        cov_p = np.linalg.inv(J.T @ J) * (np.sum(sol.fun**2) / max(sol.fun.size - p.size, 1))
+        prec = np.sqrt(np.abs(np.diag(cov_p)[[0, 2]]))
+    except np.linalg.LinAlgError:
+        return None
+    return cen, r, float(abs(p[6])), prec
 
 
 def _smooth3(a: np.ndarray) -> np.ndarray:
@@ -308,19 +402,27 @@ def _smooth3(a: np.ndarray) -> np.ndarray:
     return s / 9.0
 
 
-def _annulus_plane(patch, exclude, xx, yy, r_in, r_out) -> np.ndarray:
+def _annulus_plane(patch, exclude, xx, yy, r_in, r_out, order=1) -> np.ndarray:
     """Robust plane fit ``B = a + b x + c y`` to an annulus of each patch; returns B on the patch grid."""
     rr = np.hypot(xx, yy)
     ring = (rr[None] >= np.asarray(r_in)[:, None, None]) & (rr[None] <= r_out) & ~exclude
-    A = np.stack([np.ones_like(xx), xx, yy], axis=-1).reshape(-1, 3)  # (P*P, 3)
-    AA = (A[:, :, None] * A[:, None, :]).reshape(-1, 9)
+    sc = max(float(r_out), 1.0)
+    u, v = xx / sc, yy / sc
+    terms = [np.ones_like(xx), u, v]
+    if order >= 2:
+        terms += [u * u, u * v, v * v]
+    if order >= 3:
+        terms += [u**3, u * u * v, u * v * v, v**3]
+    A = np.stack(terms, axis=-1).reshape(-1, len(terms))  # (P*P, m)
+    m = A.shape[1]
+    AA = (A[:, :, None] * A[:, None, :]).reshape(-1, m * m)
     n = patch.shape[0]
     flat = patch.reshape(n, -1)
     ring_f = ring.reshape(n, -1)
     w = ring_f.astype(float)
-    coef = np.zeros((n, 3))
+    coef = np.zeros((n, m))
     for it in range(3):
-        AtA = (w @ AA).reshape(n, 3, 3) + 1e-9 * np.eye(3)
+        AtA = (w @ AA).reshape(n, m, m) + 1e-9 * np.eye(m)
         Atb = (w * flat) @ A
         coef = np.linalg.solve(AtA, Atb[..., None])[..., 0]
         if it == 2:

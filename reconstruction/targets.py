@@ -93,13 +93,15 @@ class BoardSpec:
         if self.kind == "charuco":
             return self.columns * self.square_size, self.rows * self.square_size
         if self.kind == "acircles":
-            return (2 * self.columns) * self.square_size, (self.rows + 1) * self.square_size
+            return (2 * self.columns + 1) * self.square_size, (self.rows + 1) * self.square_size
         return (self.columns + 1) * self.square_size, (self.rows + 1) * self.square_size
 
     def object_points(self) -> np.ndarray:
         """Board points ``(n_points, 3)`` in the board frame, m; row index = point id."""
         if self.kind == "charuco":
-            return np.asarray(self.charuco_board().getChessboardCorners(), float).reshape(-1, 3)
+            # as CharucoBoard.getChessboardCorners() (id = row * (columns - 1) + column), in float64
+            j, i = np.meshgrid(np.arange(1, self.columns), np.arange(1, self.rows))
+            return np.stack([j.ravel() * self.square_size, i.ravel() * self.square_size, np.zeros(j.size)], -1)
         j, i = np.meshgrid(np.arange(self.columns), np.arange(self.rows))
         if self.kind == "acircles":
             x = (2 * j + i % 2) * self.square_size

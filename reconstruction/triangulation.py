@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from reconstruction.cameras import Camera
+from reconstruction.cameras import Camera, project_points
 
 __all__ = ["Triangulation", "triangulate", "triangulate_linear", "undistort_views"]
 
@@ -98,8 +98,17 @@ def triangulate_linear(normalised: np.ndarray, cameras: list[Camera]) -> np.ndar
     return out
 
 
-def _project_all(points: np.ndarray, cameras: list[Camera]) -> np.ndarray:
-    return np.stack([c.project(points) for c in cameras])  # (n_cams, n_pts, 2)
+class _Cam:
+    """Camera arrays with the rotation matrix computed once (``Camera.R`` recomputes it)."""
+
+    __slots__ = ("R", "tvec", "K", "dist")
+
+    def __init__(self, cam: Camera):
+        self.R, self.tvec, self.K, self.dist = cam.R, cam.tvec, cam.K, cam.dist
+
+
+def _project_all(points: np.ndarray, cams: list[_Cam]) -> np.ndarray:
+    return np.stack([project_points(c.K, c.dist, points @ c.R.T + c.tvec) for c in cams])  # (n_cams, n_pts, 2)
 
 
 def triangulate(
@@ -137,6 +146,7 @@ def triangulate(
     ok = np.all(np.isfinite(pixels), axis=-1)
     n_views = ok.sum(axis=0)
     X = triangulate_linear(undistort_views(pixels, cameras), cameras)
+    cams = [_Cam(c) for c in cameras]
     active = np.all(np.isfinite(X), axis=1)
     converged = np.zeros(n_pts, dtype=bool)
     w = ok.astype(float)[..., None]
@@ -147,8 +157,8 @@ def triangulate(
         if idx.size == 0:
             break
         Xa = X[idx]
-        r = (_project_all(Xa, cameras) - obs[:, idx]) * w[:, idx]  # (n_cams, m, 2)
-        Ja = _jacobian(Xa, cameras) * w[:, idx, :, None]  # (n_cams, m, 2, 3)
+        r = (_project_all(Xa, cams) - obs[:, idx]) * w[:, idx]  # (n_cams, m, 2)
+        Ja = _jacobian(Xa, cams) * w[:, idx, :, None]  # (n_cams, m, 2, 3)
         JtJ = np.einsum("cmki,cmkj->mij", Ja, Ja)
         Jtr = np.einsum("cmki,cmk->mi", Ja, r)
         try:
@@ -159,7 +169,7 @@ def triangulate(
         step[bad] = 0.0
         X[idx] = Xa + step
         converged[idx] = np.linalg.norm(step, axis=1) < tolerance
-    res = (_project_all(X, cameras) - pixels)  # NaN where unobserved
+    res = (_project_all(X, cams) - pixels)  # NaN where unobserved
     res = np.where(ok[..., None], res, np.nan)
     with np.errstate(invalid="ignore"):
         sq = np.nansum(res**2, axis=(0, 2))
@@ -170,7 +180,7 @@ def triangulate(
         sigma_px = float(np.sqrt(sq[active].sum() / dof)) if dof > 0 else 0.02
         if not np.isfinite(sigma_px) or sigma_px <= 0:
             sigma_px = 0.02
-    Jf = _jacobian(np.where(active[:, None], X, 0.0), cameras) * w[..., None]
+    Jf = _jacobian(np.where(active[:, None], X, 0.0), cams) * w[..., None]
     JtJ = np.einsum("cmki,cmkj->mij", Jf, Jf)
     cov = np.full((n_pts, 3, 3), np.nan)
     det = np.linalg.det(JtJ)
@@ -190,15 +200,16 @@ def triangulate(
     )
 
 
-def _jacobian(points: np.ndarray, cameras: list[Camera]) -> np.ndarray:
+def _jacobian(points: np.ndarray, cameras: list) -> np.ndarray:
     """d(pixel)/d(X) for every camera and point, shape (n_cams, n_pts, 2, 3), by analytic chain rule."""
-    out = np.empty((len(cameras), points.shape[0], 2, 3))
-    for c, cam in enumerate(cameras):
+    cams = [c if isinstance(c, _Cam) else _Cam(c) for c in cameras]
+    out = np.empty((len(cams), points.shape[0], 2, 3))
+    for c, cam in enumerate(cams):
         out[c] = _camera_jacobian(cam, points)
     return out
 
 
-def _camera_jacobian(cam: Camera, points: np.ndarray) -> np.ndarray:
+def _camera_jacobian(cam: _Cam, points: np.ndarray) -> np.ndarray:
     R = cam.R
     Xc = points @ R.T + cam.tvec
     z = Xc[:, 2]

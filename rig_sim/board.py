@@ -15,6 +15,7 @@ import numpy as np
 from reconstruction.cameras import Camera, rotation_matrix
 from reconstruction.targets import BoardSpec
 
+from .refraction import project_refracted, rays_in_water
 from .render import undistort_grid
 from .sensor import SensorModel, expose, illumination_field
 
@@ -78,8 +79,24 @@ def board_image(spec: BoardSpec, px_per_m: float, margin: float = 1.0) -> tuple[
     return img, -m / px_per_m
 
 
+def _board_coords_refracted(rays, Rc: np.ndarray, tc: np.ndarray, band: int = 256):
+    """Board-plane coordinates (m) hit by refracted rays ``(origins, directions)``, each ``(H, W, 3)`` camera frame."""
+    o_all, d_all = rays
+    bx = np.empty(o_all.shape[:2])
+    by = np.empty(o_all.shape[:2])
+    n = Rc[:, 2]
+    for r0 in range(0, o_all.shape[0], band):
+        o = o_all[r0 : r0 + band].astype(np.float64)
+        d = d_all[r0 : r0 + band].astype(np.float64)
+        t = ((tc - o) @ n) / (d @ n)
+        P = o + t[..., None] * d - tc
+        bx[r0 : r0 + band] = P @ Rc[:, 0]
+        by[r0 : r0 + band] = P @ Rc[:, 1]
+    return bx, by
+
+
 def board_poses(
-    cameras: list[Camera], spec: BoardSpec, n_views: int, *, max_tilt: float = np.deg2rad(25), offset: float = 4e-3, seed: int = 0
+    cameras: list[Camera], spec: BoardSpec, n_views: int, *, max_tilt: float = np.deg2rad(25), offset: float = 7e-3, seed: int = 0
 ) -> tuple[np.ndarray, np.ndarray]:
     """Random board poses near the ring centre, each facing a random direction in the ring plane.
 
@@ -121,6 +138,7 @@ def render_board_views(
     bath_albedo: float = 0.12,
     max_view_angle: float = np.deg2rad(70),
     seed: int = 0,
+    windows: list | None = None,
 ) -> BoardViews:
     """Render every board pose in every camera.
 
@@ -136,6 +154,8 @@ def render_board_views(
     max_view_angle : float
         The board is drawn only where its normal is within this angle (rad) of the line of sight.
     seed : int
+    windows : list of FlatWindow or None, optional
+        Per camera, a flat bath window to look through (the board is in the bath).
 
     Returns
     -------
@@ -155,11 +175,22 @@ def render_board_views(
     seen = np.zeros((n_cam, n_view), bool)
     points = np.full((n_cam, n_view, len(obj), 2), np.nan)
     images: dict[str, list[np.ndarray]] = {c.name: [] for c in cameras}
+    windows = list(windows) if windows is not None else [None] * n_cam
+    if len(windows) != n_cam:
+        raise ValueError(f"render_board_views: windows needs one entry (FlatWindow or None) per camera ({n_cam}); got {len(windows)}")
     for ci, cam in enumerate(cameras):
         w, h = cam.image_size
+        win = windows[ci]
         V, U = np.mgrid[0:h, 0:w].astype(np.float32)
         xy = undistort_grid(cam, U, V).astype(np.float64)
         illum = illumination_field(U, V, (w, h), sensor, phase=ci)
+        if win is not None:  # refracted rays of every pixel, float32 (~1e-4 px at the board), by bands
+            o32 = np.empty((h, w, 3), np.float32)
+            d32 = np.empty((h, w, 3), np.float32)
+            for r0 in range(0, h, 256):
+                o, d = rays_in_water(cam, win, xy[r0 : r0 + 256])
+                o32[r0 : r0 + 256], d32[r0 : r0 + 256] = o, d
+            rays = (o32, d32)
         for k in range(n_view):
             Rb = rotation_matrix(rvecs[k])
             Rc = cam.R @ Rb
@@ -168,19 +199,24 @@ def render_board_views(
             facing = -normal_c @ (-tc) / np.linalg.norm(tc)  # board z points away from a camera seeing its face
             radiance = np.full((h, w), bath_albedo, np.float32)
             if facing > np.cos(max_view_angle):
-                H = np.column_stack([Rc[:, 0], Rc[:, 1], tc])
-                Hi = np.linalg.inv(H)
-                X = Hi[0, 0] * xy[..., 0] + Hi[0, 1] * xy[..., 1] + Hi[0, 2]
-                Y = Hi[1, 0] * xy[..., 0] + Hi[1, 1] * xy[..., 1] + Hi[1, 2]
-                W = Hi[2, 0] * xy[..., 0] + Hi[2, 1] * xy[..., 1] + Hi[2, 2]
-                mx = ((X / W - off) * px_per_m - 0.5).astype(np.float32)
-                my = ((Y / W - off) * px_per_m - 0.5).astype(np.float32)
+                if win is None:
+                    H = np.column_stack([Rc[:, 0], Rc[:, 1], tc])
+                    Hi = np.linalg.inv(H)
+                    X = Hi[0, 0] * xy[..., 0] + Hi[0, 1] * xy[..., 1] + Hi[0, 2]
+                    Y = Hi[1, 0] * xy[..., 0] + Hi[1, 1] * xy[..., 1] + Hi[1, 2]
+                    W = Hi[2, 0] * xy[..., 0] + Hi[2, 1] * xy[..., 1] + Hi[2, 2]
+                    bx, by = X / W, Y / W
+                else:
+                    bx, by = _board_coords_refracted(rays, Rc, tc)
+                mx = ((bx - off) * px_per_m - 0.5).astype(np.float32)
+                my = ((by - off) * px_per_m - 0.5).astype(np.float32)
                 sample = cv2.remap(tex, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=-1.0)
                 on = sample >= 0
                 # soften the sheet's outline so it is not a hard aliased edge
                 shade = 0.85 + 0.15 * facing
                 radiance = np.where(on, 0.06 + 0.84 * sample * shade, bath_albedo).astype(np.float32)
-                uv = cam.project(obj @ Rb.T + tvecs[k])
+                Xw = obj @ Rb.T + tvecs[k]
+                uv = cam.project(Xw) if win is None else project_refracted(cam, win, Xw)
                 inside = np.isfinite(uv).all() and (uv[:, 0] > 2).all() and (uv[:, 1] > 2).all()
                 inside = inside and (uv[:, 0] < w - 3).all() and (uv[:, 1] < h - 3).all()
                 if inside:

@@ -17,6 +17,7 @@ import numpy as np
 
 from reconstruction.cameras import Camera, project_points
 
+from .refraction import FlatWindow, project_refracted, rays_in_water
 from .sensor import SensorModel, expose, illumination_field
 from .specimen_geometry import SurfaceOfRevolution
 
@@ -108,22 +109,25 @@ def undistort_grid(camera: Camera, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return out.reshape(np.shape(u) + (2,))
 
 
-def _texture(s: np.ndarray, zeta: np.ndarray, wavelength: float, seed: int) -> np.ndarray:
-    """Smooth random texture (zero mean, unit RMS) of surface coordinates (m)."""
+def _texture(theta: np.ndarray, zeta: np.ndarray, radius: float, wavelength: float, seed: int) -> np.ndarray:
+    """Smooth random texture (zero mean, unit RMS), periodic in ``theta`` (rad); ``zeta`` axial, m."""
     rng = np.random.default_rng(seed)
-    out = np.zeros(np.shape(s), np.float32)
-    k = 10
-    amps = 0
-    for i in range(k):
+    out = np.zeros(np.shape(theta), np.float32)
+    amps = 0.0
+    for _ in range(10):
         lam = wavelength * 2.0 ** rng.uniform(-1.2, 1.5)
         ang = rng.uniform(0, np.pi)
+        m = np.round(2 * np.pi * radius * np.cos(ang) / lam)  # whole waves around the circumference
+        kz = 2 * np.pi * np.sin(ang) / lam
         a = lam**0.7
-        out += a * np.sin((2 * np.pi / lam) * (np.cos(ang) * s + np.sin(ang) * zeta) + rng.uniform(0, 2 * np.pi)).astype(np.float32)
+        out += (a * np.sin(m * theta + kz * zeta + rng.uniform(0, 2 * np.pi))).astype(np.float32)
         amps += a * a / 2
     return out / np.float32(np.sqrt(amps))
 
 
-def _background(camera: Camera, profile: SurfaceOfRevolution, style: SceneStyle, sensor: SensorModel, seed: int) -> tuple[np.ndarray, np.ndarray]:
+def _background(
+    camera: Camera, profile: SurfaceOfRevolution, style: SceneStyle, sensor: SensorModel, seed: int, window=None
+) -> tuple[np.ndarray, np.ndarray]:
     """Radiance of tube + bath on the full image and the tube coverage on the coarse grid."""
     w, h = camera.image_size
     step = max(1, int(style.background_step))
@@ -131,15 +135,16 @@ def _background(camera: Camera, profile: SurfaceOfRevolution, style: SceneStyle,
     uu = step * np.arange(nu) + (step - 1) / 2
     vv = step * np.arange(nv) + (step - 1) / 2
     U, V = np.meshgrid(uu, vv)
-    xy = undistort_grid(camera, U, V)
-    d = np.concatenate([xy, np.ones(xy.shape[:-1] + (1,))], -1) @ camera.R  # world directions (nv, nu, 3)
-    C = camera.center
+    o_c, d_c = _camera_rays(camera, window, undistort_grid(camera, U, V))
+    d = d_c @ camera.R  # world directions (nv, nu, 3)
+    C = camera.center if window is None else (o_c - camera.tvec) @ camera.R  # ray origins in the world
+    Cx, Cy, Cz = C[..., 0], C[..., 1], C[..., 2]
     a = d[..., 0] ** 2 + d[..., 1] ** 2
-    b = 2 * (C[0] * d[..., 0] + C[1] * d[..., 1])
-    c0 = C[0] ** 2 + C[1] ** 2
+    b = 2 * (Cx * d[..., 0] + Cy * d[..., 1])
+    c0 = Cx**2 + Cy**2
     # closest approach of the ray to the axis: smooth silhouette measure
     t_star = -b / (2 * a)
-    z_star = C[2] + t_star * d[..., 2]
+    z_star = Cz + t_star * d[..., 2]
     rho_min = np.sqrt(np.maximum(c0 - b * b / (4 * a), 0))
     # near intersection with r(z) by fixed-point iteration
     r = np.full_like(a, profile.r.max())
@@ -147,7 +152,7 @@ def _background(camera: Camera, profile: SurfaceOfRevolution, style: SceneStyle,
     for _ in range(5):
         disc = np.maximum(b * b - 4 * a * (c0 - r * r), 0)
         t = (-b - np.sqrt(disc)) / (2 * a)
-        r = profile.radius(C[2] + t * d[..., 2])
+        r = profile.radius(Cz + t * d[..., 2])
     P = C + t[..., None] * d
     z_hit = P[..., 2]
     dist_len = np.linalg.norm(d, axis=-1)
@@ -158,10 +163,7 @@ def _background(camera: Camera, profile: SurfaceOfRevolution, style: SceneStyle,
     theta = np.arctan2(P[..., 1], P[..., 0])
     r_mean = float(np.mean(profile.r))
     zeta = (z_hit - profile.z_min) / (profile.z_max - profile.z_min) * 0.035
-    tex = _texture(r_mean * theta, zeta, style.texture_wavelength, seed)
-    tex2 = _texture(r_mean * (theta + 2 * np.pi), zeta, style.texture_wavelength, seed)  # seam-free blend
-    wrap = ((theta + np.pi) / (2 * np.pi)).astype(np.float32)
-    tex = tex * (1 - wrap) + tex2 * wrap
+    tex = _texture(theta, zeta, r_mean, style.texture_wavelength, seed)
     nrm = np.stack([np.cos(theta), np.sin(theta), -profile.slope(z_hit)], -1)
     nrm /= np.linalg.norm(nrm, axis=-1, keepdims=True)
     shade = 0.35 + 0.65 * np.clip(-np.sum(nrm * d, -1) / dist_len, 0, 1)
@@ -192,6 +194,35 @@ def _sphere_outline(camera: Camera, centres: np.ndarray, radius: float, n: int =
     return project_points(camera.K, camera.dist, pts)
 
 
+def _refracted_outline(camera: Camera, window, centres: np.ndarray, radius: float, n: int = 256) -> np.ndarray:
+    """Distorted pixel outline ``(n_markers, n, 2)`` of spheres seen through a flat window.
+
+    Along ``n`` directions from the projected centre in the normalised image plane, bisection finds
+    where the refracted ray becomes tangent to the sphere; the points are then distorted exactly.
+    """
+    M = camera.to_camera(centres)[:, None, :]  # (m, 1, 3)
+    q0 = camera.undistort_pixels(project_refracted(camera, window, centres))[:, None, :]  # (m, 1, 2)
+    phi = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    e = np.stack([np.cos(phi), np.sin(phi)], -1)[None]  # (1, n, 2)
+    lo = np.zeros((len(centres), n))
+    hi = np.broadcast_to(3 * radius / M[..., 2], lo.shape).copy()
+
+    def outside(sv):
+        o, d = rays_in_water(camera, window, q0 + sv[..., None] * e)
+        m = M - o
+        cross = np.cross(m, d)
+        return np.linalg.norm(cross, axis=-1) / np.linalg.norm(d, axis=-1) > radius
+
+    for _ in range(48):
+        mid = 0.5 * (lo + hi)
+        out = outside(mid)
+        hi = np.where(out, mid, hi)
+        lo = np.where(out, lo, mid)
+    q = q0 + (0.5 * (lo + hi))[..., None] * e
+    xyz = np.concatenate([q, np.ones(q.shape[:-1] + (1,))], -1)
+    return project_points(camera.K, camera.dist, xyz)
+
+
 def _polygon_centroid(poly: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Area centroids ``(n, 2)`` and areas ``(n,)`` of closed polygons ``(n, m, 2)``."""
     x, y = poly[..., 0], poly[..., 1]
@@ -203,9 +234,30 @@ def _polygon_centroid(poly: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.stack([cx, cy], -1), np.abs(area)
 
 
+def _camera_rays(camera: Camera, window, xy: np.ndarray) -> tuple[np.ndarray | float, np.ndarray]:
+    """Rays (camera frame) for normalised undistorted coordinates ``(..., 2)``: origins and directions ``(..., 3)``.
+
+    Without a window the origin is the optical centre (returned as the scalar 0) and the direction ``(x, y, 1)``.
+    """
+    if window is None:
+        return 0.0, np.concatenate([xy, np.ones(xy.shape[:-1] + (1,))], -1)
+    return rays_in_water(camera, window, xy)
+
+
+def _project(camera: Camera, window, points: np.ndarray) -> np.ndarray:
+    return camera.project(points) if window is None else project_refracted(camera, window, points)
+
+
 def _marker_coverage(
-    camera: Camera, centres: np.ndarray, radius: float, profile: SurfaceOfRevolution, surf_z: np.ndarray, half: int, ss: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    camera: Camera,
+    centres: np.ndarray,
+    radius: float,
+    profile: SurfaceOfRevolution,
+    surf_z: np.ndarray,
+    half: int,
+    ss: int,
+    window=None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Supersampled coverage of sphere markers in square windows.
 
     Returns
@@ -216,61 +268,86 @@ def _marker_coverage(
         Unoccluded sphere coverage per pixel, in [0, 1].
     fraction : ndarray, shape (n,)
         Unoccluded fraction of the sphere's projected area.
+    centroid : ndarray, shape (n, 2)
+        Centroid of the sphere's whole (occluded or not) image from the samples, px.
+    area : ndarray, shape (n,)
+        Area of the sphere's whole image from the samples, px^2.
     """
-    n = centres.shape[0]
     size = 2 * half + 1
-    p = camera.project(centres)
+    p = _project(camera, window, centres)
     origin = np.rint(p).astype(int) - half
-    # undistorted coords at pixel corners of each window: (n, size+1, size+1, 2)
+    # rays at the pixel corners of each window: (n, size+1, size+1, 3)
     k = np.arange(size + 1) - 0.5
     cu = origin[:, 0, None, None] + k[None, None, :]
     cv = origin[:, 1, None, None] + k[None, :, None]
     cu, cv = np.broadcast_arrays(cu, cv)
     g = undistort_grid(camera, cu, cv)
-    # bilinear interpolation to ss x ss samples per pixel
+    # bilinear interpolation to ss x ss samples per pixel: (n, size, size, ss, ss, 3)
     f = (np.arange(ss) + 0.5) / ss
-    g00, g01, g10, g11 = g[:, :-1, :-1], g[:, :-1, 1:], g[:, 1:, :-1], g[:, 1:, 1:]  # [row, col]
     fy = f[:, None, None]
     fx = f[None, :, None]
-    # samples: (n, size, size, ss, ss, 2)
-    s = (
-        g00[:, :, :, None, None] * ((1 - fy) * (1 - fx))
-        + g01[:, :, :, None, None] * ((1 - fy) * fx)
-        + g10[:, :, :, None, None] * (fy * (1 - fx))
-        + g11[:, :, :, None, None] * (fy * fx)
-    )
-    x, y = s[..., 0], s[..., 1]
+
+    def interp(g):
+        g00, g01, g10, g11 = g[:, :-1, :-1], g[:, :-1, 1:], g[:, 1:, :-1], g[:, 1:, 1:]  # [row, col]
+        return (
+            g00[:, :, :, None, None] * ((1 - fy) * (1 - fx))
+            + g01[:, :, :, None, None] * ((1 - fy) * fx)
+            + g10[:, :, :, None, None] * (fy * (1 - fx))
+            + g11[:, :, :, None, None] * (fy * fx)
+        )
+
+    if window is None:  # central projection: directions (x, y, 1)
+        xy = interp(g)
+        x, y, z, o = xy[..., 0], xy[..., 1], 1.0, None
+    else:
+        o_c, d_c = rays_in_water(camera, window, g)
+        d, o = interp(d_c), interp(o_c)
+        x, y, z = d[..., 0], d[..., 1], d[..., 2]
     M = camera.to_camera(centres)  # (n, 3)
     Mx, My, Mz = (M[:, i, None, None, None, None] for i in range(3))
-    dd = x * x + y * y + 1.0
-    dm = x * Mx + y * My + Mz
+    if o is not None:
+        Mx, My, Mz = Mx - o[..., 0], My - o[..., 1], Mz - o[..., 2]
+    dd = x * x + y * y + z * z
+    dm = x * Mx + y * My + z * Mz
     mm = Mx * Mx + My * My + Mz * Mz
     disc_s = dm * dm - dd * (mm - radius * radius)
     hit = disc_s > 0
     t_s = (dm - np.sqrt(np.maximum(disc_s, 0))) / dd
     # local cone approximation of the tube around each marker, world frame
     Rt = camera.R
-    C = camera.center
-    Dx = Rt[0, 0] * x + Rt[1, 0] * y + Rt[2, 0]
-    Dy = Rt[0, 1] * x + Rt[1, 1] * y + Rt[2, 1]
-    Dz = Rt[0, 2] * x + Rt[1, 2] * y + Rt[2, 2]
+    if o is None:
+        Cx, Cy, Cz = camera.center
+    else:  # ray origins in the world: R^T (o - t)
+        oc = o - camera.tvec
+        Cx = Rt[0, 0] * oc[..., 0] + Rt[1, 0] * oc[..., 1] + Rt[2, 0] * oc[..., 2]
+        Cy = Rt[0, 1] * oc[..., 0] + Rt[1, 1] * oc[..., 1] + Rt[2, 1] * oc[..., 2]
+        Cz = Rt[0, 2] * oc[..., 0] + Rt[1, 2] * oc[..., 1] + Rt[2, 2] * oc[..., 2]
+    Dx = Rt[0, 0] * x + Rt[1, 0] * y + Rt[2, 0] * z
+    Dy = Rt[0, 1] * x + Rt[1, 1] * y + Rt[2, 1] * z
+    Dz = Rt[0, 2] * x + Rt[1, 2] * y + Rt[2, 2] * z
     z0 = surf_z[:, None, None, None, None]
     r0 = profile.radius(surf_z)[:, None, None, None, None]
     sl = profile.slope(surf_z)[:, None, None, None, None]
-    q = r0 + sl * (C[2] - z0)
+    q = r0 + sl * (Cz - z0)
     wv = sl * Dz
     A = Dx * Dx + Dy * Dy - wv * wv
-    B = 2 * (C[0] * Dx + C[1] * Dy - q * wv)
-    Cc = C[0] ** 2 + C[1] ** 2 - q * q
+    B = 2 * (Cx * Dx + Cy * Dy - q * wv)
+    Cc = Cx * Cx + Cy * Cy - q * q
     disc_t = B * B - 4 * A * Cc
     t_t = (-B - np.sqrt(np.maximum(disc_t, 0))) / (2 * A)
-    z_t = C[2] + t_t * Dz
+    z_t = Cz + t_t * Dz
     blocked = (disc_t > 0) & (t_t > 0) & (t_t < t_s) & (z_t >= profile.z_min) & (z_t <= profile.z_max)
     seen = hit & ~blocked
     cover = seen.mean(axis=(-1, -2))
     n_hit = hit.sum(axis=(1, 2, 3, 4))
     fraction = np.where(n_hit > 0, seen.sum(axis=(1, 2, 3, 4)) / np.maximum(n_hit, 1), 0.0)
-    return origin, cover, fraction
+    # sample centroid of the whole sphere image (pixel coords of the samples)
+    su = (origin[:, 0, None, None, None, None] + np.arange(size)[None, None, :, None, None] - 0.5 + fx[None, None, None, :, :, 0])
+    sv = (origin[:, 1, None, None, None, None] + np.arange(size)[None, :, None, None, None] - 0.5 + fy[None, None, None, :, :, 0])
+    w = hit.astype(float)
+    cnt = np.maximum(w.sum(axis=(1, 2, 3, 4)), 1)
+    centroid = np.stack([(w * su).sum(axis=(1, 2, 3, 4)) / cnt, (w * sv).sum(axis=(1, 2, 3, 4)) / cnt], -1)
+    return origin, cover, fraction, centroid, cnt / (ss * ss)
 
 
 def _blob_stamp(img: np.ndarray, centre: np.ndarray, axes: tuple[float, float], angle: float, value: float, mode: str) -> None:
@@ -305,6 +382,7 @@ def render_markers(
     style: SceneStyle = SceneStyle(),
     sensor: SensorModel = SensorModel(),
     seed: int = 0,
+    windows: list[FlatWindow | None] | None = None,
 ) -> RenderedFrame:
     """Render one load step in every camera.
 
@@ -323,6 +401,9 @@ def render_markers(
     sensor : SensorModel
     seed : int
         Seeds the noise and spurious blobs (the wall texture is fixed per camera index).
+    windows : list of FlatWindow or None, optional
+        Per camera, a flat bath window to look through (refraction; ``rig_sim.refraction``). The truth
+        centroid is then that of the refracted outline (tangent rays found by bisection).
 
     Returns
     -------
@@ -348,16 +429,20 @@ def render_markers(
     )
     images = []
     ss = max(1, int(style.supersample))
+    windows = list(windows) if windows is not None else [None] * n_cam
+    if len(windows) != n_cam:
+        raise ValueError(f"render_markers: windows needs one entry (FlatWindow or None) per camera ({n_cam}); got {len(windows)}")
     for ci, cam in enumerate(cameras):
         w, h = cam.image_size
-        radiance, _ = _background(cam, profile, style, sensor, seed=1000 + ci)
+        win = windows[ci]
+        radiance, _ = _background(cam, profile, style, sensor, seed=1000 + ci, window=win)
         C = cam.center
         view = C - centres
         dist = np.linalg.norm(view, axis=-1)
         facing = np.einsum("ij,ij->i", view, nrm) / dist
-        p = cam.project(centres)
+        p = _project(cam, win, centres)
         depth = cam.to_camera(centres)[:, 2]
-        r_px = cam.K[0, 0] * marker_radius / depth
+        r_px = cam.K[0, 0] * marker_radius / depth * (1.0 if win is None else 1.5 * win.n_water)
         valid = np.isfinite(p).all(-1) & np.isfinite(pts).all(-1) & (facing > -0.3)
         half = int(np.ceil(np.nanmax(np.where(valid, r_px, 0)) * 1.1 + 2)) if valid.any() else 0
         inside = valid & (p[:, 0] - half >= 0) & (p[:, 1] - half >= 0) & (p[:, 0] + half <= w - 1) & (p[:, 1] + half <= h - 1)
@@ -365,11 +450,15 @@ def render_markers(
         if idx.size:
             cover_img = np.zeros(h * w)
             frac = np.zeros(idx.size)
+            sample_centroid = np.zeros((idx.size, 2))
+            sample_area = np.zeros(idx.size)
             chunk = max(1, 40000 // ((2 * half + 1) ** 2 * ss * ss // 16 + 1))
             for s0 in range(0, idx.size, chunk):
                 sel = idx[s0 : s0 + chunk]
-                origin, cov, fr = _marker_coverage(cam, centres[sel], marker_radius, profile, pts[sel, 2], half, ss)
+                origin, cov, fr, cen, area = _marker_coverage(cam, centres[sel], marker_radius, profile, pts[sel, 2], half, ss, win)
+                sample_area[s0 : s0 + sel.size] = area
                 frac[s0 : s0 + sel.size] = fr
+                sample_centroid[s0 : s0 + sel.size] = cen
                 k = np.arange(2 * half + 1)
                 uu = origin[:, 0, None, None] + k[None, None, :]
                 vv = origin[:, 1, None, None] + k[None, :, None]
@@ -386,10 +475,14 @@ def render_markers(
             vi = idx[vis]
             truth.visible[ci, vi] = True
             truth.centres[ci, vi] = p[vi]
-            outline = _sphere_outline(cam, centres[vi], marker_radius)
-            cen, area = _polygon_centroid(outline)
-            truth.centroids[ci, vi] = cen
-            truth.radius_px[ci, vi] = np.sqrt(area / np.pi)
+            if win is None:
+                cen, area = _polygon_centroid(_sphere_outline(cam, centres[vi], marker_radius))
+                truth.centroids[ci, vi] = cen
+                truth.radius_px[ci, vi] = np.sqrt(area / np.pi)
+            else:
+                cen, area = _polygon_centroid(_refracted_outline(cam, win, centres[vi], marker_radius))
+                truth.centroids[ci, vi] = cen
+                truth.radius_px[ci, vi] = np.sqrt(area / np.pi)
         # spurious blobs, placed on the specimen's image region
         rows, cols = np.nonzero(radiance[::16, ::16] > 0.5 * style.tissue_albedo * 0.5)
         glare, debris = [], []

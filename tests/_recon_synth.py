@@ -93,3 +93,61 @@ def render_discs(size, centres, diameters, *, background=180.0, black=25.0, blur
     if dtype == np.uint8:
         return np.clip(np.rint(img), 0, 255).astype(np.uint8)
     return img
+
+
+def tube_layout(n=300, radius=4e-3, length=16e-3, seed=0):
+    """Reference marker surface coordinates (theta, Z), Poisson-disc-like."""
+    p = cylinder_markers(n, radius, length, seed=seed)
+    return np.arctan2(p[:, 1], p[:, 0]), p[:, 2]
+
+
+def tube_surface(theta, Z, radius=4e-3, length=16e-3, radial=1.0, axial=1.0, twist=0.0, bulge=0.0):
+    """Deformed wall points (n, 3) and exact outward normals (n, 3) of the analytic tube."""
+
+    def x(t, z):
+        r = radius * radial * (1 + bulge * np.cos(np.pi * z / length))
+        th = t + twist * z / length
+        return np.stack([r * np.cos(th), r * np.sin(th), axial * z], -1)
+
+    h = 1e-7
+    dt = (x(theta + h, Z) - x(theta - h, Z)) / (2 * h)
+    dz = (x(theta, Z + h) - x(theta, Z - h)) / (2 * h)
+    n = np.cross(dt, dz)
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    return x(theta, Z), n
+
+
+def projected_series(cams, n_steps=8, n=300, rho=2e-4, noise_px=0.03, n_fake=5, seed=0, radial_step=0.05,
+                     axial_step=0.02, twist_step=0.02, bulge_step=0.01, hide=None):
+    """Shuffled noisy detections of a deforming marked tube.
+
+    ``hide`` : optional callable (step, vis (n_cams, n)) -> vis to knock out observations.
+    Returns (detections[step][cam] (n_i, 2), truth_ids[step][cam] (n_i,) with -1 for fakes,
+    centres (n_steps, n, 3), surface (n_steps, n, 3), visible (n_steps, n_cams, n)).
+    """
+    rng = np.random.default_rng(seed)
+    theta, Z = tube_layout(n, seed=seed)
+    dets, ids_all, C, S, V = [], [], [], [], []
+    for k in range(n_steps):
+        s, nrm = tube_surface(theta, Z, radial=1 + radial_step * k, axial=1 + axial_step * k,
+                              twist=twist_step * k, bulge=bulge_step * k)
+        X = s + rho * nrm
+        vis = visible_in(cams, s, nrm)
+        if hide is not None:
+            vis = hide(k, vis.copy())
+        dk, ik = [], []
+        for c, cam in enumerate(cams):
+            p = cam.project(X[vis[c]]) + rng.normal(size=(int(vis[c].sum()), 2)) * noise_px
+            ids = np.flatnonzero(vis[c])
+            fake = rng.uniform([0, 0], cam.image_size, (n_fake, 2))
+            p = np.vstack([p, fake])
+            ids = np.r_[ids, -np.ones(n_fake, int)]
+            perm = rng.permutation(len(p))
+            dk.append(p[perm])
+            ik.append(ids[perm])
+        dets.append(dk)
+        ids_all.append(ik)
+        C.append(X)
+        S.append(s)
+        V.append(vis)
+    return dets, ids_all, np.array(C), np.array(S), np.array(V)

@@ -1,6 +1,5 @@
 """Camera interface: every backend opens, configures with read-back, grabs frames; errors are typed."""
 
-import math
 import os
 import subprocess
 import sys

@@ -31,18 +31,21 @@ def rig():
 
 def test_examples_load_in_si(rig):
     paper = load_protocol(EXAMPLES / "paper-protocol.toml", rig)
-    assert paper.n_steps == 8 and [b.stretch for b in paper.blocks] == [1.1]
-    assert paper.blocks[0].pressures[-1] == pytest.approx(150 * MMHG)
+    # block 0: the stress-free reference (L/L0 = 1, p = 0); then the paper's 8 levels at L/L0 = 1.1
+    assert paper.has_reference and paper.steps[0] == (0, 1.0, 0.0)
+    assert paper.n_steps == 9 and [b.stretch for b in paper.blocks] == [1.0, 1.1]
+    assert paper.blocks[1].pressures[-1] == pytest.approx(150 * MMHG)
     assert paper.preconditioning.pressure_cycles == 8 and paper.preconditioning.stretch_cycles == 8
     assert paper.preconditioning.pressure_max == pytest.approx(10.666e3, rel=1e-3)  # 80 mmHg = 10.7 kPa
     assert paper.preconditioning.stretch_max == 1.4
     multi = load_protocol(EXAMPLES / "multi-stretch-protocol.toml", rig)
-    assert [b.stretch for b in multi.blocks] == [1.1, 1.2] and multi.n_steps == 16
-    assert multi.steps[8] == (1, 1.2, 0.0)
+    assert [b.stretch for b in multi.blocks] == [1.0, 1.1, 1.2] and multi.n_steps == 17
+    assert multi.steps[9] == (2, 1.2, 0.0)
     spec = load_specimen(EXAMPLES / "specimen.toml")
     assert (spec.radius, spec.length, spec.thickness) == pytest.approx((0.010, 0.035, 0.0013))
     assert len(rig.cameras) >= 4 and rig.pressure.mode == "controller" and rig.load_cell.measures == "wall"
     assert paper.text.startswith("# The seed paper")
+    assert paper.calibration.views == 24 and "ChArUco" in paper.calibration.board
 
 
 @pytest.mark.parametrize("unit,scale", [("mmHg", MMHG), ("kPa", 1e3), ("Pa", 1.0)])
@@ -81,6 +84,8 @@ BAD = [
     (GOOD.replace("stretch_max = 1.4", "stretch_max = 1.0"), ["[preconditioning].stretch_max", "> 1"]),
     (GOOD.replace("dwell_s = 0.5", "dwell_s = -1"), ["[stability].dwell_s", ">= 0"]),
     (GOOD + "[capture]\ncameras = []\n", ["[capture].cameras", "empty"]),
+    (GOOD + "[calibration]\nviews = -2\n", ["[calibration].views", ">= 0"]),
+    (GOOD + "[calibration]\nviews = 4\npattern = 'x'\n", ["[calibration]", "unknown key", "pattern"]),
     ("[[block]]\nstretch = 1.1\n", ["[[block]] #1 .pressures_mmHg", "missing"]),
     ("[[block\nstretch = 1\n", ["not valid TOML"]),
 ]
@@ -107,6 +112,16 @@ def test_pressure_above_rig_safety_limit(rig, tmp_path):
         load_protocol(path, rig)
 
 
+def test_reference_capture_is_block_zero_and_limits_name_the_test_blocks(rig):
+    p = parse_protocol(GOOD + "[reference]\ncapture = true\n")
+    assert p.has_reference and p.steps[:2] == [(0, 1.0, 0.0), (1, 1.1, 0.0)] and p.n_steps == 4
+    assert not parse_protocol(GOOD + "[reference]\ncapture = false\n").has_reference
+    with pytest.raises(ConfigError, match=r"block #1 .pressures: 250.0 mmHg"):
+        parse_protocol(GOOD.replace("100]", "250]") + "[reference]\ncapture = true\n", source="p.toml", rig=rig)
+    with pytest.raises(ConfigError, match=r"\[reference\].capture: expected true/false"):
+        parse_protocol(GOOD + "[reference]\ncapture = 1\n", source="p.toml")
+
+
 def test_stretch_above_rig_limit_and_unknown_camera(rig):
     with pytest.raises(ConfigError, match=r"block #1 .stretch: 1.6 is above the rig's stretch limit 1.5"):
         parse_protocol(GOOD.replace("stretch = 1.1", "stretch = 1.6"), source="p.toml", rig=rig)
@@ -129,6 +144,9 @@ RIG = (EXAMPLES / "sim-rig.toml").read_text()
     (RIG.replace('name = "cam1"', 'name = "cam0"'), ["[[camera]] #2 .name", "duplicate"]),
     (RIG.replace("max_stretch = 1.5", "max_stretch = 1.5\nmax_temp = 3"), ["[safety]", "unknown key", "max_temp"]),
     (RIG.replace('port = "sim"\nmeasures', 'measures'), ["[load_cell].port", "missing"]),
+    (RIG + '\n[simulation]\nmaterial = "rubber"\n', ["[simulation].material", "'fung'", "rubber"]),
+    (RIG + '\n[simulation]\nn_markers = 3\n', ["[simulation].n_markers"]),
+    (RIG + '\n[simulation]\nclamped = "yes"\n', ["[simulation].clamped"]),
 ])
 def test_rig_validation_errors(text, fragments):
     with pytest.raises(ConfigError) as info:
@@ -148,3 +166,10 @@ def test_specimen_validation_errors(text, fragment):
     with pytest.raises(ConfigError, match="^s.toml: ") as info:
         parse_specimen(text, source="s.toml")
     assert fragment in str(info.value)
+
+
+def test_simulation_table_defaults_and_values():
+    assert parse_rig(RIG, source="r.toml").simulation.n_markers == 300
+    sim = parse_rig(RIG + '\n[simulation]\nmaterial = "hgo"\nn_markers = 120\nclamped = true\nseed = 4\n',
+                    source="r.toml").simulation
+    assert (sim.material, sim.n_markers, sim.clamped, sim.seed) == ("hgo", 120, True, 4)

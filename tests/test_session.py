@@ -219,3 +219,42 @@ def test_missing_required_group(tmp_path):
         del f["entry/steps"]
     with pytest.raises(SessionError, match="/entry/steps"):
         open_session(path)
+
+
+def test_resume_drops_half_appended_records(tmp_path):
+    """A kill between the columns of one append leaves ragged tables; resume cuts them back."""
+    path = tmp_path / "s.h5"
+    w = SessionWriter.create(path, SPEC, cameras=CAMS)
+    w.append_log("force", [1.0], [2.0], [3.0], ["3"])
+    w.add_step(_step(0), _frames(0))
+    w.close(status="interrupted")
+    with h5py.File(path, "a") as f:  # simulate a kill mid-append: some columns one row longer
+        for name in ("time", "monotonic_time"):
+            ds = f["entry/log/force"][name]
+            ds.resize((2,))
+        f["entry/steps/images/cam0"].resize((2, 48, 64))
+        f["entry/steps/block"].resize((2,))
+    with open_session(path) as s:
+        assert s.status == "interrupted"
+        assert s.n_steps == 1
+        assert len(s.steps["pressure"]) == 1
+    with SessionWriter.resume(path) as w:
+        w.append_log("force", [5.0], [6.0], [7.0], ["7"])
+        w.add_step(_step(1), _frames(1))
+    with open_session(path) as s:
+        np.testing.assert_array_equal(s.log("force")["value"], [3.0, 7.0])
+        np.testing.assert_array_equal(s.log("force")["t_monotonic"], [1.0, 5.0])
+        assert s.n_steps == 2
+        assert s.image("cam0", 1)[0, 0] == 1
+        assert "dropped partial records" in s.events()[0]["message"]
+
+
+def test_results_can_be_added_to_an_interrupted_session(tmp_path):
+    path = tmp_path / "s.h5"
+    w = SessionWriter.create(path, SPEC)
+    w.add_step(_step(0))
+    w.close(status="interrupted")
+    write_result(path, "markers", {"positions": np.zeros((1, 2, 3))}, {})
+    with open_session(path) as s:
+        assert s.status == "interrupted"
+        assert s.results() == ["markers_001"]
