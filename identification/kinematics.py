@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import DegenerateDataError
-from .mesh import Axis, SurfaceMesh, fit_axis, to_cylindrical, wrap_angle
+from .mesh import SurfaceMesh, fit_axis, to_cylindrical, wrap_angle
 
 __all__ = ["Kinematics", "align_steps", "membrane_kinematics", "QUADRATURE"]
 

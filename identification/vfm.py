@@ -36,7 +36,7 @@ import numpy as np
 
 from .errors import DegenerateDataError
 from .kinematics import _cross, _grad, align_steps, reference_frame, surface_state, tangents
-from .mesh import SurfaceMesh, build_mesh, to_cylindrical, wrap_angle
+from .mesh import SurfaceMesh, build_mesh, wrap_angle
 from .models import get_model
 from .models._base import Model, pk2_components
 from .virtual_fields import VirtualFields, check_fields, paper_fields

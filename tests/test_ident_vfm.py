@@ -5,7 +5,6 @@ import pytest
 
 from identification import (DegenerateDataError, MeshError, build_mesh, fit_axis, identify, identify_prepared,
                             membrane_kinematics, prepare, to_trimesh)
-from identification.kinematics import _cross  # noqa: F401  (import check of the private helper used below)
 from ident_synth import E0, PAPER, R0, homogeneous, lam_t_for_pressures
 
 LZ = 1.1
