@@ -35,6 +35,8 @@ RESOLUTION_LIMIT = 0.3
 LOG_RANGE = 12.0
 #: Estimated marker noise (m) above which unsmoothed data are flagged.
 NOISY_MARKERS = 0.02e-3
+#: Smoothing used by ``identify(..., smoothing="auto")`` when the markers look noisy.
+AUTO_SMOOTHING = (4, 2)
 #: RMS normalised gap below which the balance is considered exact (no further starts are tried).
 EXACT_GAP = 1e-5
 #: Typical magnitude of parameters that may be zero or negative (for the scale of their changes).
@@ -353,7 +355,21 @@ def identify(
     optimizer : {"lsq", "nelder-mead"}
     initial : mapping, optional
     prepare_options
-        Passed to ``prepare`` (fields, mesh, n_layers, quadrature, clamp_radius...).
+        Passed to ``prepare`` (fields, mesh, n_layers, quadrature, clamp_radius, smoothing...).
+        ``smoothing="auto"`` smooths with ``AUTO_SMOOTHING`` only when the estimated marker noise
+        exceeds ``NOISY_MARKERS`` (0.02 mm).
     """
-    data = prepare(positions, pressure, axial_force, thickness=thickness, wall=wall, ends=ends, **prepare_options)
+    smoothing = prepare_options.pop("smoothing", None)
+    auto = isinstance(smoothing, str)
+    if auto and smoothing != "auto":
+        raise ValueError(f"smoothing must be None, 'auto' or (axial degree, harmonics); got {smoothing!r}")
+    data = prepare(positions, pressure, axial_force, thickness=thickness, wall=wall, ends=ends,
+                   smoothing=None if auto else smoothing, **prepare_options)
+    if auto and data.marker_noise > NOISY_MARKERS:
+        log.info("estimated marker noise %.3g mm: smoothing the displacements with %s", data.marker_noise * 1e3,
+                 AUTO_SMOOTHING)
+        opts = dict(prepare_options)
+        opts["mesh"] = data.mesh
+        data = prepare(positions, pressure, axial_force, thickness=thickness, wall=wall, ends=ends,
+                       smoothing=AUTO_SMOOTHING, **opts)
     return identify_prepared(data, model, initial=initial, optimizer=optimizer, n_starts=n_starts)

@@ -39,7 +39,7 @@ def _session(tmp_path, *, measures="wall", force_nan=False, zero_pressure=False,
 @pytest.mark.parametrize("measures", ["wall", "total"])
 def test_identify_json_and_stored_result(tmp_path, capsys, measures):
     path = _session(tmp_path, measures=measures)
-    rc = main(["identify", str(path), "--model", "delfino", "--ends", "free", "--json"])
+    rc = main(["identify", str(path), "--model", "delfino", "--ends", "free", "--json", "--smooth", "auto"])
     out = capsys.readouterr().out
     assert rc == 0, out
     doc = json.loads(out)

@@ -174,6 +174,8 @@ def test_smoothing_tames_marker_noise():
     raw = prepare(noisy, p, f, thickness=E0, ends="free")
     assert raw.marker_noise == pytest.approx(0.05e-3, rel=0.15)
     assert any("markers look noisy" in fl for fl in identify_prepared(raw, "fung").flags)
+    auto = identify(noisy, p, f, thickness=E0, model="fung", ends="free", smoothing="auto")
+    assert auto.parameters == smooth.parameters
     for name in ("beta", "alpha11", "alpha22"):
         assert smooth.parameters[name] == pytest.approx(PAPER["fung"][name], rel=0.05), smooth.parameters
     # exact homogeneous data lie in the smoothing basis: smoothing then changes nothing

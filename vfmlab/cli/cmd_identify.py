@@ -57,9 +57,10 @@ def load_session_data(session) -> dict:
               help="clamped: tube tied on cannulae beyond the markers (pressure on the unmeasured strip counted).")
 @click.option("--optimizer", type=click.Choice(["lsq", "nelder-mead"]), default="lsq", show_default=True,
               help="lsq: fast least squares with several starts; nelder-mead: the paper's simplex.")
-@click.option("--smooth", default=None, metavar="AXIAL,HARMONICS",
+@click.option("--smooth", default=None, metavar="AXIAL,HARMONICS|auto",
               help="Smooth the measured displacements (Legendre degree along the axis, Fourier harmonics around) "
-                   "before differentiating; e.g. 4,2 for noisy markers (>~0.02 mm).")
+                   "before differentiating; e.g. 4,2 for noisy markers (>~0.02 mm); 'auto' smooths (4,2) only when "
+                   "the estimated marker noise exceeds 0.02 mm.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON (SI units) for scripts.")
 def command(session_path, model, wall, ends, optimizer, smooth, as_json):
     """Identify MODEL parameters from the latest marker tracks of SESSION and store the result in it.
@@ -71,7 +72,9 @@ def command(session_path, model, wall, ends, optimizer, smooth, as_json):
     from vfmlab.cli._sessions import cli_session
 
     smoothing = None
-    if smooth:
+    if smooth == "auto":
+        smoothing = "auto"
+    elif smooth:
         try:
             smoothing = tuple(int(v) for v in smooth.split(","))
             if len(smoothing) != 2 or min(smoothing) < 0:
