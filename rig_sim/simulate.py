@@ -182,7 +182,7 @@ def simulate_test(model: str, params: Mapping[str, float], *, radius: float = 10
                   thickness: float = 1.3e-3, stretches: Sequence[float] = (1.1,),
                   pressures: Sequence[float] = tuple(PAPER_PRESSURES), n_markers: int = 300, clamped: bool = True,
                   wall: str = "membrane", noise_std: float = 0.0, seed: int = 0, marker_margin: float = 4e-3,
-                  n_profile: int = 401, bvp_nodes: int = 201, bvp_tol: float = 1e-8) -> SimulatedTest:
+                  n_profile: int = 401, bvp_nodes: int = 401, bvp_tol: float = 1e-8) -> SimulatedTest:
     """Simulate an inflation/extension test of a cylindrical artery and its markers.
 
     Parameters

@@ -1,0 +1,110 @@
+"""rig_sim.clamped: the clamped-end membrane tube solved as a BVP."""
+
+import math
+
+import numpy as np
+import pytest
+
+from rig_sim.clamped import solve_clamped
+from rig_sim.materials import PAPER_PARAMETERS, membrane_cauchy
+from rig_sim.simulate import MMHG, PAPER_PRESSURES, simulate_test
+from rig_sim.tube import inflate_membrane
+
+R, H, L = 10e-3, 1.3e-3, 35e-3
+P3 = np.array([0.0, 75.0, 150.0]) * MMHG
+
+
+@pytest.fixture(scope="module")
+def fung_sols():
+    return solve_clamped("fung", PAPER_PARAMETERS["fung"], P3, 1.2, radius=R, thickness=H, length=L)
+
+
+def test_boundary_conditions_and_symmetry(fung_sols):
+    Z = np.linspace(-L / 2, L / 2, 41)
+    for s in fung_sols:
+        assert s.max_rms_residual < 1e-8
+        r, z, a, b = s.evaluate(Z)
+        assert r[0] == pytest.approx(R, rel=1e-10) and r[-1] == pytest.approx(R, rel=1e-10)
+        assert z[-1] == pytest.approx(1.2 * L / 2, rel=1e-10) and z[0] == pytest.approx(-1.2 * L / 2, rel=1e-10)
+        np.testing.assert_allclose(r, r[::-1], rtol=1e-7)
+        np.testing.assert_allclose(z, -z[::-1], rtol=0, atol=1e-9 * L)
+        np.testing.assert_allclose(a, -a[::-1], rtol=0, atol=1e-6)
+    # pressure makes the tube bulge between the cannulae
+    r_mid = [s.evaluate([0.0])[0][0] for s in fung_sols]
+    assert r_mid[0] < R < r_mid[1] < r_mid[2]
+
+
+def test_equilibrium_residuals(fung_sols):
+    """Axial: N(Z) - p pi r(Z)^2 is constant (the transducer force). Radial: d/dZ(r T_s sin psi) = ..."""
+    par = PAPER_PARAMETERS["fung"]
+    for s in fung_sols[1:]:
+        Z = s.Z
+        r, _, a, b = s.y
+        n_wall = s.wall_force(Z)
+        ft = n_wall - s.pressure * np.pi * r**2
+        assert np.ptp(ft) < 1e-6 * np.max(np.abs(n_wall))
+        assert s.transducer_force == pytest.approx(np.mean(ft), rel=1e-9)
+        assert s.end_wall_force == pytest.approx(s.transducer_force + s.pressure * np.pi * R**2, rel=1e-6)
+        # radial equilibrium, independent finite-difference check on the BVP mesh
+        ls = np.hypot(a, b)
+        st, ss = membrane_cauchy("fung", par, r / R, ls)
+        h = H / (r / R * ls)
+        t_t, t_s = st * h, ss * h
+        q_r = r * t_s * a / ls
+        lhs = np.gradient(q_r, Z, edge_order=2)
+        rhs = ls * t_t - s.pressure * r * b
+        scale = np.max(np.abs(s.pressure * r * b))
+        inner = slice(5, -5)
+        assert np.max(np.abs(lhs - rhs)[inner]) < 2e-3 * scale
+
+
+def test_reduces_to_homogeneous_when_clamp_matches():
+    par = PAPER_PARAMETERS["delfino"]
+    p = 100 * MMHG
+    hom = inflate_membrane("delfino", par, [0.0, p], 1.15, radius=R, thickness=H)
+    sols = solve_clamped("delfino", par, [0.0, p], 1.15, radius=R, thickness=H, length=L,
+                         clamp_radius=float(hom.radius[1]))
+    s = sols[1]
+    Z = np.linspace(-L / 2, L / 2, 21)
+    r, z, a, b = s.evaluate(Z)
+    np.testing.assert_allclose(r, np.full_like(Z, hom.radius[1]), rtol=1e-9)
+    np.testing.assert_allclose(z, 1.15 * Z, rtol=1e-9, atol=1e-12)
+    assert s.end_wall_force == pytest.approx(float(hom.wall_force[1]), rel=1e-8)
+
+
+@pytest.mark.parametrize("model", ["fung", "hgo"])
+def test_long_tube_midspan_is_homogeneous(model):
+    """Far from the cannulae (L = 20 R) the state is the homogeneous one at the mid-span axial stretch."""
+    par = PAPER_PARAMETERS[model]
+    p = 120 * MMHG
+    length = 20 * R
+    s = solve_clamped(model, par, [0.0, p], 1.2, radius=R, thickness=H, length=length)[1]
+    r, _, a, b = s.evaluate([0.0])
+    assert abs(a[0]) < 1e-9
+    hom = inflate_membrane(model, par, p, float(b[0]), radius=R, thickness=H)
+    assert r[0] == pytest.approx(float(hom.radius[0]), rel=1e-7)
+    assert float(b[0]) == pytest.approx(1.2, rel=2e-2)  # the ends take a little of the stretch
+    # the wall force at mid-span is the homogeneous one at that stretch
+    assert s.wall_force([0.0])[0] == pytest.approx(float(hom.wall_force[0]), rel=1e-6)
+
+
+def test_simulate_clamped_markers_on_profile():
+    sim = simulate_test("fung", PAPER_PARAMETERS["fung"], stretches=(1.2,), pressures=P3, n_markers=80)
+    assert sim.clamped and sim.positions.shape == (4, 80, 3)
+    r = np.hypot(sim.exact_positions[..., 0], sim.exact_positions[..., 1])
+    for k in range(1, 4):
+        rp, zp, _, _ = sim.profile(k, sim.marker_Z)
+        np.testing.assert_allclose(r[k], rp, rtol=1e-12)
+        np.testing.assert_allclose(sim.exact_positions[k, :, 2], zp, rtol=1e-12)
+    # clamps hold the radius at the ends; transducer = wall force at the cannula - p pi R^2
+    np.testing.assert_allclose(sim.profile_r[1:, [0, -1]], R, rtol=1e-10)
+    np.testing.assert_allclose(sim.transducer_force, sim.axial_force - sim.pressure * math.pi * R**2, rtol=1e-12,
+                               atol=1e-12)
+    # heterogeneous: the circumferential stretch varies along the measured region
+    rk = r[3] / R
+    assert rk.max() - rk.min() > 0.02
+
+
+def test_stretch_must_exceed_one():
+    with pytest.raises(ValueError, match="stretch must exceed 1"):
+        solve_clamped("fung", PAPER_PARAMETERS["fung"], [0.0], 1.0)
