@@ -258,12 +258,31 @@ class SafetyLimits:
 
 
 @dataclass(frozen=True)
+class SimulationConfig:
+    """The simulated specimen behind a ``port = "sim"`` rig (ignored by real rigs).
+
+    ``material`` names one of rig_sim's constitutive laws, used with the seed paper's Table-1
+    parameters; ``clamped`` solves the tube with both ends on cannulae (heterogeneous strain)
+    instead of the homogeneous membrane.
+    """
+
+    material: str = "fung"
+    n_markers: int = 300
+    clamped: bool = False
+    seed: int = 0
+
+
+SIMULATED_MATERIALS = ("fung", "delfino", "hgo", "neohookean")
+
+
+@dataclass(frozen=True)
 class RigConfig:
     name: str
     pressure: PortConfig
     load_cell: PortConfig
     cameras: tuple[CameraConfig, ...]
     safety: SafetyLimits = field(default_factory=SafetyLimits)
+    simulation: SimulationConfig = field(default_factory=SimulationConfig)
     text: str = field(default="", compare=False, repr=False)
     source: str = field(default="<rig>", compare=False, repr=False)
 
@@ -584,8 +603,18 @@ def parse_rig(data: dict | str, text: str = "", source: str = "<rig>") -> RigCon
         if safety.max_pressure <= 0:
             t.fail("max_pressure_mmHg", "expected a limit > 0")
         t.done()
+    simulation = SimulationConfig()
+    t = top.table("simulation")
+    if t is not None:
+        material = t.get("material", simulation.material, str)
+        if material not in SIMULATED_MATERIALS:
+            t.fail("material", f"expected one of {list(SIMULATED_MATERIALS)}; got {material!r}")
+        simulation = SimulationConfig(material, t.integer("n_markers", simulation.n_markers, lo=10),
+                                      t.get("clamped", simulation.clamped, bool),
+                                      t.integer("seed", simulation.seed))
+        t.done()
     top.done()
-    return RigConfig(name, pressure, load_cell, tuple(cams), safety, text, source)
+    return RigConfig(name, pressure, load_cell, tuple(cams), safety, simulation, text, source)
 
 
 def _port(t: _Table, is_load_cell: bool) -> PortConfig:

@@ -43,7 +43,7 @@ def run() -> None:
         timed("reprocess 4 sessions x 2 models, --workers 2", reprocess, paths, runs, workers=2)
         from dask.distributed import LocalCluster
 
-        with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+        with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
                           silence_logs=40) as cluster:
             timed("reprocess 4 sessions x 2 models, Dask 2 workers", reprocess, paths, runs,
                   scheduler=cluster.scheduler_address)

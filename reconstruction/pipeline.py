@@ -194,7 +194,10 @@ def _bootstrap_prior(dets, cameras, settings: ReconstructionSettings, loose: Cyl
         dets, cameras, epipolar_px=settings.epipolar_px, max_reprojection_px=settings.max_reprojection_px,
         prior=loose, min_views=3, sigma_px=settings.sigma_px,
     )
-    clean = res.triangulation.reprojection_rms <= 4.0 * np.median(res.triangulation.reprojection_rms) + 0.05
+    rms = res.triangulation.reprojection_rms
+    if rms.size < 8:  # too few markers seen by >= 3 cameras to fit the specimen (e.g. a sparse ring)
+        return loose
+    clean = rms <= 4.0 * np.median(rms) + 0.05
     if clean.sum() < 8:
         return loose
     guess = None if loose is None else loose.axis_direction

@@ -8,6 +8,7 @@ from scipy.spatial import cKDTree
 from acquisition.session import CameraSpec, SessionWriter, SpecimenInfo, StepRecord, open_session, write_result
 from reconstruction.calibration_io import cameras_to_arrays
 from rig_sim import camera_ring, deform_cylinder, random_marker_layout, render_markers
+from vfmlab.cli import main
 from vfmlab.reprocess import plan_runs, reprocess
 
 N_STEPS = 3
@@ -47,3 +48,11 @@ def test_reprocess_reconstruct_on_rendered_images(tmp_path):
     # tracking: each marker identity stays on the same physical marker in every step
     always = visible.all(axis=0)
     assert (truth_index[:, always] == truth_index[0, always]).all()
+    # the stage and 'vfmlab reconstruct' store the same tracks
+    assert main(["reconstruct", str(path), "--frame", "calibration", "--json"]) == 0
+    with open_session(path) as s:
+        cli = s.latest("markers")
+    assert cli["name"] != name and cli["parameters"] == m["parameters"]
+    for key in ("positions", "visible", "uncertainty", "marker_id", "step_index", "centres"):
+        np.testing.assert_allclose(cli["arrays"][key], m["arrays"][key], rtol=0, atol=1e-12, equal_nan=True,
+                                   err_msg=key)

@@ -100,7 +100,8 @@ def test_dask_local_cluster(batch, tmp_path, capsys):
     distributed = pytest.importorskip("dask.distributed")
     paths, bad = batch
     summary = tmp_path / "dask.csv"
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+    # dashboard on a free port: 8787 may be taken by another cluster on this machine
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
                                   silence_logs=40) as cluster:
         rc = main(["reprocess", *map(str, paths), str(bad), "--model", "delfino", "--scheduler",
                    cluster.scheduler_address, "--summary", str(summary)])
@@ -121,3 +122,31 @@ def test_reconstruct_failure_skips_identify(tmp_path, capsys):
     assert "no calibration" in out.errors[0] and "skipped because reconstruct failed" in out.errors[1]
     assert main(["reprocess", str(bare), "--stages", "identify,reconstruct", "--model", "delfino"]) == 1
     assert "no calibration" in capsys.readouterr().err
+
+
+def test_identify_stage_matches_identify_command(tmp_path, capsys):
+    """The reprocess stage and 'vfmlab identify' store the same result (guards against the two drifting apart)."""
+    from tests._e2e_data import make_session as make
+
+    session = make(tmp_path / "s.h5", n_markers=120)
+    assert main(["identify", str(session), "--model", "delfino", "--json"]) == 0
+    capsys.readouterr()
+    name = identify_session(session, model="delfino", invoked_by="test")
+    with open_session(session) as s:
+        cli, stage = s.result(s.results("identification")[-2]), s.result(name)
+    assert cli["parameters"] == stage["parameters"]
+    assert set(cli["arrays"]) == set(stage["arrays"])
+    for key, value in cli["arrays"].items():
+        if value.dtype.kind == "f":
+            np.testing.assert_allclose(stage["arrays"][key], value, rtol=1e-9, err_msg=key)
+        else:
+            np.testing.assert_array_equal(stage["arrays"][key], value, err_msg=key)
+    for key in ("model", "wall", "cost", "converged", "flags", "field_names"):
+        assert stage["attrs"][key] == cli["attrs"][key], key
+
+
+def test_unknown_reconstruct_setting_is_refused(tmp_path, capsys):
+    session = make_session(tmp_path / "s.h5", with_results=False)
+    assert main(["reprocess", str(session), "--stages", "reconstruct", "--set", "epipolar=3"]) == 1
+    err = capsys.readouterr().err
+    assert "unknown ['epipolar']" in err and "epipolar_px" in err

@@ -124,3 +124,18 @@ def test_info_on_bad_file_is_one_message(tmp_path, capsys):
     assert main(["info", str(bad)]) == 1
     err = capsys.readouterr().err
     assert "not HDF5" in err and "Traceback" not in err
+
+
+def test_json_output_is_not_mixed_with_log_messages(tmp_path, capsys):
+    """Warnings are logged to stderr, so stdout of --json stays parseable."""
+    import logging
+
+    markers, loads = _write_inputs(tmp_path)
+    out = tmp_path / "s.h5"
+    assert main(["import-markers", str(markers), str(loads), "--thickness-mm", "1.3", "-o", str(out)]) == 0
+    capsys.readouterr()
+    assert main(["-v", "info", str(out), "--json"]) == 0
+    logging.getLogger("vfmlab.test").warning("a warning during a --json command")
+    captured = capsys.readouterr()
+    json.loads(captured.out)
+    assert "a warning during a --json command" in captured.err

@@ -78,3 +78,15 @@ def test_validation(cams):
         CylinderPrior(radius=-1.0, tolerance=1e-3)
     res = match_views([np.zeros((0, 2))] * 6, cams)
     assert res.observations.shape == (0, 6) and res.points.shape == (0, 3)
+
+
+def test_bootstrap_without_three_view_markers_keeps_the_loose_prior(cams):
+    """Two cameras cannot see a marker three times: the specimen prior stays the one given (no
+    empty-array statistics, which would warn and fail under filterwarnings=error)."""
+    from reconstruction.pipeline import ReconstructionSettings, _bootstrap_prior
+
+    pair = cams[:2]
+    dets, *_ = projected_series(pair, n_steps=1, n_fake=0, seed=7)
+    loose = CylinderPrior(radius=4.2e-3, tolerance=2e-3, half_length=12e-3)
+    assert _bootstrap_prior(dets[0], pair, ReconstructionSettings(), loose) is loose
+    assert _bootstrap_prior(dets[0], pair, ReconstructionSettings(), None) is None

@@ -144,6 +144,9 @@ RIG = (EXAMPLES / "sim-rig.toml").read_text()
     (RIG.replace('name = "cam1"', 'name = "cam0"'), ["[[camera]] #2 .name", "duplicate"]),
     (RIG.replace("max_stretch = 1.5", "max_stretch = 1.5\nmax_temp = 3"), ["[safety]", "unknown key", "max_temp"]),
     (RIG.replace('port = "sim"\nmeasures', 'measures'), ["[load_cell].port", "missing"]),
+    (RIG + '\n[simulation]\nmaterial = "rubber"\n', ["[simulation].material", "'fung'", "rubber"]),
+    (RIG + '\n[simulation]\nn_markers = 3\n', ["[simulation].n_markers"]),
+    (RIG + '\n[simulation]\nclamped = "yes"\n', ["[simulation].clamped"]),
 ])
 def test_rig_validation_errors(text, fragments):
     with pytest.raises(ConfigError) as info:
@@ -163,3 +166,10 @@ def test_specimen_validation_errors(text, fragment):
     with pytest.raises(ConfigError, match="^s.toml: ") as info:
         parse_specimen(text, source="s.toml")
     assert fragment in str(info.value)
+
+
+def test_simulation_table_defaults_and_values():
+    assert parse_rig(RIG, source="r.toml").simulation.n_markers == 300
+    sim = parse_rig(RIG + '\n[simulation]\nmaterial = "hgo"\nn_markers = 120\nclamped = true\nseed = 4\n',
+                    source="r.toml").simulation
+    assert (sim.material, sim.n_markers, sim.clamped, sim.seed) == ("hgo", 120, True, 4)

@@ -13,7 +13,6 @@ from __future__ import annotations
 import logging
 import os
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -73,7 +72,8 @@ def load_identification_inputs(session, markers: str | None = None) -> dict[str,
 
 
 def identify_session(path: str | os.PathLike, *, model: str = "fung", wall: str = "membrane", ends: str = "clamped",
-                     optimizer: str = "lsq", markers: str | None = None, invoked_by: str = "pipeline") -> str:
+                     optimizer: str = "lsq", smoothing: tuple[int, int] | None = None, markers: str | None = None,
+                     invoked_by: str = "pipeline") -> str:
     """Identify ``model`` from the session's marker tracks with the VFM and store an "identification" result.
 
     Parameters
@@ -83,6 +83,8 @@ def identify_session(path: str | os.PathLike, *, model: str = "fung", wall: str 
     wall : "membrane" | "thick".
     ends : "clamped" | "free".
     optimizer : "lsq" | "nelder-mead".
+    smoothing : (axial Legendre degree, circumferential harmonics) to smooth the measured
+        displacements first (``vfmlab identify --smooth``), or None.
     markers : markers result to use (default: the latest).
     invoked_by : recorded in the result's attributes (e.g. "identify", "reprocess").
 
@@ -99,9 +101,13 @@ def identify_session(path: str | os.PathLike, *, model: str = "fung", wall: str 
             data = load_identification_inputs(session, markers)
     except SessionError as exc:
         raise StageError(str(exc)) from None
+    if smoothing is not None:
+        smoothing = tuple(int(v) for v in smoothing)
+        if len(smoothing) != 2 or min(smoothing) < 0:
+            raise StageError(f"smoothing must be two non-negative integers (axial, harmonics); got {smoothing!r}")
     try:
         result = identify(data["positions"], data["pressure"], data["force"], thickness=data["thickness"],
-                          model=model, wall=wall, ends=ends, optimizer=optimizer)
+                          model=model, wall=wall, ends=ends, optimizer=optimizer, smoothing=smoothing)
     except (IdentificationError, ValueError) as exc:
         raise StageError(f"{path}: cannot identify {model}: {exc}") from None
     names = list(result.parameters)
@@ -115,7 +121,7 @@ def identify_session(path: str | os.PathLike, *, model: str = "fung", wall: str 
         "residuals": result.residuals,
         "step_index": data["rows"],
     }
-    settings = {"model": model, "wall": wall, "ends": ends, "optimizer": optimizer,
+    settings = {"model": model, "wall": wall, "ends": ends, "optimizer": optimizer, "smoothing": smoothing,
                 "markers_result": data["markers_result"], "thickness": data["thickness"],
                 "force_correction": data["notes"]}
     attrs = {"model": model, "wall": wall, "cost": result.cost, "converged": result.converged,
@@ -217,7 +223,3 @@ STAGES: dict[str, Callable[..., str]] = {
 
 #: Order in which stages run when several are requested.
 STAGE_ORDER = ("reconstruct", "identify")
-
-
-def session_label(path: str | os.PathLike) -> str:
-    return Path(path).name

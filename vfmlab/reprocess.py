@@ -9,6 +9,7 @@ identification produced (parameters and standard errors across sessions) plus on
 from __future__ import annotations
 
 import csv
+import inspect
 import logging
 import multiprocessing
 import os
@@ -76,11 +77,18 @@ def plan_runs(stages: Sequence[str], *, models: Sequence[str] = ("fung",), walls
         if stage == "identify":
             for model in models:
                 for wall in walls:
-                    runs.append(Run("identify", {"model": model, "wall": wall, **(identify_settings or {})}))
+                    extra = {k: v for k, v in (identify_settings or {}).items() if v is not None}
+                    runs.append(Run("identify", {"model": model, "wall": wall, **extra}))
         elif stage == "reconstruct":
             runs.append(Run("reconstruct", dict(reconstruct_settings or {})))
         else:  # pragma: no cover - future stages
             runs.append(Run(stage, {}))
+    for run in runs:  # unknown settings fail now, not once per session
+        accepted = inspect.signature(STAGES[run.stage]).parameters
+        unknown = sorted(set(run.settings) - set(accepted))
+        if unknown:
+            known = sorted(k for k, p in accepted.items() if p.kind == p.KEYWORD_ONLY and k != "invoked_by")
+            raise ValueError(f"{run.stage} settings must be among {known}; got unknown {unknown}")
     return runs
 
 
@@ -98,8 +106,8 @@ def process_session(path: str, runs: Sequence[Run], invoked_by: str = "reprocess
         with open_session(path) as session:
             out.specimen = session.specimen.specimen_id
             status = session.status
-        if status in ("running", "interrupted"):
-            raise SessionError(f"{path}: the session is {status}; finish or resume it before reprocessing")
+        if status == "running":  # an interrupted session's completed steps are fine to process
+            raise SessionError(f"{path}: the session is still being written; reprocess it once it has finished")
     except SessionError as exc:
         out.errors.append(str(exc))
         out.seconds = time.perf_counter() - t0

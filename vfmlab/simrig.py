@@ -40,7 +40,8 @@ class _Grid:
     model: str
 
 
-def _mechanics_grid(spec: SpecimenFile, stretches: np.ndarray, pressures: np.ndarray, n_z: int = 65) -> _Grid:
+def _mechanics_grid(spec: SpecimenFile, stretches: np.ndarray, pressures: np.ndarray, n_z: int = 65,
+                    material: str = "fung", clamped: bool = False) -> _Grid:
     Zp = np.linspace(-spec.length / 2, spec.length / 2, n_z)
     try:
         from rig_sim.mechanics import PAPER_PARAMETERS, simulate_test
@@ -51,11 +52,12 @@ def _mechanics_grid(spec: SpecimenFile, stretches: np.ndarray, pressures: np.nda
         z = np.empty_like(r)
         f = np.empty((stretches.size, pressures.size))
         for i, lam in enumerate(stretches):
-            sim = simulate_test("fung", PAPER_PARAMETERS["fung"], radius=spec.radius, length=spec.length,
+            sim = simulate_test(material, PAPER_PARAMETERS[material], radius=spec.radius, length=spec.length,
                                 thickness=spec.thickness, stretches=(float(lam),), pressures=tuple(pressures),
-                                n_markers=4, clamped=False, n_profile=n_z)
+                                n_markers=4, clamped=clamped, n_profile=n_z)
             r[i], z[i], f[i] = sim.profile_r[1:], sim.profile_z[1:], sim.axial_force[1:]
-        return _Grid(stretches, pressures, sim.profile_Z, r, z, f, "fung (rig_sim.mechanics, homogeneous membrane)")
+        kind = "clamped-end membrane tube" if clamped else "homogeneous membrane"
+        return _Grid(stretches, pressures, sim.profile_Z, r, z, f, f"{material} (rig_sim.mechanics, {kind})")
     log.warning("rig_sim.mechanics not available: simulated specimen uses an analytic stand-in law")
     L, P = np.meshgrid(stretches, pressures, indexing="ij")
     lam_t = 1.0 + 0.25 * np.tanh(P / (100 * MMHG)) / np.sqrt(L)  # stiffening inflation
@@ -81,7 +83,8 @@ class SimScene:
     """
 
     def __init__(self, specimen: SpecimenFile, protocol: Protocol, camera_names: list[str],
-                 image_size: tuple[int, int] = (320, 240), n_markers: int = 150, seed: int = 0):
+                 image_size: tuple[int, int] = (320, 240), n_markers: int = 300, seed: int = 0,
+                 material: str = "fung", clamped: bool = False):
         from rig_sim import camera_ring, random_marker_layout
 
         pc = protocol.preconditioning
@@ -91,7 +94,8 @@ class SimScene:
         p_top = max([max(b.pressures) for b in protocol.blocks] + [pc.pressure_max])
         pressures = np.unique(np.concatenate([np.linspace(0.0, p_top * 1.1 + 1.0, 12),
                                               *[np.asarray(b.pressures) for b in protocol.blocks]]))
-        self.grid = _mechanics_grid(specimen, np.array(sorted(stretches)), pressures)
+        self.grid = _mechanics_grid(specimen, np.array(sorted(stretches)), pressures, material=material,
+                                    clamped=clamped)
         self.cameras = camera_ring(len(camera_names), image_size=image_size, seed=seed,
                                    name_format="{}")
         self.camera_names = list(camera_names)
@@ -201,10 +205,10 @@ class SimBench:
     """
 
     def __init__(self, rig_config: RigConfig, specimen: SpecimenFile, protocol: Protocol, *,
-                 time_scale: float = 1.0, n_markers: int = 150, seed: int = 0):
+                 time_scale: float = 1.0):
         self.config, self.specimen, self.protocol = rig_config, specimen, protocol
         self.time_scale = float(time_scale)
-        self.n_markers, self.seed = n_markers, seed
+        self.simulation = rig_config.simulation
         self.stretch = 1.0
         self.rig = None
         self.scene: SimScene | None = None
@@ -216,11 +220,12 @@ class SimBench:
         size = (320, 240)
         if cams:
             size = (int(cams[0].settings.get("width", 320)), int(cams[0].settings.get("height", 240)))
-        self.scene = SimScene(self.specimen, self.protocol, [c.name for c in cams], size, self.n_markers,
-                              self.seed)
+        sim = self.simulation
+        self.scene = SimScene(self.specimen, self.protocol, [c.name for c in cams], size, sim.n_markers, sim.seed,
+                              material=sim.material, clamped=sim.clamped)
         self.rig = SimulatedRig(pressure_source=self.config.pressure.mode,
                                 mechanics=self.scene.wall_force, tau_s=0.3 / self.time_scale,
-                                rng=np.random.default_rng(self.seed))
+                                rng=np.random.default_rng(self.simulation.seed))
         if self.config.load_cell.measures == "total":
             # a cell behind a closed cannula reads F_wall - p pi r_i^2 (decision 0003)
             r_i = self.specimen.radius - self.specimen.thickness

@@ -48,6 +48,8 @@ def _parse_set(pairs: tuple[str, ...]) -> dict:
               help="Boundary of the marked region (identify).")
 @click.option("--optimizer", type=click.Choice(["lsq", "nelder-mead"]), default="lsq", show_default=True,
               help="Optimiser (identify).")
+@click.option("--smooth", default=None, metavar="AXIAL,HARMONICS",
+              help="Smooth the measured displacements before identifying (as 'vfmlab identify --smooth'), e.g. 4,2.")
 @click.option("--set", "set_pairs", multiple=True, metavar="KEY=VALUE",
               help="Extra setting for the reconstruct stage (JSON value), repeatable.")
 @click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
@@ -57,7 +59,7 @@ def _parse_set(pairs: tuple[str, ...]) -> dict:
 @click.option("--summary", type=click.Path(dir_okay=False),
               help="Write a CSV of the identified parameters across sessions (one row per identification).")
 @click.option("--json", "as_json", is_flag=True, help="Print the outcomes as JSON.")
-def command(sessions, stages, models, walls, ends, optimizer, set_pairs, workers, scheduler, summary, as_json):
+def command(sessions, stages, models, walls, ends, optimizer, smooth, set_pairs, workers, scheduler, summary, as_json):
     """Re-run STAGES on each SESSION with the given settings, appending new results (nothing is overwritten).
 
     A session that fails (corrupt file, missing markers, failed fit) is reported and the others go on;
@@ -67,10 +69,21 @@ def command(sessions, stages, models, walls, ends, optimizer, set_pairs, workers
     from vfmlab.reprocess import plan_runs, reprocess, write_summary
 
     stage_list = _split(stages, "--stages", tuple(STAGES))
-    runs = plan_runs(stage_list, models=_split(models, "--model", ("fung", "delfino", "hgo", "neohookean")),
-                     walls=_split(walls, "--wall", ("membrane", "thick")),
-                     identify_settings={"ends": ends, "optimizer": optimizer},
-                     reconstruct_settings=_parse_set(set_pairs))
+    smoothing = None
+    if smooth:
+        try:
+            smoothing = [int(v) for v in smooth.split(",")]
+            if len(smoothing) != 2 or min(smoothing) < 0:
+                raise ValueError
+        except ValueError:
+            raise CliError(f"--smooth must be two non-negative integers AXIAL,HARMONICS like 4,2; got {smooth!r}") from None
+    try:
+        runs = plan_runs(stage_list, models=_split(models, "--model", ("fung", "delfino", "hgo", "neohookean")),
+                         walls=_split(walls, "--wall", ("membrane", "thick")),
+                         identify_settings={"ends": ends, "optimizer": optimizer, "smoothing": smoothing},
+                         reconstruct_settings=_parse_set(set_pairs))
+    except ValueError as exc:
+        raise CliError(f"--set: {exc}" if set_pairs else str(exc)) from None
     where = f"Dask scheduler {scheduler}" if scheduler else (f"{workers} worker processes" if workers > 1 else "serially")
     if not as_json:
         console.print(f"Reprocessing {len(sessions)} session(s) {where}: " + "; ".join(r.label() for r in runs))

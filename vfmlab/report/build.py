@@ -349,8 +349,16 @@ def _sec_parameters(ctx: _Context, rep: _Report) -> str:
         for i, n in enumerate(names):
             unit = _param_unit(row["model"], n)
             rel = stderr[i] / abs(values[i]) * 100 if values[i] else np.nan
-            flag = flags.get(n, "") if isinstance(flags, dict) else ""
-            tab.append([n, _fmt(values[i]), _fmt(stderr[i], 2), _fmt(rel, 2), unit,
+            shown, err = values[i], stderr[i]
+            if unit == "Pa":  # SI inside, kPa / degrees on the page
+                shown, err, unit = shown / 1e3, err / 1e3, "kPa"
+            elif unit == "rad":
+                shown, err, unit = np.degrees(shown), np.degrees(err), "deg"
+            if isinstance(flags, dict):
+                flag = flags.get(n, "")
+            else:  # plain-words flags: those about this parameter, shortened to their first clause
+                flag = "; ".join(str(f).split(":")[0] for f in (flags or []) if str(f).startswith(f"{n} "))
+            tab.append([n, _fmt(shown), _fmt(err, 2), _fmt(rel, 2), unit,
                         _Raw(f'<span class="flag">{html.escape(str(flag))}</span>') if flag else ""])
         out.append(_table(["parameter", "value", "std. error", "rel. error (%)", "unit", "identifiability"], tab,
                           numeric={1, 2, 3}))

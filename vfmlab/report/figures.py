@@ -117,7 +117,8 @@ def markers_per_step(visible: np.ndarray, pressure: np.ndarray) -> Figure:
 
 
 def mesh_3d(fields: SurfaceFields) -> Figure:
-    """3-D view of the surface mesh in the reference and the last step, coloured by E11 in the last step."""
+    """3-D view of the surface mesh (the side facing the viewer) in the reference and the last step,
+    coloured by E11 in the last step."""
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
     fig = _figure(9.0, 4.6)
@@ -132,6 +133,14 @@ def mesh_3d(fields: SurfaceFields) -> Figure:
         x = fields.positions[step] * 1e3
         verts = x[tri]
         ok = np.all(np.isfinite(verts), axis=(1, 2))
+        # back-face culling: the triangles are oriented with outward normals, so drawing only those
+        # facing the viewer avoids matplotlib's painter's-algorithm mixing the far wall into the near one
+        elev, azim = np.radians(25.0), np.radians(-60.0)
+        view = np.array([np.cos(elev) * np.cos(azim), np.cos(elev) * np.sin(azim), np.sin(elev)])
+        normal = np.cross(verts[:, 1] - verts[:, 0], verts[:, 2] - verts[:, 0])
+        centre_xy = np.nanmean(x[:, :2], axis=0)
+        outward = np.sign(np.einsum("ij,ij->i", normal[:, :2], verts.mean(axis=1)[:, :2] - centre_xy))
+        ok &= (normal @ view) * outward > 0
         colors = cmap(norm(np.nan_to_num(e11))) if step else np.array([[0.75, 0.75, 0.8, 1.0]])
         coll = Poly3DCollection(verts[ok], facecolors=colors[ok] if step else colors[0], edgecolors="k",
                                 linewidths=0.15, alpha=0.95)
@@ -143,6 +152,7 @@ def mesh_3d(fields: SurfaceFields) -> Figure:
         ax.set_ylim(centre[1] - half, centre[1] + half)
         ax.set_zlim(centre[2] - half, centre[2] + half)
         ax.set_box_aspect((1, 1, 1))
+        ax.view_init(elev=25.0, azim=-60.0)
         ax.set_xlabel("x (mm)")
         ax.set_ylabel("y (mm)")
         ax.set_zlabel("z (mm)")
