@@ -20,6 +20,7 @@ Pixel coordinates are OpenCV's (x right, y down, origin at the centre of the top
 from __future__ import annotations
 
 import logging
+import warnings
 from dataclasses import dataclass
 
 import cv2
@@ -453,7 +454,10 @@ def _annulus_plane(patch, exclude, xx, yy, r_in, r_out, order=1) -> np.ndarray:
         # robust: drop annulus pixels more than 3 MAD from the plane (texture, neighbours)
         res = np.abs(flat - coef @ A.T)
         rabs = np.where(ring_f, res, np.nan)
-        mad = np.nanmedian(rabs, axis=1) * 1.4826 + 1e-9
+        with warnings.catch_warnings():  # a blob whose annulus is entirely excluded: keep its plain fit
+            warnings.simplefilter("ignore", RuntimeWarning)
+            mad = np.nanmedian(rabs, axis=1) * 1.4826 + 1e-9
+        mad = np.where(np.isfinite(mad), mad, np.inf)
         w = (ring_f & (res <= 3.0 * mad[:, None])).astype(float)
     return (coef @ A.T).reshape(patch.shape)
 
