@@ -57,8 +57,8 @@ class CylinderPrior:
     min_facing : float
         Minimum cosine between the outward radial direction and the direction to a camera for the
         marker to count as visible in it. A sphere standing one radius off the wall is still
-        visible a little beyond the limb, but such views are partly occluded and biased: 0 keeps
-        them out.
+        visible a little beyond the limb (such views are biased; the pipeline keeps them only
+        when a marker has no two better views, and rejects the points they spoil).
     """
 
     radius: float
@@ -66,7 +66,7 @@ class CylinderPrior:
     half_length: float = np.inf
     axis_point: np.ndarray = field(default_factory=lambda: np.zeros(3))
     axis_direction: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
-    min_facing: float = 0.0
+    min_facing: float = -0.15
 
     def __post_init__(self) -> None:
         if not (self.radius > 0 and self.tolerance > 0):

@@ -17,7 +17,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial import cKDTree
 
-__all__ = ["CylinderFit", "fit_cylinder", "surface_normals", "marker_surface_points", "specimen_frame"]
+__all__ = ["CylinderFit", "fit_cylinder", "surface_normals", "surface_residuals", "marker_surface_points", "specimen_frame"]
 
 log = logging.getLogger(__name__)
 
@@ -242,3 +242,56 @@ def specimen_frame(centres: np.ndarray, toward: np.ndarray | None = None, *, axi
         x = np.cross(a, [0.0, 1.0, 0.0]) if abs(a[1]) < 0.9 else np.cross(a, [1.0, 0.0, 0.0])
     x /= np.linalg.norm(x)
     return np.stack([x, np.cross(a, x), a]), origin
+
+
+def surface_residuals(centres: np.ndarray, *, k: int = 12) -> tuple[np.ndarray, np.ndarray]:
+    """Leave-one-out distance of each point from the surface through its neighbours.
+
+    A quadratic height field (with constant term) is fitted to the ``k`` nearest neighbours of each
+    point, without the point, in the tangent frame of the fitted cylinder; the residual is the
+    point's height above that surface along the local normal. A point measured badly in depth
+    stands out of the smooth wall formed by its neighbours.
+
+    Parameters
+    ----------
+    centres : ndarray, shape (n, 3)
+        NaN rows give NaN.
+    k : int
+        Neighbours (>= 7).
+
+    Returns
+    -------
+    residual : ndarray, shape (n,)
+        Signed, m (positive outwards).
+    normals : ndarray, shape (n, 3)
+        Unit normals of the neighbours' surface at the point.
+    """
+    X = np.asarray(centres, dtype=float).reshape(-1, 3)
+    ok = np.all(np.isfinite(X), axis=1)
+    res = np.full(X.shape[0], np.nan)
+    nrm = np.full(X.shape, np.nan)
+    k = int(max(k, 7))
+    if ok.sum() < k + 2:
+        return res, nrm
+    P = X[ok]
+    cyl = fit_cylinder(P)
+    radial = cyl.radial_direction(P)
+    a = cyl.axis_direction
+    t1 = np.cross(a, radial)
+    _, nb = cKDTree(P).query(P, k=k + 1)
+    D = P[nb[:, 1:]] - P[:, None, :]  # neighbours only
+    u = np.einsum("mkj,mj->mk", D, t1)
+    v = D @ a
+    h = np.einsum("mkj,mj->mk", D, radial)
+    dist2 = u * u + v * v
+    w = np.exp(-dist2 / (2.0 * (np.median(dist2, axis=1, keepdims=True) + 1e-30)))
+    A = np.stack([np.ones_like(u), u, v, u * u, u * v, v * v], axis=-1)
+    AtA = np.einsum("mk,mki,mkj->mij", w, A, A) + 1e-18 * np.eye(6)
+    Atb = np.einsum("mk,mki,mk->mi", w, A, h)
+    coef = np.linalg.solve(AtA, Atb[..., None])[..., 0]
+    n = radial - coef[:, 1:2] * t1 - coef[:, 2:3] * a
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    # height of the point (at u = v = 0) above the fitted surface, measured along the normal
+    res[ok] = -coef[:, 0] * np.sum(n * radial, axis=1)
+    nrm[ok] = n
+    return res, nrm

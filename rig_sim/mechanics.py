@@ -8,6 +8,7 @@
 See docs/mechanics.md for equations and conventions.
 """
 
+from .clamped import ClampedSolution, solve_clamped
 from .markers import min_marker_spacing, place_markers
 from .materials import (
     MODELS,
@@ -36,7 +37,7 @@ from .tube import (
 )
 
 __all__ = [
-    "MMHG", "MODELS", "PAPER_PARAMETERS", "PAPER_PRESSURES", "MechanicsError", "MembraneLaw", "MembraneState",
+    "ClampedSolution", "solve_clamped", "MMHG", "MODELS", "PAPER_PARAMETERS", "PAPER_PRESSURES", "MechanicsError", "MembraneLaw", "MembraneState",
     "ModelError", "SimulatedTest", "ThickState", "check_params", "get_law", "inflate_membrane", "inflate_thick",
     "membrane_cauchy", "membrane_pk2", "membrane_pressure", "membrane_wall_force", "midwall_membrane_state",
     "min_marker_spacing", "place_markers", "simulate_test", "strain_energy", "thick_tube_state", "transducer_force",

@@ -55,3 +55,17 @@ def test_normals_validation_and_nan_rows():
         surface_normals(s, method="spline")
     with pytest.raises(ValueError, match="marker_radius"):
         marker_surface_points(s, -1.0)
+
+
+def test_surface_residuals_flag_a_depth_error():
+    from reconstruction.surface import surface_residuals
+
+    theta, Z = tube_layout(300, seed=2)
+    s, n = tube_surface(theta, Z, radial=1.2, axial=1.1, bulge=0.08, twist=0.1)
+    c = s + 2e-4 * n + np.random.default_rng(0).normal(scale=1.5e-6, size=s.shape)
+    c[10] += 60e-6 * n[10]
+    r, nrm = surface_residuals(c)
+    assert r[10] == pytest.approx(60e-6, abs=10e-6)
+    assert np.argmax(np.abs(r)) == 10
+    assert np.percentile(np.abs(np.delete(r, 10)), 90) < 15e-6
+    assert np.all(np.sum(nrm * n, axis=1) > 0.99)

@@ -28,7 +28,7 @@ def series():
     dets, ids, C, S, V = projected_series(cams, n_steps=9, seed=11, hide=_hide, radial_step=0.08,
                                           axial_step=0.03, twist_step=0.03, bulge_step=0.01)
     res = track_series(dets, cams, ReconstructionSettings(marker_diameter=0.4e-3, specimen_radius=4e-3))
-    return cams, ids, C, S, V, res
+    return cams, ids, C, S, V, res, dets
 
 
 def _identity(res, C):
@@ -38,7 +38,7 @@ def _identity(res, C):
 
 
 def test_identities_complete_and_correct(series):
-    cams, ids, C, S, V, res = series
+    cams, ids, C, S, V, res, _ = series
     gt = _identity(res, C)
     assert len(set(gt)) == len(gt)
     for k in range(C.shape[0]):
@@ -59,7 +59,7 @@ def test_identities_complete_and_correct(series):
 
 
 def test_marker_lost_for_one_step_is_found_again(series):
-    cams, ids, C, S, V, res = series
+    cams, ids, C, S, V, res, _ = series
     gt = _identity(res, C)
     track = int(np.flatnonzero(gt == LOST_MARKER)[0])
     assert not res.visible[LOST_STEP, track]
@@ -70,7 +70,7 @@ def test_marker_lost_for_one_step_is_found_again(series):
 
 
 def test_missing_camera_step(series):
-    cams, ids, C, S, V, res = series
+    cams, ids, C, S, V, res, _ = series
     k = MISSING_CAMERA_STEP
     assert res.diagnostics["detected"][k, 2] == 5  # only the fake detections
     seen2 = V[k].sum(axis=0) >= 2
@@ -79,7 +79,7 @@ def test_missing_camera_step(series):
 
 
 def test_surface_points_and_uncertainty(series):
-    cams, ids, C, S, V, res = series
+    cams, ids, C, S, V, res, _ = series
     gt = _identity(res, C)
     vis = res.visible
     err = np.linalg.norm(res.positions[vis] - S[np.nonzero(vis)[0], gt[np.nonzero(vis)[1]]], axis=1)
@@ -113,3 +113,21 @@ def test_swap_detector_flags_exchanged_neighbours():
     assign[i], assign[j] = j, i
     swaps = _detect_swaps(prev, obs, obs, assign, k=8, gate=0.5 * d[i, j] + 1e-4)
     assert sorted(map(int, swaps[0])) == sorted([i, j]) and swaps.shape == (1, 2)
+
+
+def test_specimen_frame_output(series):
+    """frame='specimen': the same tracks, rigidly moved so the fitted axis is z and the origin is mid-length."""
+    cams, ids, C, S, V, res, dets = series
+    spec = track_series(dets[:2], cams, ReconstructionSettings(marker_diameter=0.4e-3, specimen_radius=4e-3),
+                        frame="specimen")
+    T = spec.world_to_rig
+    assert np.allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3)) and np.allclose(T[3], [0, 0, 0, 1])
+    moved = res.centres[:2] @ T[:3, :3].T + T[:3, 3]
+    np.testing.assert_allclose(spec.centres, moved, atol=1e-12, equal_nan=True)
+    z = spec.centres[0, :, 2]
+    assert abs(0.5 * (np.nanmin(z) + np.nanmax(z))) < 1e-12
+    # the synthetic tube's axis is the world z axis through the origin
+    assert abs(abs(T[2, 2]) - 1) < 1e-5
+    assert np.linalg.norm(np.hypot(spec.centres[0, :, 0], spec.centres[0, :, 1])[res.visible[0]] - 4.2e-3, ord=np.inf) < 0.1e-3
+    with pytest.raises(ValueError, match="frame must be"):
+        track_series(dets[:1], cams, frame="lab")
