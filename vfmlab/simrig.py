@@ -40,7 +40,7 @@ class _Grid:
     model: str
 
 
-def _mechanics_grid(spec: SpecimenFile, stretches: np.ndarray, pressures: np.ndarray, n_z: int = 65,
+def _mechanics_grid(spec: SpecimenFile, stretches: np.ndarray, pressures: np.ndarray, n_z: int = 801,
                     material: str = "fung", clamped: bool = False) -> _Grid:
     Zp = np.linspace(-spec.length / 2, spec.length / 2, n_z)
     try:
@@ -54,7 +54,10 @@ def _mechanics_grid(spec: SpecimenFile, stretches: np.ndarray, pressures: np.nda
         for i, lam in enumerate(stretches):
             sim = simulate_test(material, PAPER_PARAMETERS[material], radius=spec.radius, length=spec.length,
                                 thickness=spec.thickness, stretches=(float(lam),), pressures=tuple(pressures),
-                                n_markers=4, clamped=clamped, n_profile=n_z)
+                                # a clamped membrane at L/L0 = 1 goes slack under pressure (singular BVP): there
+                                # the homogeneous tube stands in; it is exact for the p = 0 reference and only the
+                                # unimaged preconditioning uses it under pressure
+                                n_markers=4, clamped=clamped and lam > 1.0 + 1e-9, n_profile=n_z)
             r[i], z[i], f[i] = sim.profile_r[1:], sim.profile_z[1:], sim.axial_force[1:]
         kind = "clamped-end membrane tube" if clamped else "homogeneous membrane"
         return _Grid(stretches, pressures, sim.profile_Z, r, z, f, f"{material} (rig_sim.mechanics, {kind})")
