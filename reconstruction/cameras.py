@@ -21,7 +21,7 @@ def rotation_matrix(rvec: np.ndarray) -> np.ndarray:
     rvec = np.asarray(rvec, dtype=float)
     theta = np.linalg.norm(rvec, axis=-1)[..., None, None]
     safe = np.where(theta > 1e-300, theta, 1.0)
-    k = rvec[..., None, :] / safe[..., 0]  # (..., 1, 3)
+    k = rvec[..., None, :] / safe  # (..., 1, 3)
     kx, ky, kz = k[..., 0, 0], k[..., 0, 1], k[..., 0, 2]
     zero = np.zeros_like(kx)
     kmat = np.stack(

@@ -69,7 +69,11 @@ def cli(verbose: int) -> None:
     level = logging.WARNING - 10 * min(verbose, 2)
     from rich.logging import RichHandler
 
-    logging.basicConfig(level=level, format="%(message)s", handlers=[RichHandler(show_path=False)])
+    from vfmlab.cli._common import err_console
+
+    # Logs go to stderr: stdout carries results (tables, --json) that scripts parse.
+    logging.basicConfig(level=level, format="%(message)s", force=True,
+                        handlers=[RichHandler(console=err_console, show_path=False)])
 
 
 def main(argv: list[str] | None = None) -> int:

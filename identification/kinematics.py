@@ -1,0 +1,423 @@
+"""Membrane kinematics per triangle, interpolated in cylindrical coordinates.
+
+Each triangle of the ``SurfaceMesh`` is parametrised by the reference cylindrical coordinates
+xi = (Theta, Z) of its markers; r, theta, z of the current configuration (and any vector field
+given by its cylindrical components) are interpolated linearly in xi. The surface is therefore a
+piece of a cylinder-like surface, not a flat chord triangle: flat triangles over-estimate the hoop
+virtual work by ~2 % at 300 markers (see ``docs/identification.md``).
+
+Local frame of a triangle (reference configuration): e1 along the circumferential tangent, e2 the
+in-plane axial direction orthogonal to it (Gram-Schmidt). Frames and units: ``docs/decisions``;
+positions in m, world frame; cylindrical components in the order (radial, circumferential, axial).
+
+Every step is first brought onto the reference by the best rigid motion (Kabsch), so that the
+results are objective: a rigid rotation of the deformed markers changes nothing.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import DegenerateDataError
+from .mesh import SurfaceMesh, fit_axis, to_cylindrical, wrap_angle
+
+__all__ = ["Kinematics", "align_steps", "membrane_kinematics", "QUADRATURE"]
+
+log = logging.getLogger(__name__)
+
+# Barycentric quadrature rules on a triangle: (points (n_q, 3), weights (n_q,), summing to 1).
+QUADRATURE = {
+    1: (np.full((1, 3), 1.0 / 3.0), np.ones(1)),
+    3: (np.array([[2 / 3, 1 / 6, 1 / 6], [1 / 6, 2 / 3, 1 / 6], [1 / 6, 1 / 6, 2 / 3]]), np.full(3, 1.0 / 3.0)),
+}
+
+
+def align_steps(positions: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rigidly align every step onto the reference configuration (Kabsch, finite markers only).
+
+    Parameters
+    ----------
+    positions : ndarray, shape (n_steps, n_markers, 3)
+        m, NaN = not observed.
+    reference : ndarray, shape (n_markers, 3)
+
+    Returns
+    -------
+    aligned : ndarray, shape (n_steps, n_markers, 3)
+        ``R_m x + t_m`` for each step m.
+    rotation : ndarray, shape (n_steps, 3, 3)
+    translation : ndarray, shape (n_steps, 3)
+    """
+    x = np.asarray(positions, dtype=float)
+    ref = np.asarray(reference, dtype=float)
+    ok = np.all(np.isfinite(x), axis=-1) & np.all(np.isfinite(ref), axis=-1)[None]  # (n_steps, n_markers)
+    w = ok.astype(float)
+    count = np.maximum(w.sum(1), 1.0)[:, None]
+    xz = np.where(ok[..., None], x, 0.0)
+    rz = np.where(ok[..., None], ref[None], 0.0)
+    cx = xz.sum(1) / count
+    cr = rz.sum(1) / count
+    H = np.einsum("sn,sni,snj->sij", w, xz - cx[:, None], rz - cr[:, None])
+    U, _, Vt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(np.swapaxes(Vt, -1, -2) @ np.swapaxes(U, -1, -2)))
+    D = np.zeros_like(H)
+    D[:, 0, 0] = 1.0
+    D[:, 1, 1] = 1.0
+    D[:, 2, 2] = d
+    R = np.swapaxes(Vt, -1, -2) @ D @ np.swapaxes(U, -1, -2)
+    t = cr - np.einsum("sij,sj->si", R, cx)
+    aligned = np.einsum("sij,snj->sni", R, x) + t[:, None]
+    return aligned, R, t
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
+                     a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
+                     a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], -1)
+
+
+@dataclass(frozen=True)
+class TriangleGeometry:
+    """Static reference quantities per triangle (internal to the stage).
+
+    Attributes
+    ----------
+    dinv : ndarray, shape (n_tri, 2, 2)
+        Inverse of the (Theta, Z) edge matrix: ``grad_xi f = [f1 - f0, f2 - f0] @ dinv``.
+    param_area : ndarray, shape (n_tri,)
+        Area of the triangle in the (Theta, Z) plane (rad m).
+    theta_offset : ndarray, shape (n_tri, 3)
+        Per-vertex multiple of 2 pi that unwraps the reference angles across the seam.
+    """
+
+    dinv: np.ndarray
+    param_area: np.ndarray
+    theta_offset: np.ndarray
+
+
+def triangle_geometry(mesh: SurfaceMesh) -> TriangleGeometry:
+    tri = mesh.triangles
+    th = mesh.theta[tri]
+    unwrapped = th[:, :1] + np.concatenate([np.zeros((len(tri), 1)), wrap_angle(th[:, 1:] - th[:, :1])], axis=1)
+    z = mesh.z[tri]
+    D0 = np.stack([unwrapped[:, 1:] - unwrapped[:, :1], z[:, 1:] - z[:, :1]], axis=1)  # rows (Theta, Z), cols edges
+    det = D0[:, 0, 0] * D0[:, 1, 1] - D0[:, 0, 1] * D0[:, 1, 0]
+    if np.any(np.abs(det) <= 0):
+        raise DegenerateDataError("a mesh triangle has zero area in the (theta, z) plane")
+    return TriangleGeometry(dinv=np.linalg.inv(D0), param_area=0.5 * np.abs(det), theta_offset=unwrapped - th)
+
+
+def _grad(values: np.ndarray, dinv: np.ndarray) -> np.ndarray:
+    """Vertex values ``(..., n_tri, 3)`` -> xi-gradient ``(..., n_tri, 2)``."""
+    delta = values[..., 1:] - values[..., :1]
+    return np.einsum("...te,tej->...tj", delta, dinv)
+
+
+@dataclass(frozen=True)
+class SurfaceState:
+    """Interpolated reference and current quantities at the quadrature points (internal).
+
+    Shapes: ``(n_steps, n_tri, n_q)`` for values, with a trailing axis of 2 for xi-derivatives.
+    """
+
+    R: np.ndarray       # (n_tri, n_q) reference radius at the marker surface
+    R_xi: np.ndarray    # (n_tri, 2)
+    r: np.ndarray       # (n_steps, n_tri, n_q)
+    r_xi: np.ndarray    # (n_steps, n_tri, 2)
+    theta: np.ndarray   # (n_steps, n_tri, n_q) current angle
+    theta_xi: np.ndarray
+    z_xi: np.ndarray
+    valid: np.ndarray   # (n_steps, n_tri) bool
+    outliers: np.ndarray  # (n_steps, n_markers) bool, markers set unobserved by marker_outliers
+    noise: np.ndarray     # (n_steps,) estimated marker noise (m)
+    r_markers: np.ndarray      # (n_steps, n_markers) current cylindrical coordinates of the markers
+    theta_markers: np.ndarray
+    z_markers: np.ndarray
+    axes: tuple
+    bary: np.ndarray    # (n_q, 3)
+    qweight: np.ndarray  # (n_q,)
+    geometry: TriangleGeometry
+
+
+def step_cylindrical(mesh: SurfaceMesh, aligned: np.ndarray):
+    """Cylindrical coordinates of every step about its own fitted axis.
+
+    The axis of each (rigidly aligned) step is refitted from its own markers, starting from the
+    reference axis, so that a non-rigid deformation that fools the rigid alignment (e.g. an axial
+    stretch of an unevenly marked tube) does not tilt the axis.
+
+    Returns ``r, theta, z`` of shape (n_steps, n_markers) and the list of step axes.
+    """
+    out_r, out_t, out_z, axes = [], [], [], []
+    for step in aligned:
+        ok = np.all(np.isfinite(step), axis=1) & mesh.used
+        axis = fit_axis(step[ok], initial=mesh.axis) if ok.sum() >= 12 else mesh.axis
+        r, t, z = to_cylindrical(step, axis)
+        out_r.append(r)
+        out_t.append(t)
+        out_z.append(z)
+        axes.append(axis)
+    return np.array(out_r), np.array(out_t), np.array(out_z), axes
+
+
+def smooth_cylindrical(mesh: SurfaceMesh, r, theta, z, degree: tuple[int, int]):
+    """Least-squares smoothing of the displacement field of every step.
+
+    Each cylindrical displacement component (r - R, theta - Theta, z - Z) of a step is replaced by
+    its projection on Legendre polynomials of the reference Z (degree ``degree[0]``) times a
+    Fourier series in Theta (``degree[1]`` harmonics), fitted to the observed markers. Noise
+    averages out at the cost of a bias where the true field varies faster than the basis.
+
+    Parameters
+    ----------
+    r, theta, z : ndarray, shape (n_steps, n_markers)
+    degree : (int, int)
+
+    Returns
+    -------
+    r, theta, z : ndarray, shape (n_steps, n_markers); NaN stays NaN.
+    """
+    nz, nt = int(degree[0]), int(degree[1])
+    Z, T, R = mesh.z, mesh.theta, mesh.r
+    ok_ref = mesh.used & np.isfinite(Z)
+    z0 = 0.5 * (np.nanmax(Z[ok_ref]) + np.nanmin(Z[ok_ref]))
+    half = 0.5 * (np.nanmax(Z[ok_ref]) - np.nanmin(Z[ok_ref]))
+    leg = np.polynomial.legendre.legvander(np.nan_to_num((Z - z0) / half), nz)
+    four = [np.ones_like(T)] + [f(k * np.nan_to_num(T)) for k in range(1, nt + 1) for f in (np.cos, np.sin)]
+    basis = np.concatenate([leg * f[:, None] for f in four], axis=1)  # (n_markers, n_basis)
+    out = []
+    for comp, refv, wrap in ((r, R, False), (theta, T, True), (z, Z, False)):
+        d = comp - refv[None]
+        if wrap:
+            d = wrap_angle(d)
+        sm = np.full_like(d, np.nan)
+        for k in range(d.shape[0]):
+            ok = ok_ref & np.isfinite(d[k])
+            if ok.sum() <= basis.shape[1]:
+                raise DegenerateDataError(
+                    f"smoothing with {basis.shape[1]} basis functions needs more observed markers than that; step {k} "
+                    f"has {int(ok.sum())}")
+            coef, *_ = np.linalg.lstsq(basis[ok], d[k, ok], rcond=None)
+            sm[k] = np.where(ok, basis @ coef, np.nan)
+        out.append(refv[None] + sm)
+    return out[0], out[1], out[2]
+
+
+def marker_outliers(mesh: SurfaceMesh, r, theta, z, *, floor: float = 0.25, n_sigma: float = 8.0) -> np.ndarray:
+    """Markers whose displacement disagrees with their mesh neighbours (mis-tracked), per step.
+
+    Each marker's cylindrical displacement (r - R, R_mean (theta - Theta), z - Z) is compared with
+    the affine fit, in the reference (R_mean Theta, Z) plane, of its 1-ring neighbours' displacements
+    (exact for any smooth field to second order). A marker is an outlier when the mismatch exceeds
+    ``max(n_sigma * robust sigma of the step, floor * median mesh edge length)``.
+
+    Parameters
+    ----------
+    r, theta, z : ndarray, shape (n_steps, n_markers)
+        Current cylindrical coordinates (NaN = not observed).
+
+    Returns
+    -------
+    outlier : ndarray, shape (n_steps, n_markers) bool
+    noise : ndarray, shape (n_steps,)
+        Estimated standard deviation of the marker coordinates (m): median mismatch / 2.2 (the
+        median norm of a 3-D Gaussian is 1.54 sigma and the neighbours' fit adds its own scatter;
+        the factor is calibrated on random marker layouts to within ~5 %).
+    """
+    tri = mesh.triangles
+    n = mesh.n_markers
+    edges = np.unique(np.sort(np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]]), axis=1), axis=0)
+    Rm = mesh.axis.radius
+    ds = Rm * wrap_angle(mesh.theta[edges[:, 1]] - mesh.theta[edges[:, 0]])
+    dz = mesh.z[edges[:, 1]] - mesh.z[edges[:, 0]]
+    edge_len = float(np.median(np.hypot(ds, dz)))
+    disp = np.stack([r - mesh.r, Rm * wrap_angle(theta - mesh.theta), z - mesh.z], -1)  # (s, n, 3)
+    # both directions of every edge: (centre i, neighbour j, offset of j from i)
+    ci = np.concatenate([edges[:, 0], edges[:, 1]])
+    nj = np.concatenate([edges[:, 1], edges[:, 0]])
+    off = np.concatenate([np.column_stack([ds, dz]), -np.column_stack([ds, dz])])
+    A = np.column_stack([np.ones(len(ci)), off / edge_len])  # (n_e2, 3), scaled for conditioning
+    outlier = np.zeros(disp.shape[:2], bool)
+    for _ in range(2):  # second pass without the first pass's outliers among the neighbours
+        ok = np.all(np.isfinite(disp), -1) & ~outlier
+        w = ok[:, nj].astype(float)  # (s, n_e2)
+        dj = np.where(ok[:, nj, None], disp[:, nj], 0.0)
+        AtA = np.zeros((disp.shape[0], n, 3, 3))
+        Atd = np.zeros((disp.shape[0], n, 3, 3))
+        np.add.at(AtA, (slice(None), ci), w[..., None, None] * (A[:, :, None] * A[:, None, :])[None])
+        np.add.at(Atd, (slice(None), ci), w[..., None, None] * (A[:, :, None] * dj[:, :, None, :]))
+        count = np.zeros((disp.shape[0], n))
+        np.add.at(count, (slice(None), ci), w)
+        enough = (count >= 4) & (np.linalg.det(AtA) > 1e-6)
+        AtA = np.where(enough[..., None, None], AtA, np.eye(3))
+        coef = np.linalg.solve(AtA, Atd)  # (s, n, 3 coef, 3 comps)
+        dev = np.linalg.norm(disp - coef[:, :, 0, :], axis=-1)
+        dev = np.where(enough & ok, dev, np.nan)
+        sigma = 1.4826 * np.nanmedian(dev, axis=1, keepdims=True)
+        limit = np.maximum(n_sigma * sigma, floor * edge_len)
+        outlier |= np.nan_to_num(dev) > limit
+    noise = np.nanmedian(np.where(outlier, np.nan, dev), axis=1) / 2.2
+    return outlier, noise
+
+
+def surface_state(mesh: SurfaceMesh, aligned: np.ndarray, quadrature: int = 1,
+                  smoothing: tuple[int, int] | None = None, reject_outliers: bool = True) -> SurfaceState:
+    """Cylindrical interpolation of the aligned positions ``(n_steps, n_markers, 3)``.
+
+    ``smoothing=(axial degree, circumferential harmonics)`` smooths the displacement field first
+    (``smooth_cylindrical``); ``reject_outliers`` first sets mis-tracked markers (``marker_outliers``)
+    to NaN in the steps where they disagree with their neighbours. Triangles that are inverted in a step (a noisy marker crossed an
+    edge) are excluded from that step like unobserved ones.
+    """
+    if quadrature not in QUADRATURE:
+        raise ValueError(f"quadrature must be one of {sorted(QUADRATURE)}; got {quadrature}")
+    bary, qw = QUADRATURE[quadrature]
+    geo = triangle_geometry(mesh)
+    tri = mesh.triangles
+    r, th, z, axes = step_cylindrical(mesh, aligned)  # (n_steps, n_markers)
+    outliers, noise = marker_outliers(mesh, r, th, z)
+    if reject_outliers:
+        if outliers.any():
+            log.warning("markers disagreeing with their neighbours (set unobserved) per step: %s",
+                        outliers.sum(axis=1).tolist())
+            r, th, z = (np.where(outliers, np.nan, a) for a in (r, th, z))
+    else:
+        outliers = np.zeros(r.shape, bool)
+    if smoothing is not None:
+        r, th, z = smooth_cylindrical(mesh, r, th, z, smoothing)
+    rv, thv, zv = r[:, tri], th[:, tri], z[:, tri]  # (n_steps, n_tri, 3)
+    valid = np.all(np.isfinite(rv) & np.isfinite(thv) & np.isfinite(zv), axis=-1)
+    # unwrap the current angles of each triangle relative to its first vertex
+    thv = thv[..., :1] + np.concatenate([np.zeros_like(thv[..., :1]), wrap_angle(thv[..., 1:] - thv[..., :1])], -1)
+    fill = lambda a: np.where(valid[..., None], a, 0.0)  # noqa: E731
+    rv, thv, zv = fill(rv), fill(thv), fill(zv)
+    Rv = mesh.r[tri]
+    theta_xi, z_xi = _grad(thv, geo.dinv), _grad(zv, geo.dinv)
+    jac = theta_xi[..., 0] * z_xi[..., 1] - theta_xi[..., 1] * z_xi[..., 0]
+    inverted = valid & ~(jac > 0.05)  # area in (theta, z) shrunk 20-fold or flipped: a marker crossed an edge
+    if inverted.any():
+        log.warning("excluded inverted/collapsed triangles per step: %s", inverted.sum(axis=1).tolist())
+        valid = valid & ~inverted
+    return SurfaceState(
+        R=Rv @ bary.T, R_xi=_grad(Rv, geo.dinv),
+        r=rv @ bary.T, r_xi=_grad(rv, geo.dinv),
+        theta=thv @ bary.T, theta_xi=theta_xi, z_xi=z_xi,
+        valid=valid, outliers=outliers, noise=noise, r_markers=r, theta_markers=th, z_markers=z, axes=tuple(axes), bary=bary, qweight=qw, geometry=geo,
+    )
+
+
+def reference_frame(R_xi: np.ndarray, R_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Gram-Schmidt local frame of the reference surface.
+
+    Returns ``ginv (..., 2, 2)`` mapping xi-components to local (circumferential, axial) ones
+    (``F = F_xi @ ginv``) and the area factor ``|T_Theta x T_Z|`` (m per rad) of shape ``(...)``.
+    """
+    R_t = R_xi[..., 0]
+    R_z = R_xi[..., 1]
+    a = np.sqrt(R_t**2 + R_s**2)
+    b = R_t * R_z / a
+    c = np.sqrt(R_z**2 + 1.0 - b**2)
+    zero = np.zeros_like(a)
+    ginv = np.stack([np.stack([1.0 / a, -b / (a * c)], -1), np.stack([zero, 1.0 / c], -1)], -2)
+    return ginv, a * c
+
+
+def tangents(r_s, r_s_xi, theta_xi, z_xi) -> np.ndarray:
+    """Current tangent vectors ``F_xi`` (..., 3, 2) in the local cylindrical basis (r, theta, z)."""
+    cols = [np.stack([r_s_xi[..., j], r_s * theta_xi[..., j], np.broadcast_to(z_xi[..., j], r_s.shape)], -1)
+            for j in (0, 1)]
+    return np.stack(cols, -1)
+
+
+@dataclass(frozen=True)
+class Kinematics:
+    """Per-triangle membrane kinematics at the triangle centroids (marker surface).
+
+    Attributes
+    ----------
+    F : ndarray, shape (n_steps, n_triangles, 3, 2)
+        Deformation gradient from the local reference frame (circumferential, axial) to current
+        cylindrical components (radial, circumferential, axial) at the centroid.
+    C, E : ndarray, shape (n_steps, n_triangles, 2, 2)
+        Right Cauchy-Green and Green-Lagrange tensors in the local frame.
+    area_ratio : ndarray, shape (n_steps, n_triangles)
+        a / A = sqrt(det C).
+    thickness : ndarray, shape (n_steps, n_triangles)
+        e0 / (a / A) from incompressibility (m); NaN if no reference thickness was given.
+    normal : ndarray, shape (n_steps, n_triangles, 3)
+        Outward unit normal, world frame.
+    centroid : ndarray, shape (n_steps, n_triangles, 3)
+        Interpolated centroid, world frame (m).
+    reference_area : ndarray, shape (n_triangles,)
+        m^2.
+    valid : ndarray, shape (n_steps, n_triangles) bool
+        False where a vertex was not observed (all other arrays are NaN there).
+    """
+
+    F: np.ndarray
+    C: np.ndarray
+    E: np.ndarray
+    area_ratio: np.ndarray
+    thickness: np.ndarray
+    normal: np.ndarray
+    centroid: np.ndarray
+    reference_area: np.ndarray
+    valid: np.ndarray
+
+
+def membrane_kinematics(mesh: SurfaceMesh, positions: np.ndarray, *, thickness: float | None = None,
+                        reference: np.ndarray | None = None) -> Kinematics:
+    """Deformation of every triangle from the reference to each step.
+
+    Parameters
+    ----------
+    mesh : SurfaceMesh
+    positions : ndarray, shape (n_steps, n_markers, 3)
+        Marker positions (m, world frame), NaN = not observed.
+    thickness : float, optional
+        Reference wall thickness e0 (m).
+    reference : ndarray, shape (n_markers, 3), optional
+        Reference positions (default: rebuilt from the mesh).
+    """
+    x = np.asarray(positions, dtype=float)
+    if x.ndim != 3 or x.shape[1:] != (mesh.n_markers, 3):
+        raise ValueError(f"positions must have shape (n_steps, {mesh.n_markers}, 3); got {x.shape}")
+    if reference is None:
+        local = np.column_stack([mesh.r * np.cos(mesh.theta), mesh.r * np.sin(mesh.theta), mesh.z])
+        reference = local @ mesh.axis.basis + mesh.axis.origin
+    aligned, rot, trans = align_steps(x, reference)
+    st = surface_state(mesh, aligned, 1)
+    ginv, area_factor = reference_frame(st.R_xi[:, None, :], st.R)  # (n_tri, 1, 2, 2)
+    Fxi = tangents(st.r, st.r_xi[:, :, None, :], st.theta_xi[:, :, None, :], st.z_xi[:, :, None, :])
+    F = (Fxi @ ginv)[:, :, 0]
+    C = np.swapaxes(F, -1, -2) @ F
+    nan = ~st.valid
+    area_ratio = np.sqrt(np.linalg.det(C))
+    n_cyl = _cross(Fxi[..., 0], Fxi[..., 1])[:, :, 0]
+    n_cyl /= np.linalg.norm(n_cyl, axis=-1, keepdims=True)
+    th = st.theta[:, :, 0]
+    cos, sin = np.cos(th), np.sin(th)
+    n_spec = np.stack([n_cyl[..., 0] * cos - n_cyl[..., 1] * sin, n_cyl[..., 0] * sin + n_cyl[..., 1] * cos,
+                       n_cyl[..., 2]], -1)
+    zv = np.where(st.valid[..., None], st.z_markers[:, mesh.triangles], np.nan)
+    zc = zv.mean(-1)
+    c_spec = np.stack([st.r[:, :, 0] * cos, st.r[:, :, 0] * sin, zc], -1)
+    # back from each step's specimen frame to the world frame of that step
+    basis = np.stack([a.basis for a in st.axes])
+    origin = np.stack([a.origin for a in st.axes])
+    n_aligned = np.einsum("stj,sji->sti", n_spec, basis)
+    c_aligned = np.einsum("stj,sji->sti", c_spec, basis) + origin[:, None]
+    normal = np.einsum("sji,stj->sti", rot, n_aligned)
+    centroid = np.einsum("sji,stj->sti", rot, c_aligned - trans[:, None])
+    e0 = np.nan if thickness is None else float(thickness)
+
+    def mask(a):
+        return np.where(nan.reshape(nan.shape + (1,) * (a.ndim - 2)), np.nan, a)
+
+    E = 0.5 * (C - np.eye(2))
+    return Kinematics(F=mask(F), C=mask(C), E=mask(E), area_ratio=mask(area_ratio), thickness=mask(e0 / area_ratio),
+                      normal=mask(normal), centroid=mask(centroid),
+                      reference_area=st.geometry.param_area * area_factor[:, 0], valid=st.valid)

@@ -1,0 +1,40 @@
+"""2-D Fung model (Avril et al. 2010, eq. 3).
+
+    W = beta / 2 * (exp(Q) - 1),   Q = alpha11 E11^2 + alpha22 E22^2 + alpha12 E11 E22
+
+with E = (C - I) / 2 in the local frame (1 circumferential, 2 axial). A 2-D membrane law: W does not
+depend on E33, so the plane-stress multiplier vanishes and S = dW/dE.
+Parameters: beta [Pa], alpha11, alpha22, alpha12 [1].
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._base import Model, register
+
+__all__ = ["FUNG"]
+
+
+def energy(c11, c22, c12, c33, *, beta, alpha11, alpha22, alpha12):
+    e11 = 0.5 * (c11 - 1.0)
+    e22 = 0.5 * (c22 - 1.0)
+    q = alpha11 * e11 * e11 + alpha22 * e22 * e22 + alpha12 * e11 * e22
+    return 0.5 * beta * (np.exp(q) - 1.0)
+
+
+FUNG = register(
+    Model(
+        name="fung",
+        parameter_names=("beta", "alpha11", "alpha22", "alpha12"),
+        units=("Pa", "1", "1", "1"),
+        energy=energy,
+        # The paper's footnote (Fung 1993): beta = 29 kPa, alpha11 = 2.5, alpha22 = 0.5, alpha12 = 0.17.
+        initial_guess={"beta": 29e3, "alpha11": 2.5, "alpha22": 0.5, "alpha12": 0.17},
+        positive=(True, True, True, False),
+        linear=(True, False, False, False),
+        lower=(0.0, 0.0, 0.0, -50.0),
+        upper=(np.inf, np.inf, np.inf, 50.0),
+        description="2-D Fung exponential (anisotropic)",
+    )
+)

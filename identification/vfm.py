@@ -1,0 +1,377 @@
+"""Virtual Fields Method: internal and external virtual work (Avril et al. 2010, eqs. 5-11).
+
+For each step m and virtual field k
+
+    IVW[k, m] = sum over quadrature points of  S(C) : dE*  dV0
+    EVW[k, m] = p_m * sum (n da) . u*  +  load_end[k] * N_m
+
+with S the membrane second Piola-Kirchhoff stress, dE* = sym(F^T Grad u*) the virtual Green
+strain (so that S : dE* dV0 = sigma : eps* dv), n da the current oriented area element, and N_m
+the axial force the wall carries across the top measured boundary (see ``end_force``).
+
+Two wall forms:
+
+``wall="membrane"``
+    the paper's plain form: the marker surface is the surface the pressure acts on, and the wall
+    (reference thickness e0) is lumped on it.
+``wall="thick"``
+    the markers are on the outer surface and the pressure acts on the lumen. The wall is
+    integrated through its thickness in Gauss-Legendre layers whose current radius follows from
+    incompressibility (r^2 - r_s^2 = (R^2 - R_s^2) / J, J = d(theta, z) / d(Theta, Z)), and each
+    virtual field is extended through the wall as a divergence-free field
+    (r u_r(r) = r_o u_r(r_o) - (r^2 - r_o^2)/2 du_z/dz - (r - r_o) du_theta/dtheta), so that the
+    unknown radial stress does no virtual work and the plane-stress membrane law is exact in
+    every layer.
+
+Everything that does not depend on the material parameters is computed once in ``prepare``; the
+cost evaluation is then a few vectorised array operations.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import DegenerateDataError
+from .kinematics import _cross, _grad, align_steps, reference_frame, surface_state, tangents
+from .mesh import SurfaceMesh, build_mesh, wrap_angle
+from .models import get_model
+from .models._base import Model, pk2_components
+from .virtual_fields import VirtualFields, check_fields, paper_fields
+
+__all__ = ["VFMData", "prepare", "internal_virtual_work", "end_force"]
+
+log = logging.getLogger(__name__)
+
+WALLS = ("membrane", "thick")
+ENDS = ("clamped", "free")
+
+
+@dataclass(frozen=True)
+class VFMData:
+    """Parameter-independent part of the virtual-work balance.
+
+    Attributes
+    ----------
+    c : ndarray, shape (n_steps, n_points, 3)
+        (C11, C22, C12) at every integration point (identity where excluded).
+    work_density : ndarray, shape (n_fields, n_steps, n_points, 3)
+        dV0 * (dE*11, dE*22, 2 dE*12): IVW = sum(work_density * S).
+    evw : ndarray, shape (n_fields, n_steps)
+        External virtual work (J).
+    pressure_work, end_work : ndarray, shape (n_fields, n_steps)
+        The two parts of ``evw``.
+    end_force : ndarray, shape (n_steps,)
+        Axial force across the top measured boundary used in the balance (N).
+    scale : ndarray, shape (n_fields,)
+        Normalisation of each field's residuals (RMS of its EVW over the steps, J).
+    field_names : tuple of str
+    wall, ends : str
+    mesh : SurfaceMesh
+    n_valid_triangles : ndarray, shape (n_steps,)
+    n_outliers : ndarray, shape (n_steps,)
+        Markers set unobserved as mis-tracked, per step.
+    marker_noise : float
+        Estimated marker noise (m, median over steps; ``kinematics.marker_outliers``).
+    smoothing : tuple or None
+    pressure, axial_force : ndarray, shape (n_steps,)
+    """
+
+    c: np.ndarray
+    work_density: np.ndarray
+    evw: np.ndarray
+    pressure_work: np.ndarray
+    end_work: np.ndarray
+    end_force: np.ndarray
+    scale: np.ndarray
+    field_names: tuple[str, ...]
+    wall: str
+    ends: str
+    mesh: SurfaceMesh
+    n_valid_triangles: np.ndarray
+    n_outliers: np.ndarray
+    marker_noise: float
+    smoothing: tuple | None
+    pressure: np.ndarray
+    axial_force: np.ndarray
+    thickness: float
+
+    @property
+    def n_steps(self) -> int:
+        return self.c.shape[0]
+
+
+def _check_inputs(positions, pressure, axial_force, thickness):
+    x = np.asarray(positions, dtype=float)
+    if x.ndim != 3 or x.shape[2] != 3:
+        raise ValueError(f"positions must have shape (n_steps, n_markers, 3); got {x.shape}")
+    n_steps = x.shape[0]
+    p = np.asarray(pressure, dtype=float).reshape(-1)
+    f = np.asarray(axial_force, dtype=float).reshape(-1)
+    if p.shape != (n_steps,) or f.shape != (n_steps,):
+        raise ValueError(f"pressure and axial_force must have shape ({n_steps},); got {p.shape} and {f.shape}")
+    if n_steps < 2:
+        raise DegenerateDataError(f"need a reference step and at least one loaded step; got {n_steps} step(s)")
+    empty = np.flatnonzero(~np.any(np.all(np.isfinite(x), axis=-1), axis=-1))
+    if len(empty):
+        raise DegenerateDataError(f"steps {empty.tolist()} have no observed marker (all NaN)")
+    if not np.all(np.isfinite(p)):
+        raise DegenerateDataError(f"pressure is missing (NaN) at steps {np.flatnonzero(~np.isfinite(p)).tolist()}")
+    if not np.all(np.isfinite(f)):
+        raise DegenerateDataError(
+            f"axial force is missing (NaN) at steps {np.flatnonzero(~np.isfinite(f)).tolist()}; the axial "
+            "virtual field needs the load-cell force at every step")
+    if not np.any(np.abs(p) > 0):
+        raise DegenerateDataError("all steps are at zero pressure: the inflation test carries no information")
+    if not (np.isfinite(thickness) and thickness > 0):
+        raise ValueError(f"thickness must be a positive reference wall thickness in m; got {thickness!r}")
+    return x, p, f
+
+
+def _loop_area(edges: np.ndarray, r2: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """Area enclosed by a boundary loop projected on the cross-section, ``1/2 \u222e r^2 d theta``.
+
+    ``r2`` and ``theta`` have shape (n_steps, n_markers); r^2 is interpolated as for r linear in theta.
+    """
+    a, b = edges[:, 0], edges[:, 1]
+    dth = wrap_angle(theta[:, b] - theta[:, a])
+    ra, rb = np.sqrt(r2[:, a]), np.sqrt(r2[:, b])
+    return np.abs(0.5 * np.nansum(dth * (ra * ra + ra * rb + rb * rb) / 3.0, axis=1))
+
+
+def end_force(axial_force: np.ndarray, pressure: np.ndarray, loop_area: np.ndarray, clamp_area: float | None):
+    """Axial force carried by the wall across the top measured boundary (N).
+
+    Between the last row of markers and the clamp the tube is not measured; its axial equilibrium
+    gives ``N = F + p (A_loop - A_clamp)`` with A_loop the cross-section area enclosed by the
+    pressurised surface along the measured boundary and A_clamp the one at the clamp (the
+    projected area on which the pressure pushes the unmeasured taper). ``clamp_area=None``
+    (free ends: uniform tube up to the load cell) gives ``N = F``.
+    """
+    if clamp_area is None:
+        return np.asarray(axial_force, dtype=float)
+    return axial_force + pressure * (loop_area - clamp_area)
+
+
+def prepare(
+    positions: np.ndarray,
+    pressure: np.ndarray,
+    axial_force: np.ndarray,
+    *,
+    thickness: float,
+    wall: str = "membrane",
+    ends: str = "clamped",
+    fields: VirtualFields | None = None,
+    mesh: SurfaceMesh | None = None,
+    reference_step: int = 0,
+    clamp_radius: float | None = None,
+    n_layers: int = 4,
+    quadrature: int = 1,
+    toward: np.ndarray | None = None,
+    smoothing: tuple[int, int] | None = None,
+    reject_outliers: bool = True,
+) -> VFMData:
+    """Build the virtual-work balance from measured data.
+
+    Parameters
+    ----------
+    positions : ndarray, shape (n_steps, n_markers, 3)
+        Marker positions (m, world frame), NaN = not observed; ``reference_step`` is stress-free.
+    pressure : ndarray, shape (n_steps,)
+        Transmural pressure (Pa).
+    axial_force : ndarray, shape (n_steps,)
+        Axial force carried by the wall at the load-cell end (N).
+    thickness : float
+        Reference wall thickness e0 (m).
+    wall : {"membrane", "thick"}
+    ends : {"clamped", "free"}
+        "clamped": the tube is tied on cannulae (radius fixed there) beyond the measured region,
+        so the pressure on the unmeasured strip is accounted for (``end_force``). "free": the
+        measured tube is uniform up to the load cell.
+    fields : VirtualFields, optional
+        Default: the paper's two fields (``paper_fields``).
+    mesh : SurfaceMesh, optional
+        Default: ``build_mesh`` on the reference step.
+    clamp_radius : float, optional
+        Radius of the pressurised surface at the load-cell clamp (m); default: the reference
+        radius of the top boundary markers (minus e0 for ``wall="thick"``).
+    n_layers : int
+        Through-thickness Gauss points for ``wall="thick"``.
+    quadrature : {1, 3}
+        In-plane quadrature points per triangle.
+    toward : ndarray, shape (3,), optional
+        World direction of the load-cell end (default +z).
+    smoothing : (int, int), optional
+        Smooth each step's displacement field on Legendre(Z) x Fourier(Theta) of these degrees
+        before differentiating (for noisy markers; see ``kinematics.smooth_cylindrical``).
+    reject_outliers : bool
+        Treat markers that disagree with their neighbours in a step (mis-tracked) as unobserved
+        there (``kinematics.marker_outliers``); counts in ``VFMData.n_outliers``.
+    """
+    if wall not in WALLS:
+        raise ValueError(f"wall must be one of {WALLS}; got {wall!r}")
+    if ends not in ENDS:
+        raise ValueError(f"ends must be one of {ENDS}; got {ends!r}")
+    x, p, f = _check_inputs(positions, pressure, axial_force, thickness)
+    e0 = float(thickness)
+    reference = x[reference_step]
+    if mesh is None:
+        mesh = build_mesh(reference, toward=toward)
+    if fields is None:
+        fields = paper_fields(mesh)
+    check_fields(fields, mesh)
+    aligned, _, _ = align_steps(x, reference)
+    st = surface_state(mesh, aligned, quadrature, smoothing, reject_outliers)
+    geo = st.geometry
+    tri = mesh.triangles
+    n_steps, n_tri = st.valid.shape
+    if not st.valid.any(axis=1).all():
+        bad = np.flatnonzero(~st.valid.any(axis=1)).tolist()
+        raise DegenerateDataError(f"steps {bad} have no triangle with all three markers observed")
+
+    # Virtual field values and xi-gradients (n_fields, n_tri, n_q, 3) and (n_fields, n_tri, 3 comps, 2)
+    uv = fields.values[:, tri]  # (n_fields, n_tri, 3 vertices, 3 comps)
+    u_q = np.einsum("ftvc,qv->ftqc", uv, st.bary)
+    u_xi = np.stack([_grad(uv[..., c], geo.dinv) for c in range(3)], axis=2)  # (f, t, comp, 2)
+
+    # Current-coordinate derivatives of u_theta (d/dtheta) and u_z (d/dz), for the divergence-free extension
+    th_xi, z_xi = st.theta_xi, st.z_xi  # (s, t, 2)
+    jac = th_xi[..., 0] * z_xi[..., 1] - th_xi[..., 1] * z_xi[..., 0]  # (s, t)
+    if st.valid.sum() < 0.5 * st.valid.size:
+        raise DegenerateDataError("more than half of the triangles are unobserved or inverted (check marker "
+                                  "identities and noise)")
+    jac = np.where(st.valid, jac, 1.0)
+    d_theta = (z_xi[None, ..., 1] * u_xi[:, None, :, 1, 0] - z_xi[None, ..., 0] * u_xi[:, None, :, 1, 1]) / jac
+    d_z = (-th_xi[None, ..., 1] * u_xi[:, None, :, 2, 0] + th_xi[None, ..., 0] * u_xi[:, None, :, 2, 1]) / jac
+    # shapes (f, s, t)
+
+    if wall == "membrane":
+        s_nodes, s_weights = np.array([1.0]), np.array([1.0])
+    else:
+        g, w = np.polynomial.legendre.leggauss(int(n_layers))
+        s_nodes, s_weights = 0.5 * (g + 1.0), 0.5 * w
+
+    R = st.R[None]  # (1, t, q)
+    R_xi = st.R_xi[None, :, None, :]  # (1, t, 1, 2)
+    r = st.r  # (s, t, q)
+    r_xi = st.r_xi[:, :, None, :]  # (s, t, 1, 2)
+    J = jac[..., None]  # (s, t, 1)
+    thx = th_xi[:, :, None, :]
+    zx = z_xi[:, :, None, :]
+    area_q = geo.param_area[None, :, None] * st.qweight[None, None, :]  # (1, t, q)
+
+    def layer(sv: float):
+        """Kinematics and virtual gradients of the layer at reference depth fraction sv (1 = markers)."""
+        depth = (1.0 - sv) * e0
+        kappa = depth * (2.0 * R - depth)  # R^2 - R_s^2
+        R_s = R - depth
+        r2 = r * r - kappa / J
+        if np.any(r2[st.valid] <= 0):
+            raise DegenerateDataError("the wall thickness exceeds the measured radius (check thickness units: m)")
+        r_s = np.sqrt(np.where(r2 > 0, r2, 1.0))
+        r_s_xi = (r[..., None] * r_xi - depth * R_xi / J[..., None]) / r_s[..., None]
+        ginv, area_factor = reference_frame(np.broadcast_to(R_xi, R_s.shape + (2,)), R_s)  # (1, t, q, ...)
+        Fxi = tangents(r_s, r_s_xi, thx, zx)  # (s, t, q, 3, 2)
+        F = Fxi @ ginv
+        C = np.swapaxes(F, -1, -2) @ F
+        # divergence-free extension of the fields to this layer
+        ur_o = u_q[..., 0][:, None]  # (f, 1, t, q)
+        ur_o_xi = u_xi[:, None, :, None, 0, :]  # (f, 1, t, 1, 2)
+        Dz = d_z[..., None]
+        Dt = d_theta[..., None]  # (f, s, t, 1)
+        ur = (r * ur_o + 0.5 * kappa / J * Dz - (r_s - r) * Dt) / r_s
+        ur_xi = (r_xi * ur_o[..., None] + r[..., None] * ur_o_xi + depth * R_xi / J[..., None] * Dz[..., None]
+                 - (r_s_xi - r_xi) * Dt[..., None] - r_s_xi * ur[..., None]) / r_s[..., None]
+        ut = u_q[..., 1][:, None]
+        ut_xi = u_xi[:, None, :, None, 1, :]
+        uz = u_q[..., 2][:, None]
+        uz_xi = u_xi[:, None, :, None, 2, :]
+        du = np.stack([ur_xi - ut[..., None] * thx, ut_xi + ur[..., None] * thx,
+                       np.broadcast_to(uz_xi, ur_xi.shape)], axis=-2)  # (f, s, t, q, 3, 2)
+        G = np.swapaxes(Fxi, -1, -2) @ du  # (f, s, t, q, 2, 2): t_i . du_j
+        dE = np.swapaxes(ginv, -1, -2) @ G @ ginv
+        dE = 0.5 * (dE + np.swapaxes(dE, -1, -2))
+        normal_da = _cross(Fxi[..., 0], Fxi[..., 1]) * area_q[..., None]  # (s, t, q, 3)
+        u_here = np.stack([ur, np.broadcast_to(ut, ur.shape), np.broadcast_to(uz, ur.shape)], -1)
+        return C, dE, area_factor * area_q, normal_da, u_here
+
+    valid = st.valid[:, :, None]  # (s, t, 1)
+    cs, dens = [], []
+    for sv, sw in zip(s_nodes, s_weights):
+        C, dE, dA0, _, _ = layer(sv)
+        dV0 = np.where(valid, dA0 * e0 * sw, 0.0)  # (s, t, q)
+        C = np.where(valid[..., None, None], C, np.eye(2))
+        cs.append(np.stack([C[..., 0, 0], C[..., 1, 1], C[..., 0, 1]], -1).reshape(n_steps, -1, 3))
+        dE = np.where(valid[None, ..., None, None], dE, 0.0)  # excluded triangles may hold NaN geometry
+        dens.append((np.stack([dE[..., 0, 0], dE[..., 1, 1], 2.0 * dE[..., 0, 1]], -1)
+                     * dV0[None, ..., None]).reshape(fields.n_fields, n_steps, -1, 3))
+    c = np.concatenate(cs, axis=1)
+    work_density = np.concatenate(dens, axis=2)
+
+    # External work: pressure on the loaded surface (markers for membrane, lumen for thick)
+    _, _, _, normal_da, u_here = layer(1.0 if wall == "membrane" else 0.0)
+    with np.errstate(invalid="ignore"):
+        pw = np.einsum("stqc,fstqc->fst", normal_da, u_here)
+    pw = np.where(st.valid[None], np.nan_to_num(pw), 0.0).sum(-1)
+    pressure_work = p[None] * pw
+
+    # Axial force across the top measured boundary
+    r_all, th_all = st.r_markers, st.theta_markers
+    r2 = r_all**2
+    if wall == "thick":
+        # per-marker J (mean over its triangles) for the lumen radius along the loop
+        jm = np.zeros((n_steps, mesh.n_markers))
+        cnt = np.zeros((n_steps, mesh.n_markers))
+        for v in range(3):
+            np.add.at(jm, (slice(None), tri[:, v]), np.where(st.valid, jac, 0.0))
+            np.add.at(cnt, (slice(None), tri[:, v]), st.valid.astype(float))
+        jm = jm / np.maximum(cnt, 1.0)
+        kappa_m = e0 * (2.0 * mesh.r - e0)
+        r2 = r2 - kappa_m[None] / np.where(jm > 0, jm, np.nan)
+    top = np.unique(mesh.top_edges)
+    r2_top = r2[:, top]
+    fillv = np.nanmean(np.where(np.isfinite(r2_top), r2_top, np.nan), axis=1, keepdims=True)
+    r2 = r2.copy()
+    r2[:, top] = np.where(np.isfinite(r2_top), r2_top, fillv)
+    th_ref = np.broadcast_to(mesh.theta, th_all.shape)
+    th_use = np.where(np.isfinite(th_all), th_all, th_ref)
+    loop_area = _loop_area(mesh.top_edges, r2, th_use)
+    if ends == "clamped":
+        rc = float(np.mean(mesh.r[top])) if clamp_radius is None else float(clamp_radius)
+        if clamp_radius is None and wall == "thick":
+            rc -= e0
+        clamp_area = np.pi * rc * rc
+    else:
+        clamp_area = None
+    n_end = end_force(f, p, loop_area, clamp_area)
+    end_work = fields.load_end[:, None] * n_end[None]
+    evw = pressure_work + end_work
+    scale = np.sqrt(np.mean(evw**2, axis=1))
+    if np.any(scale <= 0):
+        raise DegenerateDataError(f"virtual fields {[n for n, s in zip(fields.names, scale) if s <= 0]} do no "
+                                  "external work at any step")
+    n_valid = st.valid.sum(axis=1)
+    if np.any(n_valid < n_tri):
+        log.warning("triangles excluded for unobserved markers per step: %s", (n_tri - n_valid).tolist())
+    return VFMData(c=c, work_density=work_density, evw=evw, pressure_work=pressure_work, end_work=end_work,
+                   end_force=n_end, scale=scale, field_names=tuple(fields.names), wall=wall, ends=ends, mesh=mesh,
+                   n_valid_triangles=n_valid, n_outliers=st.outliers.sum(axis=1),
+                   marker_noise=float(np.nanmedian(st.noise)), smoothing=smoothing, pressure=p, axial_force=f, thickness=e0)
+
+
+def internal_virtual_work(data: VFMData, model: str | Model, parameters) -> np.ndarray:
+    """IVW (J), shape ``(n_fields, n_steps)``, or ``(n_sets, n_fields, n_steps)`` if every parameter
+    value is an array of shape ``(n_sets,)``."""
+    model = get_model(model)
+    vals = {k: np.asarray(parameters[k], dtype=float) for k in model.parameter_names}
+    batched = any(v.ndim > 0 for v in vals.values())
+    if batched:
+        vals = {k: np.reshape(v, (-1, 1, 1)) for k, v in vals.items()}
+    c = data.c[None] if batched else data.c
+    s11, s22, s12 = pk2_components(model, c[..., 0], c[..., 1], c[..., 2], vals)
+    S = np.stack(np.broadcast_arrays(s11, s22, s12), -1)
+    if batched:
+        return np.einsum("fspc,espc->efs", data.work_density, S)
+    return np.einsum("fspc,spc->fs", data.work_density, S)

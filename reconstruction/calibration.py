@@ -1,0 +1,599 @@
+"""Multi-camera calibration: per-camera initialisation, pose graph, one joint bundle adjustment.
+
+Input are synchronised observations of a rigid target (a calibration board, or any set of
+object points with known coordinates in its own frame) in several views:
+``image_points (n_cams, n_views, n_points, 2)`` with NaN where a point is not observed.
+
+Method
+------
+1. Each camera alone: ``cv2.calibrateCamera`` on the views it sees (intrinsics + board poses).
+2. Relative camera poses from shared views, averaged over the shared views, chained along a
+   maximum spanning tree of the camera graph (edge weight = shared observations) from the
+   reference camera; board poses in the world from the best camera that sees them.
+3. One joint sparse bundle adjustment (``scipy.optimize.least_squares``) of all intrinsics
+   (fx, fy, cx, cy, k1, k2, p1, p2, k3), all camera poses (the reference camera fixes the gauge)
+   and all board poses, with a robust loss; observations whose residual exceeds a robust
+   threshold are rejected and the problem re-solved with a plain least-squares loss.
+
+World frame: the reference camera's frame, or the board frame of view ``world_view``.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+import scipy.sparse as sp
+from scipy.optimize import least_squares
+
+from .cameras import Camera, rotation_matrix
+from .targets import BoardDetection, BoardSpec
+
+__all__ = [
+    "CalibrationError",
+    "CalibrationResult",
+    "calibrate_cameras",
+    "calibrate_from_detections",
+    "detections_to_arrays",
+    "reprojection_errors",
+]
+
+log = logging.getLogger(__name__)
+
+_N_CAM = 15  # fx fy cx cy k1 k2 p1 p2 k3 | rvec | tvec
+_N_VIEW = 6
+
+
+class CalibrationError(RuntimeError):
+    """Calibration cannot proceed (too few views, disconnected cameras, ...)."""
+
+
+@dataclass
+class CalibrationResult:
+    """Outcome of :func:`calibrate_cameras`.
+
+    Attributes
+    ----------
+    cameras : list of Camera
+        Calibrated cameras (world -> camera poses in the chosen world frame).
+    board_rvecs, board_tvecs : ndarray, shape (n_views, 3)
+        Board -> world poses (m); NaN for views no camera used.
+    rms : ndarray, shape (n_cams,)
+        RMS reprojection error per camera over inlier observations, px
+        (``sqrt(mean |residual|^2)``, as OpenCV reports it).
+    rms_per_view : ndarray, shape (n_cams, n_views)
+        Same per camera and view, NaN where not observed.
+    rms_total : float
+        Over all inlier observations, px.
+    n_observations : int
+        Inlier point observations used in the final solve.
+    n_outliers : int
+        Observations rejected.
+    outliers : ndarray, shape (n_outliers, 3), int
+        (camera, view, point) of each rejected observation.
+    converged : bool
+    message : str
+    initial_rms : ndarray, shape (n_cams,)
+        Per-camera RMS of the independent ``cv2.calibrateCamera`` initialisations, px.
+    parameter_std : ndarray, shape (n_cams, 15)
+        Standard deviations of (fx, fy, cx, cy [px], k1, k2, p1, p2, k3, rvec [rad], tvec [m]) of
+        each camera from the final solve's covariance ``s^2 (J^T J)^-1`` (NaN for fixed parameters;
+        it assumes independent pixel noise, so it is a lower bound when residuals are correlated).
+        Pose uncertainties refer to the adjustment gauge (the reference camera fixed).
+    """
+
+    cameras: list[Camera]
+    board_rvecs: np.ndarray
+    board_tvecs: np.ndarray
+    rms: np.ndarray
+    rms_per_view: np.ndarray
+    rms_total: float
+    n_observations: int
+    n_outliers: int
+    outliers: np.ndarray
+    converged: bool
+    message: str
+    initial_rms: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    parameter_std: np.ndarray = field(default_factory=lambda: np.zeros((0, _N_CAM)))
+
+    def summary(self) -> list[dict]:
+        """One row per camera: name, views used, RMS (px), fx, fy, cx, cy and their standard deviations (px)."""
+        rows = []
+        for i, c in enumerate(self.cameras):
+            rows.append(
+                dict(
+                    camera=c.name,
+                    views=int(np.isfinite(self.rms_per_view[i]).sum()),
+                    rms_px=float(self.rms[i]),
+                    fx=float(c.K[0, 0]),
+                    fy=float(c.K[1, 1]),
+                    cx=float(c.K[0, 2]),
+                    cy=float(c.K[1, 2]),
+                    **{f"{k}_std": float(self.parameter_std[i, j]) if self.parameter_std.shape[0] > i else float("nan")
+                       for j, k in enumerate(("fx", "fy", "cx", "cy"))},
+                )
+            )
+        return rows
+
+
+# ---------------------------------------------------------------------------------------------
+# projection with per-observation parameters (vectorised)
+
+
+def _project(cam_params: np.ndarray, view_params: np.ndarray, ci: np.ndarray, vi: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """Pixels ``(n_obs, 2)`` of board points ``X (n_obs, 3)`` for parameter arrays."""
+    Rv = rotation_matrix(view_params[:, :3])
+    Rc = rotation_matrix(cam_params[:, 9:12])
+    Xw = np.einsum("nij,nj->ni", Rv[vi], X) + view_params[vi, 3:6]
+    Xc = np.einsum("nij,nj->ni", Rc[ci], Xw) + cam_params[ci, 12:15]
+    p = cam_params[ci]
+    x = Xc[:, 0] / Xc[:, 2]
+    y = Xc[:, 1] / Xc[:, 2]
+    r2 = x * x + y * y
+    k1, k2, p1, p2, k3 = p[:, 4], p[:, 5], p[:, 6], p[:, 7], p[:, 8]
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+    return np.stack([p[:, 0] * xd + p[:, 2], p[:, 1] * yd + p[:, 3]], -1)
+
+
+def _camera_params(cam: Camera) -> np.ndarray:
+    K = cam.K
+    return np.concatenate([[K[0, 0], K[1, 1], K[0, 2], K[1, 2]], cam.dist, cam.rvec, cam.tvec])
+
+
+def _compose_inverse_pose(R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    return R.T, -R.T @ t
+
+
+def _mean_rotation(Rs: np.ndarray) -> np.ndarray:
+    """Chordal L2 mean of rotation matrices ``(n, 3, 3)``."""
+    U, _, Vt = np.linalg.svd(np.sum(Rs, axis=0))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    return U @ D @ Vt
+
+
+# ---------------------------------------------------------------------------------------------
+
+
+def _normalise_inputs(image_points, object_points):
+    uv = np.asarray(image_points, float)
+    if uv.ndim != 4 or uv.shape[-1] != 2:
+        raise CalibrationError(f"image_points must have shape (n_cams, n_views, n_points, 2); got {uv.shape}")
+    n_cams, n_views, n_points, _ = uv.shape
+    obj = np.asarray(object_points, float)
+    if obj.shape == (n_points, 3):
+        obj = np.broadcast_to(obj, (n_views, n_points, 3))
+    if obj.shape != (n_views, n_points, 3):
+        raise CalibrationError(
+            f"object_points must have shape (n_points, 3) or (n_views, n_points, 3) = ({n_views}, {n_points}, 3); got {obj.shape}"
+        )
+    return uv, obj
+
+
+def _init_camera(uv_c, obj, size, min_points, name):
+    """cv2.calibrateCamera on the views of one camera. Returns (K, dist, {view: (R, t)}, rms)."""
+    views = [v for v in range(uv_c.shape[0]) if np.isfinite(uv_c[v]).all(-1).sum() >= min_points]
+    if len(views) < 2:
+        raise CalibrationError(f"camera {name!r}: board seen in {len(views)} views; need at least 2 (better >= 5)")
+    op, ip = [], []
+    planar = True
+    for v in views:
+        ok = np.isfinite(uv_c[v]).all(-1)
+        op.append(obj[v, ok].astype(np.float32))
+        ip.append(uv_c[v, ok].astype(np.float32).reshape(-1, 1, 2))
+        planar = planar and np.ptp(obj[v, ok, 2]) == 0
+    w, h = size
+    K0 = np.array([[max(w, h), 0, (w - 1) / 2], [0, max(w, h), (h - 1) / 2], [0, 0, 1.0]])
+    flags = 0 if planar else cv2.CALIB_USE_INTRINSIC_GUESS
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
+    rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(op, ip, (w, h), K0, np.zeros(5), flags=flags, criteria=crit)
+    poses = {v: (cv2.Rodrigues(r)[0], np.asarray(t, float).ravel()) for v, r, t in zip(views, rvecs, tvecs)}
+    return K, np.asarray(dist, float).ravel()[:5], poses, float(rms)
+
+
+def _angle(Ra: np.ndarray, Rb: np.ndarray) -> float:
+    """Angle (rad) of the rotation between two rotation matrices."""
+    return float(np.arccos(np.clip((np.trace(Ra.T @ Rb) - 1) / 2, -1.0, 1.0)))
+
+
+def _reversal_symmetry(obj: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """(R, t) with ``R @ obj[k] + t = obj[n-1-k]`` if the target is symmetric under reversal, else None."""
+    a, b = obj, obj[::-1]
+    ca, cb = a.mean(0), b.mean(0)
+    U, _, Vt = np.linalg.svd((a - ca).T @ (b - cb))
+    R = Vt.T @ np.diag([1, 1, np.sign(np.linalg.det(Vt.T @ U.T))]) @ U.T
+    t = cb - R @ ca
+    scale = max(np.ptp(a, axis=0).max(), 1e-300)
+    return (R, t) if np.abs(a @ R.T + t - b).max() < 1e-6 * scale else None
+
+
+def _relative_pose(pi: dict, pj: dict, views: np.ndarray, flip) -> tuple[np.ndarray, np.ndarray]:
+    """Camera i -> camera j pose from shared views, robust to bad views (and to reversed targets if ``flip``).
+
+    The candidate (per view, per order hypothesis) agreeing with most views within 2 deg wins;
+    the agreeing candidates are averaged.
+    """
+    cands = []
+    for v in views:
+        Ri, ti = pi[v]
+        hyps = [pj[v]] if flip is None else [pj[v], (pj[v][0] @ flip[0], pj[v][0] @ flip[1] + pj[v][1])]
+        for Rj, tj in hyps:
+            R = Rj @ Ri.T
+            cands.append((v, R, tj - R @ ti))
+    tol = np.deg2rad(2.0)
+    best = max(range(len(cands)), key=lambda k: len({c[0] for c in cands if _angle(c[1], cands[k][1]) < tol}))
+    chosen = {}
+    for v, R, t in cands:
+        d = _angle(R, cands[best][1])
+        if d < tol and (v not in chosen or d < chosen[v][0]):
+            chosen[v] = (d, R, t)
+    Rs = np.array([c[1] for c in chosen.values()])
+    ts = np.array([c[2] for c in chosen.values()])
+    return _mean_rotation(Rs), np.median(ts, axis=0)
+
+
+def _spanning_tree(n_cams: int, weights: np.ndarray, root: int) -> list[tuple[int, int]]:
+    """Maximum spanning tree edges (parent, child) by Prim's algorithm from ``root``."""
+    inside = {root}
+    edges = []
+    while len(inside) < n_cams:
+        best = None
+        for i in inside:
+            for j in range(n_cams):
+                if j not in inside and weights[i, j] > 0 and (best is None or weights[i, j] > best[0]):
+                    best = (weights[i, j], i, j)
+        if best is None:
+            break
+        edges.append((best[1], best[2]))
+        inside.add(best[2])
+    return edges
+
+
+def calibrate_cameras(
+    image_points: np.ndarray,
+    object_points: np.ndarray,
+    image_sizes: list[tuple[int, int]],
+    camera_names: list[str] | None = None,
+    *,
+    reference: int = 0,
+    world_view: int | None = None,
+    min_points: int = 6,
+    loss: str = "soft_l1",
+    f_scale: float = 1.0,
+    outlier_sigma: float = 5.0,
+    min_outlier_px: float = 0.5,
+    fix_k3: bool = False,
+    max_rounds: int = 3,
+    resolve_flips: bool = False,
+) -> CalibrationResult:
+    """Calibrate N cameras jointly from synchronised views of a rigid target.
+
+    Parameters
+    ----------
+    image_points : ndarray, shape (n_cams, n_views, n_points, 2)
+        Observed pixels; NaN where a camera does not see a point in a view.
+    object_points : ndarray, shape (n_points, 3) or (n_views, n_points, 3)
+        Target points in the target's own frame, m (any unit works; it sets the unit of the
+        translations).
+    image_sizes : list of (width, height)
+        Pixels, per camera.
+    camera_names : list of str, optional
+        Default ``cam0, cam1, ...``.
+    reference : int
+        Camera whose frame is the world frame during the adjustment (gauge).
+    world_view : int, optional
+        Express the result in the board frame of this view instead.
+    min_points : int
+        A camera uses a view only if it sees at least this many points.
+    loss, f_scale : str, float
+        Robust loss of ``least_squares`` and its scale (px) for the first solve.
+    outlier_sigma, min_outlier_px : float
+        Observations with residual norm above ``max(min_outlier_px, outlier_sigma * s)`` are rejected,
+        ``s = 1.4826 * median(residual norm)``.
+    fix_k3 : bool
+        Keep k3 at zero (recommended with few views or short lenses).
+    max_rounds : int
+        Rounds of outlier rejection and re-solve.
+    resolve_flips : bool
+        The target is symmetric under reversal of its point order (chessboards and symmetric circle
+        grids: OpenCV may number a view from either end, and two cameras may disagree). Each camera's
+        view is re-ordered when the reversed order agrees better with the other cameras.
+
+    Returns
+    -------
+    CalibrationResult
+    """
+    uv, obj = _normalise_inputs(image_points, object_points)
+    n_cams, n_views, n_points, _ = uv.shape
+    names = list(camera_names) if camera_names is not None else [f"cam{i}" for i in range(n_cams)]
+    if len(names) != n_cams or len(image_sizes) != n_cams:
+        raise CalibrationError(f"camera_names and image_sizes need {n_cams} entries; got {len(names)} and {len(image_sizes)}")
+    if not 0 <= reference < n_cams:
+        raise CalibrationError(f"reference must be a camera index in [0, {n_cams}); got {reference}")
+    counts = np.isfinite(uv).all(-1).sum(-1)  # (n_cams, n_views)
+    usable = counts >= min_points
+    uv = np.where(usable[:, :, None, None], uv, np.nan)
+
+    # 1. per-camera initialisation
+    Ks, dists, poses, init_rms = [], [], [], []
+    for c in range(n_cams):
+        K, d, p, r = _init_camera(uv[c], obj, image_sizes[c], min_points, names[c])
+        if fix_k3:
+            d[4] = 0.0
+        Ks.append(K)
+        dists.append(d)
+        poses.append(p)
+        init_rms.append(r)
+        log.info("camera %s: initial RMS %.3f px over %d views", names[c], r, len(p))
+
+    # 2. pose graph
+    shared = np.zeros((n_cams, n_cams))
+    for i in range(n_cams):
+        for j in range(n_cams):
+            if i != j:
+                both = usable[i] & usable[j]
+                shared[i, j] = np.minimum(counts[i], counts[j])[both].sum()
+    edges = _spanning_tree(n_cams, shared, reference)
+    flip = _reversal_symmetry(obj[np.flatnonzero(usable.any(0))[0]]) if resolve_flips and usable.any() else None
+    if resolve_flips and flip is None:
+        log.warning("resolve_flips: the target is not symmetric under reversal of its point order; nothing to resolve")
+    Rw = {reference: np.eye(3)}
+    tw = {reference: np.zeros(3)}
+    for i, j in edges:
+        vs = np.flatnonzero(usable[i] & usable[j])
+        R, t = _relative_pose(poses[i], poses[j], vs, flip)
+        Rw[j] = R @ Rw[i]
+        tw[j] = R @ tw[i] + t
+    missing = [names[c] for c in range(n_cams) if c not in Rw]
+    if missing:
+        raise CalibrationError(f"cameras {missing} share no board view with the others (directly or through other cameras)")
+    n_flipped = 0
+    if flip is not None:
+        uv = uv.copy()
+        for v in np.flatnonzero(usable.sum(0) > 1):
+            a = int(np.argmax(np.where(usable[:, v], counts[:, v], -1)))
+            Ra = Rw[a].T @ poses[a][v][0]
+            for c in np.flatnonzero(usable[:, v]):
+                if c == a:
+                    continue
+                Rc0 = Rw[c].T @ poses[c][v][0]
+                Rc1 = Rc0 @ flip[0]
+                if _angle(Rc1, Ra) < _angle(Rc0, Ra):
+                    Rcv, tcv = poses[c][v]
+                    poses[c][v] = (Rcv @ flip[0], Rcv @ flip[1] + tcv)
+                    uv[c, v] = uv[c, v, ::-1]
+                    n_flipped += 1
+        if n_flipped:
+            log.info("resolve_flips: reversed the point order of %d camera views to match the other cameras", n_flipped)
+    # board poses in the world from the camera seeing most points
+    view_ok = usable.any(0)
+    Vp = np.full((n_views, 6), np.nan)
+    for v in np.flatnonzero(view_ok):
+        c = int(np.argmax(np.where(usable[:, v], counts[:, v], -1)))
+        Rcv, tcv = poses[c][v]
+        R = Rw[c].T @ Rcv
+        t = Rw[c].T @ (tcv - tw[c])
+        Vp[v] = np.concatenate([cv2.Rodrigues(R)[0].ravel(), t])
+
+    # 3. bundle adjustment
+    Cp = np.zeros((n_cams, _N_CAM))
+    for c in range(n_cams):
+        K = Ks[c]
+        Cp[c] = np.concatenate([[K[0, 0], K[1, 1], K[0, 2], K[1, 2]], dists[c], cv2.Rodrigues(Rw[c])[0].ravel(), tw[c]])
+    cam_free = np.ones((n_cams, _N_CAM), bool)
+    cam_free[reference, 9:] = False
+    if fix_k3:
+        cam_free[:, 8] = False
+    views_used = np.flatnonzero(view_ok)
+    vmap = -np.ones(n_views, int)
+    vmap[views_used] = np.arange(views_used.size)
+    ci_all, vi_all, pi_all = np.nonzero(np.isfinite(uv).all(-1))
+    inlier = np.ones(ci_all.size, bool)
+    x_cam, x_view = Cp.copy(), Vp[views_used].copy()
+    converged, message = False, ""
+    n_out_prev = -1
+    for rnd in range(max_rounds + 1):
+        ci, vi, pi = ci_all[inlier], vi_all[inlier], pi_all[inlier]
+        sol = _bundle_adjust(x_cam, x_view, cam_free, ci, vmap[vi], obj[vi, pi], uv[ci, vi, pi], loss if rnd == 0 else "linear", f_scale)
+        x_cam, x_view = sol["cam"], sol["view"]
+        converged, message = sol["success"], sol["message"]
+        cam_std = sol["cam_std"]
+        res = _project(x_cam, x_view, ci_all, vmap[vi_all], obj[vi_all, pi_all]) - uv[ci_all, vi_all, pi_all]
+        norm = np.linalg.norm(res, axis=-1)
+        s = 1.4826 * np.median(norm[inlier])
+        thr = max(min_outlier_px, outlier_sigma * s)
+        new_inlier = norm <= thr
+        n_out = int((~new_inlier).sum())
+        log.info("BA round %d: RMS %.4f px, threshold %.3f px, %d outliers", rnd, np.sqrt(np.mean(norm[inlier] ** 2)), thr, n_out)
+        if rnd > 0 and np.array_equal(new_inlier, inlier):
+            break
+        if rnd == max_rounds:
+            break
+        inlier = new_inlier
+        if n_out == n_out_prev and rnd > 0:
+            break
+        n_out_prev = n_out
+
+    # results
+    cams = []
+    for c in range(n_cams):
+        p = x_cam[c]
+        K = np.array([[p[0], 0, p[2]], [0, p[1], p[3]], [0, 0, 1.0]])
+        cams.append(Camera(names[c], K, p[4:9], p[9:12], p[12:15], tuple(image_sizes[c])))
+    brv = np.full((n_views, 3), np.nan)
+    btv = np.full((n_views, 3), np.nan)
+    brv[views_used] = x_view[:, :3]
+    btv[views_used] = x_view[:, 3:]
+    if world_view is not None:
+        if not (0 <= world_view < n_views and view_ok[world_view]):
+            raise CalibrationError(f"world_view must index a view seen by some camera; got {world_view}")
+        cams, brv, btv = _to_board_frame(cams, brv, btv, world_view)
+    sq = np.sum(res**2, -1)
+    rms = np.array([np.sqrt(np.mean(sq[inlier & (ci_all == c)])) if (inlier & (ci_all == c)).any() else np.nan for c in range(n_cams)])
+    rpv = np.full((n_cams, n_views), np.nan)
+    for c in range(n_cams):
+        for v in range(n_views):
+            m = inlier & (ci_all == c) & (vi_all == v)
+            if m.any():
+                rpv[c, v] = np.sqrt(np.mean(sq[m]))
+    return CalibrationResult(
+        cameras=cams,
+        board_rvecs=brv,
+        board_tvecs=btv,
+        rms=rms,
+        rms_per_view=rpv,
+        rms_total=float(np.sqrt(np.mean(sq[inlier]))),
+        n_observations=int(inlier.sum()),
+        n_outliers=int((~inlier).sum()),
+        outliers=np.stack([ci_all[~inlier], vi_all[~inlier], pi_all[~inlier]], -1),
+        converged=bool(converged),
+        message=str(message),
+        initial_rms=np.array(init_rms),
+        parameter_std=cam_std,
+    )
+
+
+def _to_board_frame(cams, brv, btv, k):
+    Rk = rotation_matrix(brv[k])
+    tk = btv[k]
+    out = []
+    for c in cams:
+        R = c.R @ Rk
+        t = c.R @ tk + c.tvec
+        out.append(Camera(c.name, c.K, c.dist, cv2.Rodrigues(R)[0].ravel(), t, c.image_size, dict(c.meta)))
+    nrv = np.full_like(brv, np.nan)
+    ntv = np.full_like(btv, np.nan)
+    ok = np.isfinite(brv).all(-1)
+    for v in np.flatnonzero(ok):
+        R = Rk.T @ rotation_matrix(brv[v])
+        nrv[v] = cv2.Rodrigues(R)[0].ravel()
+        ntv[v] = Rk.T @ (btv[v] - tk)
+    return out, nrv, ntv
+
+
+def _bundle_adjust(x_cam, x_view, cam_free, ci, vi, X, uv, loss, f_scale):
+    """One least-squares solve; Jacobian by grouped central differences (one group per parameter slot)."""
+    n_cams, n_views = x_cam.shape[0], x_view.shape[0]
+    cam_idx = np.flatnonzero(cam_free.ravel())
+    n_cf = cam_idx.size
+    n_obs = ci.size
+
+    def unpack(x):
+        cam = x_cam.copy().ravel()
+        cam[cam_idx] = x[:n_cf]
+        return cam.reshape(n_cams, _N_CAM), x[n_cf:].reshape(n_views, _N_VIEW)
+
+    def fun(x):
+        cam, view = unpack(x)
+        return (_project(cam, view, ci, vi, X) - uv).ravel()
+
+    # column index of (camera, slot) and (view, slot) in x
+    col_cam = -np.ones((n_cams, _N_CAM), int)
+    col_cam.ravel()[cam_idx] = np.arange(n_cf)
+    col_view = n_cf + np.arange(n_views * _N_VIEW).reshape(n_views, _N_VIEW)
+    rows = np.arange(2 * n_obs)
+
+    def jac(x):
+        cam, view = unpack(x)
+        data, rr, cc = [], [], []
+        for slot in range(_N_CAM):
+            cols = col_cam[:, slot]
+            if (cols < 0).all():
+                continue
+            h = 1e-6 * np.maximum(np.abs(cam[:, slot]), 1e-2 if slot >= 12 else 1.0)
+            cp, cm = cam.copy(), cam.copy()
+            cp[:, slot] += h
+            cm[:, slot] -= h
+            d = (_project(cp, view, ci, vi, X) - _project(cm, view, ci, vi, X)) / (2 * h[ci])[:, None]
+            c_of_obs = cols[ci]
+            ok = np.repeat(c_of_obs >= 0, 2)
+            data.append(d.ravel()[ok])
+            rr.append(rows[ok])
+            cc.append(np.repeat(c_of_obs, 2)[ok])
+        for slot in range(_N_VIEW):
+            h = 1e-6 * np.maximum(np.abs(view[:, slot]), 1e-2 if slot >= 3 else 1.0)
+            vp, vm = view.copy(), view.copy()
+            vp[:, slot] += h
+            vm[:, slot] -= h
+            d = (_project(cam, vp, ci, vi, X) - _project(cam, vm, ci, vi, X)) / (2 * h[vi])[:, None]
+            data.append(d.ravel())
+            rr.append(rows)
+            cc.append(np.repeat(col_view[vi, slot], 2))
+        J = sp.csr_matrix((np.concatenate(data), (np.concatenate(rr), np.concatenate(cc))), shape=(2 * n_obs, x.size))
+        return J.toarray() if dense else J
+
+    x0 = np.concatenate([x_cam.ravel()[cam_idx], x_view.ravel()])
+    dense = x0.size * 2 * n_obs <= 3e7
+    sol = least_squares(
+        fun,
+        x0,
+        jac=jac,
+        method="trf",
+        loss=loss,
+        f_scale=f_scale,
+        x_scale="jac",
+        tr_solver="exact" if dense else "lsmr",
+        xtol=1e-12,
+        ftol=1e-12,
+        gtol=1e-10,
+        max_nfev=200,
+    )
+    cam, view = unpack(sol.x)
+    # standard deviations of the camera parameters from the Gauss-Newton covariance s^2 (J^T J)^-1
+    cam_std = np.full((n_cams, _N_CAM), np.nan)
+    dof = 2 * n_obs - x0.size
+    if dof > 0:
+        J = jac(sol.x)
+        JtJ = J.T @ J
+        JtJ = JtJ.toarray() if sp.issparse(JtJ) else np.asarray(JtJ)
+        s2 = float(np.sum(fun(sol.x) ** 2)) / dof
+        try:
+            cov_diag = np.diag(np.linalg.inv(JtJ))[:n_cf]
+            cam_std.ravel()[cam_idx] = np.sqrt(np.clip(cov_diag * s2, 0, None))
+        except np.linalg.LinAlgError:
+            log.warning("bundle adjustment: singular normal matrix; parameter uncertainties unavailable")
+    return dict(cam=cam, view=view, success=sol.status > 0, message=sol.message, cost=sol.cost, cam_std=cam_std)
+
+
+def reprojection_errors(cameras: list[Camera], board_rvecs, board_tvecs, image_points, object_points) -> np.ndarray:
+    """Residuals ``(n_cams, n_views, n_points, 2)`` (px) of observations against a calibration; NaN where unobserved."""
+    uv, obj = _normalise_inputs(image_points, object_points)
+    out = np.full(uv.shape, np.nan)
+    for c, cam in enumerate(cameras):
+        for v in range(uv.shape[1]):
+            if not np.isfinite(board_rvecs[v]).all():
+                continue
+            Xw = obj[v] @ rotation_matrix(board_rvecs[v]).T + board_tvecs[v]
+            out[c, v] = cam.project(Xw) - uv[c, v]
+    return out
+
+
+def detections_to_arrays(detections: dict[str, list[BoardDetection]], spec: BoardSpec) -> tuple[list[str], np.ndarray, np.ndarray]:
+    """``{camera: [BoardDetection per view]}`` -> names, image_points ``(n_cams, n_views, n_points, 2)``, object points."""
+    names = list(detections)
+    n_views = {len(v) for v in detections.values()}
+    if len(n_views) != 1:
+        raise CalibrationError(f"every camera needs the same number of views; got {dict((k, len(v)) for k, v in detections.items())}")
+    nv = n_views.pop()
+    obj = spec.object_points()
+    uv = np.full((len(names), nv, len(obj), 2), np.nan)
+    for c, name in enumerate(names):
+        for v, det in enumerate(detections[name]):
+            if len(det):
+                uv[c, v, det.ids] = det.points
+    return names, uv, obj
+
+
+def calibrate_from_detections(
+    detections: dict[str, list[BoardDetection]], spec: BoardSpec, image_sizes: dict[str, tuple[int, int]], **kwargs
+) -> CalibrationResult:
+    """:func:`calibrate_cameras` on board detections ``{camera: [BoardDetection per view]}``.
+
+    Point-order flips are resolved by default for chessboards and symmetric circle grids.
+    """
+    names, uv, obj = detections_to_arrays(detections, spec)
+    kwargs.setdefault("resolve_flips", spec.kind in ("chessboard", "circles"))
+    return calibrate_cameras(uv, obj, [image_sizes[n] for n in names], names, **kwargs)

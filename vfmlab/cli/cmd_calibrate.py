@@ -1,0 +1,263 @@
+"""``vfmlab calibrate``: calibrate all cameras jointly from calibration-board images."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import click
+import numpy as np
+from rich.progress import Progress
+from rich.table import Table
+
+from vfmlab.cli._common import CliError, console, err_console, print_json
+
+log = logging.getLogger(__name__)
+
+_IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm"}
+
+
+def _folder_views(images_dir: Path) -> tuple[list[str], list[str], dict[str, dict[str, Path]]]:
+    """Camera names, view stems and ``{camera: {stem: path}}`` from ``DIR/<camera>/<view>.<ext>``."""
+    if not images_dir.is_dir():
+        raise CliError(f"--images: {images_dir} is not a folder (expected DIR/<camera>/<view>.png)")
+    cams = sorted(p.name for p in images_dir.iterdir() if p.is_dir())
+    if not cams:
+        raise CliError(f"--images: {images_dir} has no camera sub-folders (expected DIR/<camera>/<view>.png)")
+    files = {c: {p.stem: p for p in sorted((images_dir / c).iterdir()) if p.suffix.lower() in _IMAGE_SUFFIXES} for c in cams}
+    stems = sorted(set().union(*[set(f) for f in files.values()]))
+    if not stems:
+        raise CliError(f"--images: no images ({', '.join(sorted(_IMAGE_SUFFIXES))}) under {images_dir}/<camera>/")
+    return cams, stems, files
+
+
+def _board_spec(board, squares, square_size_mm, marker_size_mm, dictionary, subpix):
+    from reconstruction.targets import BoardSpec, TargetError
+
+    try:
+        cols, rows = (int(v) for v in squares.lower().split("x"))
+    except ValueError:
+        raise CliError(f"--squares must look like 8x6 (columns x rows); got {squares!r}") from None
+    try:
+        return BoardSpec(board, cols, rows, square_size_mm * 1e-3, marker_size_mm * 1e-3, dictionary, subpix)
+    except TargetError as exc:
+        raise CliError(str(exc)) from None
+
+
+def _table(result) -> Table:
+    t = Table(title="Calibration (joint bundle adjustment)")
+    for col in ("camera", "views", "RMS (px)", "init RMS (px)", "fx (px)", "fy (px)", "cx (px)", "cy (px)", "k1", "k2"):
+        t.add_column(col, justify="right" if col != "camera" else "left")
+    for i, (row, cam) in enumerate(zip(result.summary(), result.cameras)):
+        t.add_row(row["camera"], str(row["views"]), f"{row['rms_px']:.3f}", f"{result.initial_rms[i]:.3f}",
+                  f"{row['fx']:.1f}±{row['fx_std']:.1f}", f"{row['fy']:.1f}±{row['fy_std']:.1f}",
+                  f"{row['cx']:.1f}±{row['cx_std']:.1f}", f"{row['cy']:.1f}±{row['cy_std']:.1f}",
+                  f"{cam.dist[0]:+.4f}", f"{cam.dist[1]:+.4f}")
+    return t
+
+
+def _import(path: Path, file_units: str, session, store: bool, out, units: str, as_json: bool) -> None:
+    """``--import``: read a calibration file, check it against the session's cameras, store and/or convert it."""
+    from reconstruction.calibration_io import (CalibrationFileError, cameras_from_toml, cameras_from_yaml,
+                                               cameras_to_arrays, cameras_to_toml, cameras_to_yaml)
+
+    try:
+        text = path.read_text()
+        reader = cameras_from_toml if path.suffix.lower() == ".toml" else cameras_from_yaml
+        cams, meta = reader(text, units=file_units)
+    except (CalibrationFileError, UnicodeDecodeError) as exc:
+        raise CliError(f"--import {path}: {exc}") from None
+    stored = None
+    if session is not None and store:
+        from acquisition.session import SessionError, write_result
+        from vfmlab.cli._sessions import cli_session
+
+        with cli_session(session) as s:
+            wanted = s.camera_names
+            sizes = {c.name: (c.width, c.height) for c in s.cameras}
+        names = [c.name for c in cams]
+        missing = [n for n in wanted if n not in names]
+        if missing:
+            raise CliError(f"--import {path}: the session's cameras {missing} are not in the file (it has {names})")
+        bad = [c.name for c in cams if c.name in sizes and tuple(sizes[c.name]) != tuple(c.image_size)]
+        if bad:
+            raise CliError(f"--import {path}: image size differs from the session's for cameras {bad}")
+        cams = [next(c for c in cams if c.name == n) for n in wanted]
+        rms = meta.get("rms_px")
+        rms = np.asarray(rms, float) if isinstance(rms, list) and len(rms) == len(names) else None
+        arrays = cameras_to_arrays(cams, None if rms is None else [rms[names.index(c.name)] for c in cams])
+        try:
+            stored = write_result(session, "calibration", arrays,
+                                  {"source": str(path), "imported": True, "file_units": meta.get("units", file_units)},
+                                  {"converged": True, "n_observations": 0, "n_outliers": 0},
+                                  units={"K": "px", "tvec": "m", "rvec": "rad", "rms": "px", "image_size": "px"})
+        except SessionError as exc:
+            raise CliError(str(exc)) from None
+    if out is not None:
+        meta = {k: v for k, v in meta.items() if k != "units"}
+        meta["imported_from"] = str(path)
+        writer = cameras_to_toml if out.suffix.lower() == ".toml" else cameras_to_yaml
+        out.write_text(writer(cams, units=units, metadata=meta))
+    summary = {"cameras": [c.name for c in cams], "imported_from": str(path), "stored_as": stored,
+               "out": str(out) if out else None}
+    if as_json:
+        print_json(summary)
+        return
+    console.print(f"imported {len(cams)} cameras from {path}: {', '.join(c.name for c in cams)}")
+    if stored:
+        console.print(f"stored as {stored} in {session}")
+    if out is not None:
+        console.print(f"wrote {out}")
+
+
+@click.command()
+@click.argument("session", required=False, type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--images", "images_dir", type=click.Path(file_okay=False, path_type=Path),
+              help="Board images as DIR/<camera>/<view>.png (views matched by file name across cameras). "
+                   "Default: the calibration images stored in SESSION.")
+@click.option("--board", type=click.Choice(["charuco", "chessboard", "circles", "acircles"]), default="charuco",
+              show_default=True, help="Target type.")
+@click.option("--squares", default="8x6", show_default=True,
+              help="COLSxROWS: squares of a ChArUco board; inner corners of a chessboard; circles of a grid.")
+@click.option("--square-size-mm", type=float, default=4.5, show_default=True, help="Square side / circle spacing, mm.")
+@click.option("--marker-size-mm", type=float, default=3.4, show_default=True, help="ArUco marker side (ChArUco), mm.")
+@click.option("--dictionary", default="DICT_4X4_50", show_default=True, help="OpenCV ArUco dictionary (ChArUco).")
+@click.option("--subpix-window", type=int, default=5, show_default=True,
+              help="Half-window (px) of cornerSubPix; keep it below a quarter of a square in pixels.")
+@click.option("--reference", default=None, help="Camera whose frame is the world frame (default: the first).")
+@click.option("--world-view", type=int, default=None,
+              help="Express the calibration in the board frame of this view instead (e.g. a view with the board "
+                   "aligned to the specimen axis).")
+@click.option("--fix-k3/--free-k3", default=False, show_default=True, help="Keep the 6th-order radial term at zero.")
+@click.option("-o", "--out", "out", type=click.Path(dir_okay=False, path_type=Path),
+              help="Write the calibration to this file: .toml (aniposelib) or .yaml/.yml (OpenCV FileStorage).")
+@click.option("--units", type=click.Choice(["mm", "m"]), default="mm", show_default=True,
+              help="Length unit of the translations in --out.")
+@click.option("--store/--no-store", default=True, show_default=True,
+              help="Store the result in SESSION (as a new 'calibration' result) when a session is given.")
+@click.option("--import", "import_file", type=click.Path(exists=True, dir_okay=False, path_type=Path),
+              help="Take the calibration from a file instead of board images: aniposelib calibration.toml or "
+                   "OpenCV FileStorage .yaml/.yml/.xml/.json (store it in SESSION and/or convert it with -o).")
+@click.option("--import-units", type=click.Choice(["m", "cm", "mm", "um"]), default="mm", show_default=True,
+              help="Length unit of an imported file's translations when the file does not say (aniposelib does not).")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
+def command(session, images_dir, board, squares, square_size_mm, marker_size_mm, dictionary, subpix_window, reference,
+            world_view, fix_k3, out, units, store, import_file, import_units, as_json):
+    """Calibrate the cameras jointly from calibration-board images.
+
+    Each camera is initialised alone (OpenCV), camera poses are chained through shared board
+    views, then one bundle adjustment refines all intrinsics (fx, fy, cx, cy, k1, k2, p1, p2, k3)
+    and all camera and board poses together, rejecting outliers. Prints the RMS reprojection error
+    per camera; writes --out and/or stores the result in SESSION.
+    """
+    import cv2
+
+    from reconstruction.calibration import CalibrationError, calibrate_from_detections
+    from reconstruction.calibration_io import cameras_to_arrays, cameras_to_toml, cameras_to_yaml
+    from reconstruction.targets import detect_board
+
+    if out is not None and out.suffix.lower() not in (".toml", ".yaml", ".yml"):
+        raise CliError(f"--out must end in .toml, .yaml or .yml; got {out.name!r}")
+    if import_file is not None:
+        if images_dir is not None:
+            raise CliError("--import and --images exclude each other: calibrate from images or import a calibration")
+        _import(import_file, import_units, session, store, out, units, as_json)
+        return
+    if session is None and images_dir is None:
+        raise CliError("give a SESSION (its calibration images) or --images DIR")
+    spec = _board_spec(board, squares, square_size_mm, marker_size_mm, dictionary, subpix_window)
+
+    detections: dict = {}
+    sizes: dict = {}
+    if images_dir is not None:
+        cams, stems, files = _folder_views(images_dir)
+        with Progress(console=err_console, transient=True) as progress:
+            task = progress.add_task("detecting board", total=len(cams) * len(stems))
+            for c in cams:
+                dets = []
+                for stem in stems:
+                    path = files[c].get(stem)
+                    if path is None:
+                        from reconstruction.targets import BoardDetection
+
+                        dets.append(BoardDetection.empty())
+                    else:
+                        img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+                        if img is None:
+                            raise CliError(f"cannot read image {path}")
+                        sizes.setdefault(c, (img.shape[1], img.shape[0]))
+                        dets.append(detect_board(img, spec))
+                    progress.advance(task)
+                detections[c] = dets
+        source = str(images_dir)
+    else:
+        from vfmlab.cli._sessions import cli_session
+
+        with cli_session(session) as s:
+            cams = s.camera_names
+            with Progress(console=err_console, transient=True) as progress:
+                task = progress.add_task("detecting board", total=None)
+                for c in cams:
+                    imgs = s.calibration_images(c)
+                    if len(imgs) == 0:
+                        raise CliError(f"{session}: no calibration images for camera {c!r}; use --images DIR")
+                    sizes[c] = (imgs.shape[2], imgs.shape[1])
+                    detections[c] = [detect_board(im, spec) for im in imgs]
+                    progress.advance(task)
+        source = f"{session} (calibration images)"
+    for c in detections:
+        if c not in sizes:
+            raise CliError(f"camera {c!r}: no readable images")
+    names = list(detections)
+    ref = 0
+    if reference is not None:
+        if reference not in names:
+            raise CliError(f"--reference must be one of {names}; got {reference!r}")
+        ref = names.index(reference)
+    found = {c: sum(len(d) > 0 for d in detections[c]) for c in names}
+    log.info("board found per camera: %s", found)
+    try:
+        result = calibrate_from_detections(detections, spec, sizes, reference=ref, world_view=world_view, fix_k3=fix_k3)
+    except CalibrationError as exc:
+        raise CliError(f"calibration failed: {exc} (board views found per camera: {found})") from None
+
+    stored = None
+    if out is not None:
+        meta = {"created_by": "vfmlab calibrate", "source": source, "rms_px": result.rms.tolist(),
+                "board": f"{board} {squares} {square_size_mm} mm"}
+        text = (cameras_to_toml if out.suffix.lower() == ".toml" else cameras_to_yaml)(result.cameras, units=units, metadata=meta)
+        out.write_text(text)
+    if session is not None and store:
+        from acquisition.session import SessionError, write_result
+
+        arrays = cameras_to_arrays(result.cameras, result.rms)
+        arrays["rms_per_view"] = result.rms_per_view
+        arrays["board_rvecs"] = result.board_rvecs
+        arrays["board_tvecs"] = result.board_tvecs
+        params = dict(board=board, squares=squares, square_size_m=spec.square_size, marker_size_m=spec.marker_size,
+                      dictionary=dictionary, subpix_window=subpix_window, reference=names[ref], world_view=world_view,
+                      fix_k3=fix_k3, source=source)
+        attrs = dict(rms_total=result.rms_total, n_observations=result.n_observations, n_outliers=result.n_outliers,
+                     converged=result.converged, message=result.message)
+        try:
+            stored = write_result(session, "calibration", arrays, params, attrs,
+                                  units={"K": "px", "tvec": "m", "rvec": "rad", "rms": "px", "rms_per_view": "px",
+                                         "image_size": "px", "board_tvecs": "m", "board_rvecs": "rad"})
+        except SessionError as exc:
+            raise CliError(str(exc)) from None
+
+    summary = {"cameras": result.summary(), "rms_total_px": result.rms_total, "n_observations": result.n_observations,
+               "n_outliers": result.n_outliers, "converged": result.converged, "views_found": found,
+               "out": str(out) if out else None, "stored_as": stored}
+    if as_json:
+        print_json(summary)
+        return
+    console.print(_table(result))
+    console.print(f"total RMS {result.rms_total:.3f} px over {result.n_observations} observations; "
+                  f"{result.n_outliers} outliers rejected; converged: {result.converged}")
+    if out is not None:
+        console.print(f"wrote {out}")
+    if stored:
+        console.print(f"stored as {stored} in {session}")
+    if not np.all(np.isfinite(result.rms)):
+        raise CliError("some cameras have no inlier observations")

@@ -1,0 +1,54 @@
+"""``vfmlab export``: deformed meshes and fields per step for ParaView (legacy VTK or PLY)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from vfmlab.cli._common import CliError, console
+from vfmlab.cli._sessions import cli_session, latest_markers
+
+
+@click.command("export")
+@click.argument("session", type=click.Path(dir_okay=False))
+@click.option("-o", "--out", "out", type=click.Path(file_okay=False),
+              help="Output directory [default: <SESSION stem>_export next to the session].")
+@click.option("--format", "fmt", type=click.Choice(["vtk", "ply"]), default="vtk", show_default=True,
+              help="vtk: legacy ASCII VTK polydata with strain/stress cell data (+ .vtk.series index); "
+                   "ply: binary PLY with E11 face colours and the fields as face properties.")
+@click.option("--markers", "markers_name", help="Markers result to export [default: the latest].")
+def command(session, out, fmt, markers_name):
+    """Export the marker mesh of SESSION at every step, with E11/E22/E12 strains and each identified
+    model's stresses as cell data, in files ParaView opens. Lengths in m, stresses in Pa."""
+    from vfmlab.export import export_fields
+    from vfmlab.fields import FieldsError, compute_fields
+
+    path = Path(session)
+    out_dir = Path(out) if out else path.with_name(path.stem + "_export")
+    with cli_session(path) as s:
+        if markers_name:
+            if markers_name not in s.results("markers"):
+                raise CliError(f"{path}: no markers result {markers_name!r}; markers results are {s.results('markers')}")
+            markers = s.result(markers_name)
+        else:
+            markers = latest_markers(s)
+        latest = {}
+        for name in s.results("identification"):
+            r = s.result(name)
+            latest[(r["attrs"].get("model"), r["attrs"].get("wall"))] = r
+        try:
+            fields = compute_fields(markers, s.steps, list(latest.values()))
+        except FieldsError as exc:
+            raise CliError(f"{path}: cannot build the surface fields from {markers['name']}: {exc}") from None
+        specimen = s.specimen.specimen_id
+    try:
+        files = export_fields(fields, out_dir, fmt=fmt, specimen=specimen)
+    except OSError as exc:
+        raise CliError(f"cannot write to {out_dir}: {exc}") from None
+    n_steps = len(fields.positions)
+    cell = ["E11", "E22", "E12"] + [f"{n}_s11/_s22 ({st['model']})" for n, st in fields.stress.items()]
+    console.print(f"Exported {n_steps} steps ({len(fields.mesh.triangles)} triangles, from {markers['name']}) as "
+                  f"{fmt.upper()} to [bold]{out_dir}[/]; cell data: {', '.join(cell)}.")
+    if fmt == "vtk":
+        console.print(f"Open {files[-1].name} (or the {files[0].stem[:-4]}_*.vtk group) in ParaView.")

@@ -1,0 +1,177 @@
+"""``vfmlab import-images``: build a session from marker images taken with another rig."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+import numpy as np
+from rich.progress import Progress
+
+from vfmlab.cli._common import CliError, console, err_console
+from vfmlab.cli.cmd_reconstruct import load_calibration_file
+
+_IMAGE_SUFFIXES = {".png", ".tif", ".tiff", ".bmp", ".pgm", ".jpg", ".jpeg"}
+
+
+def _scan(images_dir: Path, camera_names: list[str]) -> tuple[np.ndarray, dict[str, dict[int, Path]]]:
+    """Step numbers present and ``{camera: {step: path}}`` from ``DIR/<camera>/<step>.<ext>``."""
+    if not images_dir.is_dir():
+        raise CliError(f"IMAGES_DIR: {images_dir} is not a folder (expected IMAGES_DIR/<camera>/<step>.png)")
+    folders = sorted(p.name for p in images_dir.iterdir() if p.is_dir())
+    missing = [c for c in camera_names if c not in folders]
+    if missing:
+        raise CliError(
+            f"IMAGES_DIR: no folder for calibrated camera(s) {missing} in {images_dir} "
+            f"(found {folders}; folder names must be the camera names of the calibration file)"
+        )
+    files: dict[str, dict[int, Path]] = {}
+    for cam in camera_names:
+        files[cam] = {}
+        for p in sorted((images_dir / cam).iterdir()):
+            if p.suffix.lower() not in _IMAGE_SUFFIXES:
+                continue
+            try:
+                step = int(p.stem)
+            except ValueError:
+                raise CliError(f"{p}: image names must be step numbers (0.png, 1.png, ...); got {p.name!r}") from None
+            if step in files[cam]:
+                raise CliError(f"{images_dir / cam}: two images for step {step}")
+            files[cam][step] = p
+    steps = np.array(sorted(set().union(*[set(f) for f in files.values()])), dtype=int)
+    if steps.size == 0:
+        raise CliError(f"IMAGES_DIR: no images under {images_dir}/<camera>/ ({', '.join(sorted(_IMAGE_SUFFIXES))})")
+    if steps[0] != 0:
+        raise CliError(f"IMAGES_DIR: no images for step 0 (the reference configuration); first step is {steps[0]}")
+    return steps, files
+
+
+def _read(path: Path) -> np.ndarray:
+    import cv2
+
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise CliError(f"{path}: cannot read the image")
+    if img.ndim == 3:
+        img = cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY)
+    if img.dtype not in (np.uint8, np.uint16):
+        raise CliError(f"{path}: expected an 8- or 16-bit grey image; got {img.dtype}")
+    return img
+
+
+@click.command("import-images")
+@click.argument("images_dir", type=click.Path(file_okay=False, path_type=Path))
+@click.option("--calibration", required=True, type=click.Path(dir_okay=False, path_type=Path),
+              help="Calibration of the cameras: aniposelib calibration.toml or OpenCV .yaml.")
+@click.option("--calibration-units", type=click.Choice(["mm", "m", "cm", "um"]), default=None,
+              help="Length unit of the calibration when the file does not say [default: mm].")
+@click.option("--loads", "loads_csv", required=True, type=click.Path(dir_okay=False, path_type=Path),
+              help="CSV: step,pressure_Pa|pressure_kPa|pressure_mmHg,axial_force_N,stretch (as import-markers).")
+@click.option("-o", "--out", "out", required=True, type=click.Path(dir_okay=False, path_type=Path),
+              help="Session file to create.")
+@click.option("--marker-diameter-mm", type=float, required=True, help="Diameter of the spherical markers, mm.")
+@click.option("--thickness-mm", type=float, default=None,
+              help="Reference wall thickness, mm [default: 10 %% of the radius, flagged in the notes].")
+@click.option("--radius-mm", type=float, default=None,
+              help="Reference outer radius, mm [default: measured from the step-0 images].")
+@click.option("--length-mm", type=float, default=None,
+              help="Reference length, mm [default: axial extent of the markers in step 0].")
+@click.option("--specimen-id", default=None, help="Specimen identifier [default: the images folder name].")
+@click.option("--notes", default="", help="Free-text notes about the specimen.")
+@click.option("--force-is", type=click.Choice(["wall", "total"]), default="wall", show_default=True,
+              help="What axial_force_N is: force carried by the wall, or a total reading behind a pressurised cannula.")
+@click.option("--force", "overwrite", is_flag=True, help="Overwrite OUT if it exists.")
+def command(images_dir, calibration, calibration_units, loads_csv, out, marker_diameter_mm, thickness_mm, radius_mm,
+            length_mm, specimen_id, notes, force_is, overwrite):
+    """Build a session from IMAGES_DIR/<camera>/<step>.png (camera names as in the calibration file,
+    step 0 = reference), the camera calibration and a loads CSV. Then run 'vfmlab reconstruct OUT'."""
+    from acquisition.markers_csv import CsvFormatError, read_loads_csv
+    from acquisition.session import CameraSpec, SessionError, SessionWriter, SpecimenInfo, StepRecord, write_result
+    from reconstruction.calibration_io import cameras_to_arrays
+    from reconstruction.pipeline import ReconstructionSettings, reconstruct_step
+
+    if not marker_diameter_mm > 0:
+        raise CliError(f"--marker-diameter-mm must be positive; got {marker_diameter_mm}")
+    for name, value in (("--thickness-mm", thickness_mm), ("--radius-mm", radius_mm), ("--length-mm", length_mm)):
+        if value is not None and not value > 0:
+            raise CliError(f"{name} must be positive; got {value}")
+    cams = load_calibration_file(calibration, calibration_units)
+    names = [c.name for c in cams]
+    steps, files = _scan(images_dir, names)
+    try:
+        loads = read_loads_csv(loads_csv)
+    except CsvFormatError as exc:
+        raise CliError(str(exc)) from None
+    missing = sorted(set(steps.tolist()) - set(loads["step"].tolist()))
+    if missing:
+        raise CliError(f"{loads_csv}: no loads for step(s) {missing} that have images in {images_dir}")
+    rows = np.searchsorted(loads["step"], steps)
+    first = {c: _read(files[c][0]) for c in names if 0 in files[c]}
+    if len(first) < 2:
+        raise CliError(f"IMAGES_DIR: step 0 needs images from at least two cameras; found {sorted(first)}")
+    for c in cams:
+        if c.name in first and first[c.name].shape != (c.image_size[1], c.image_size[0]):
+            raise CliError(
+                f"{files[c.name][0]}: image is {first[c.name].shape[1]}x{first[c.name].shape[0]} px but the "
+                f"calibration of {c.name} is for {c.image_size[0]}x{c.image_size[1]}"
+            )
+    dtypes = {c: str(first[c].dtype) for c in first}
+    dtype = "uint16" if "uint16" in dtypes.values() else "uint8"
+
+    notes_extra = []
+    if radius_mm is None or length_mm is None:
+        from reconstruction.surface import fit_cylinder
+
+        pts, _ = reconstruct_step(first, cams, ReconstructionSettings(marker_diameter=marker_diameter_mm * 1e-3))
+        if pts.centres.shape[0] < 8:
+            raise CliError("could not measure the specimen from the step-0 images (fewer than 8 markers "
+                           "reconstructed); give --radius-mm and --length-mm")
+        cyl = fit_cylinder(pts.centres)
+        _, _, z = cyl.cylindrical(pts.centres)
+        if radius_mm is None:
+            radius_mm = (cyl.radius - 0.5 * marker_diameter_mm * 1e-3) * 1e3
+            notes_extra.append(f"radius measured from step-0 markers ({pts.centres.shape[0]} markers)")
+        if length_mm is None:
+            length_mm = float(np.ptp(z)) * 1e3
+            notes_extra.append("length = axial extent of the step-0 markers")
+    if thickness_mm is None:
+        thickness_mm = 0.1 * radius_mm
+        notes_extra.append("thickness not given: 10 % of the radius assumed")
+    try:
+        specimen = SpecimenInfo(specimen_id or images_dir.name, radius_mm * 1e-3, length_mm * 1e-3,
+                                thickness_mm * 1e-3, "; ".join([notes] * bool(notes) + notes_extra))
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
+    specs = [CameraSpec(c.name, "imported", c.image_size[0], c.image_size[1], dtype) for c in cams]
+    rig = {"source": "import-images", "images_dir": str(images_dir), "calibration": str(calibration),
+           "loads_csv": str(loads_csv), "marker_diameter_mm": marker_diameter_mm}
+    try:
+        with SessionWriter.create(out, specimen, cameras=specs, protocol_text="", rig=rig,
+                                  load_cell_measures=force_is, overwrite=overwrite) as writer:
+            with Progress(console=err_console, transient=True) as progress:
+                task = progress.add_task("importing images", total=int(steps.size))
+                for s, row in zip(steps, rows):
+                    imgs = {}
+                    for c in cams:
+                        path = files[c.name].get(int(s))
+                        if path is None:
+                            err_console.print(f"[yellow]Warning:[/] no image of {c.name} for step {s}; stored blank.")
+                            img = np.zeros((c.image_size[1], c.image_size[0]), dtype)
+                        else:
+                            img = first[c.name] if s == 0 else _read(path)
+                            if img.shape != (c.image_size[1], c.image_size[0]):
+                                raise CliError(f"{path}: image size {img.shape[::-1]} differs from the calibration")
+                        imgs[c.name] = img.astype(dtype, copy=False)
+                    writer.add_step(StepRecord(
+                        block=0, stretch=float(loads["stretch"][row]), target_pressure=float(loads["pressure"][row]),
+                        pressure=float(loads["pressure"][row]), force=float(loads["axial_force"][row]),
+                        t_monotonic=float("nan"), t_wall=float("nan")), images=imgs)
+                    progress.advance(task)
+        name = write_result(out, "calibration", cameras_to_arrays(cams), {"source": str(calibration)})
+    except (SessionError, ValueError) as exc:
+        raise CliError(str(exc)) from None
+    console.print(
+        f"Imported {steps.size} steps x {len(cams)} cameras into [bold]{out}[/] (calibration stored as {name}; "
+        f"radius {radius_mm:.3f} mm, length {length_mm:.3f} mm, thickness {thickness_mm:.3f} mm). "
+        f"Next: vfmlab reconstruct {out}"
+    )

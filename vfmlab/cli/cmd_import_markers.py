@@ -1,0 +1,102 @@
+"""``vfmlab import-markers``: build a session from marker positions measured elsewhere."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+import numpy as np
+from scipy.optimize import least_squares
+
+from acquisition.markers_csv import CsvFormatError, read_loads_csv, read_markers_csv
+from acquisition.session import SessionError, SessionWriter, SpecimenInfo, StepRecord, write_result
+from vfmlab.cli._common import CliError, console
+
+
+def estimate_geometry(reference: np.ndarray) -> tuple[float, float]:
+    """Radius and axial extent (m) of a reference marker cloud ``(n_markers, 3)``.
+
+    Least-squares cylinder fit (axis point, axis direction, radius), started from each of the
+    cloud's principal directions; the best fit wins.
+    """
+    points = reference[~np.isnan(reference).any(axis=1)]
+    centre = points.mean(axis=0)
+    centred = points - centre
+    _, _, vt = np.linalg.svd(centred, full_matrices=False)
+
+    def radial(params):
+        direction = np.array([np.sin(params[0]) * np.cos(params[1]), np.sin(params[0]) * np.sin(params[1]),
+                              np.cos(params[0])])
+        rel = centred - params[2:5]
+        return np.linalg.norm(rel - (rel @ direction)[:, None] * direction, axis=1), direction
+
+    best = None
+    for axis in vt:
+        theta0, phi0 = np.arccos(np.clip(axis[2], -1, 1)), np.arctan2(axis[1], axis[0])
+        fit = least_squares(lambda q: radial(q)[0] - q[5], [theta0, phi0, 0, 0, 0, radial([theta0, phi0, 0, 0, 0])[0].mean()])
+        if best is None or fit.cost < best.cost:
+            best = fit
+    _, direction = radial(best.x)
+    axial = (centred - best.x[2:5]) @ direction
+    return float(abs(best.x[5])), float(axial.max() - axial.min())
+
+
+@click.command("import-markers")
+@click.argument("markers_csv", type=click.Path(dir_okay=False))
+@click.argument("loads_csv", type=click.Path(dir_okay=False))
+@click.option("-o", "--out", "out", required=True, type=click.Path(dir_okay=False), help="Session file to create.")
+@click.option("--thickness-mm", type=float, required=True, help="Reference wall thickness, mm.")
+@click.option("--radius-mm", type=float, help="Reference radius of the marker surface, mm [default: fitted to step 0].")
+@click.option("--length-mm", type=float, help="Reference specimen length, mm [default: axial extent of the markers].")
+@click.option("--specimen-id", default=None, help="Specimen identifier [default: the markers file name].")
+@click.option("--notes", default="", help="Free-text notes about the specimen.")
+@click.option("--force-is", type=click.Choice(["wall", "total"]), default="wall", show_default=True,
+              help="What axial_force_N is: force carried by the wall, or a total reading behind a pressurised cannula.")
+@click.option("--force", "overwrite", is_flag=True, help="Overwrite OUT if it exists.")
+def command(markers_csv, loads_csv, out, thickness_mm, radius_mm, length_mm, specimen_id, notes, force_is, overwrite):
+    """Build a session from MARKERS_CSV (marker_id,step,x_mm,y_mm,z_mm) and LOADS_CSV
+    (step,pressure_Pa|pressure_kPa|pressure_mmHg,axial_force_N,stretch). Step 0 is the reference."""
+    try:
+        table = read_markers_csv(markers_csv)
+        loads = read_loads_csv(loads_csv)
+    except CsvFormatError as exc:
+        raise CliError(str(exc)) from None
+    missing = sorted(set(table.steps.tolist()) - set(loads["step"].tolist()))
+    if missing:
+        raise CliError(f"{loads_csv}: no loads for step(s) {missing} that appear in {markers_csv}")
+    rows = np.searchsorted(loads["step"], table.steps)
+    if thickness_mm <= 0:
+        raise CliError(f"--thickness-mm must be positive; got {thickness_mm}")
+    fitted_radius, fitted_length = estimate_geometry(table.positions[0])
+    radius = radius_mm * 1e-3 if radius_mm else fitted_radius
+    length = length_mm * 1e-3 if length_mm else fitted_length
+    try:
+        specimen = SpecimenInfo(specimen_id or Path(markers_csv).stem, radius, length, thickness_mm * 1e-3, notes)
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
+    rig = {"source": "import-markers", "markers_csv": str(markers_csv), "loads_csv": str(loads_csv)}
+    try:
+        with SessionWriter.create(out, specimen, protocol_text="", rig=rig, load_cell_measures=force_is,
+                                  overwrite=overwrite) as writer:
+            for row in rows:
+                writer.add_step(StepRecord(
+                    block=0, stretch=float(loads["stretch"][row]), target_pressure=float(loads["pressure"][row]),
+                    pressure=float(loads["pressure"][row]), force=float(loads["axial_force"][row]),
+                    t_monotonic=float("nan"), t_wall=float("nan")))
+        visible = ~np.isnan(table.positions).any(axis=2)
+        name = write_result(
+            out, "markers",
+            {"positions": table.positions, "visible": visible,
+             "uncertainty": np.full(visible.shape, np.nan), "marker_id": np.arange(len(table.labels)),
+             "marker_label": table.labels, "step_index": np.arange(len(table.steps)),
+             "step_number": table.steps},
+            {"source": "import-markers", "markers_csv": str(markers_csv)},
+            units={"positions": "m", "uncertainty": "m"},
+        )
+    except SessionError as exc:
+        raise CliError(str(exc)) from None
+    console.print(
+        f"Imported {len(table.labels)} markers x {len(table.steps)} steps into [bold]{out}[/] "
+        f"(result {name}; radius {radius * 1e3:.3f} mm, length {length * 1e3:.3f} mm, "
+        f"thickness {thickness_mm:.3f} mm, load cell measures {force_is})."
+    )

@@ -1,0 +1,155 @@
+"""``vfmlab monitor``: live readings of the pressure transducer and the load cell."""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import time
+
+import click
+
+from vfmlab.cli._common import CliError, console, err_console
+
+MMHG_PA = 133.322387415
+
+
+def _open(kind: str, port: str, baud: int, timeout: float):
+    from acquisition import InstrumentError, open_load_cell, open_pressure
+
+    opener = open_pressure if kind == "pressure" else open_load_cell
+    what = "pressure transducer" if kind == "pressure" else "load cell"
+    try:
+        return opener(port, baudrate=baud, timeout=timeout)
+    except InstrumentError as exc:
+        raise CliError(f"cannot open the {what} at {port!r}: {exc}") from exc
+
+
+def _record(channel: str, sample, device_unit: str | None) -> dict:
+    row = {"channel": channel, "seq": sample.seq, "t_monotonic": sample.t_monotonic, "t_wall": sample.t_wall,
+           "time": _dt.datetime.fromtimestamp(sample.t_wall, _dt.timezone.utc).isoformat(timespec="milliseconds")}
+    if channel == "pressure":
+        row.update(value=sample.value, unit="Pa", mmHg=sample.value / MMHG_PA, kPa=sample.value / 1e3)
+    else:
+        row.update(value=sample.value, unit="N")
+    row.update(raw=sample.raw, device_unit=device_unit)
+    return row
+
+
+def _table(sampler, devices, started: float):
+    from rich.table import Table
+
+    table = Table(title="vfmlab monitor  (Ctrl-C to stop)", title_justify="left")
+    table.add_column("instrument")
+    table.add_column("reading", justify="right")
+    table.add_column("", justify="right")
+    table.add_column("status")
+    table.add_column("samples", justify="right")
+    table.add_column("rate", justify="right")
+    elapsed = max(time.monotonic() - started, 1e-9)
+    for channel in sampler.channels:
+        s = sampler.latest(channel)
+        st = sampler.status(channel)
+        colour = {"ok": "green", "fault": "yellow", "disconnected": "red"}.get(st.state, "white")
+        status = f"[{colour}]{st.state}[/]" + (f" {st.message[:60]}" if st.state != "ok" else "")
+        if channel == "pressure":
+            name = "pressure"
+            reading = "-" if s is None else f"{s.value / MMHG_PA:9.2f} mmHg"
+            second = "" if s is None else f"{s.value / 1e3:8.3f} kPa"
+        else:
+            name = "force"
+            reading = "-" if s is None else f"{s.value:9.4f} N"
+            second = ""
+        table.add_row(name, reading, second, status, str(st.n_ok), f"{st.n_ok / elapsed:6.1f} Hz")
+    for channel, dev in devices.items():
+        table.caption = (table.caption or "") + f"{channel}: {dev.identity}  (device unit {dev.unit})\n"
+    return table
+
+
+@click.command()
+@click.option("--pressure", "pressure_port", metavar="PORT",
+              help="Pressure transducer/controller (Mensor): /dev/ttyUSB0, COM3, socket://HOST:PORT or "
+                   "usb-serial:<USB serial number>.")
+@click.option("--load-cell", "load_cell_port", metavar="PORT", help="Load cell indicator (Mark-10), same forms.")
+@click.option("--rate", default=20.0, show_default=True, type=click.FloatRange(0.1, 1000),
+              help="Readings per second of each instrument.")
+@click.option("--count", type=click.IntRange(min=1), default=None,
+              help="Stop after N samples of each instrument (default: run until Ctrl-C).")
+@click.option("--json", "as_json", is_flag=True,
+              help="Print every sample as one JSON line (channel, seq, times, value in Pa or N, raw reply).")
+@click.option("--zero", is_flag=True, help="Zero (tare) the load cell first. Nothing is ever zeroed or "
+                                           "reconfigured without this flag.")
+@click.option("--timeout", default=0.25, show_default=True, type=float, help="Seconds allowed for one reply.")
+@click.option("--pressure-baud", default=9600, show_default=True, type=int, help="Mensor baud rate.")
+@click.option("--load-cell-baud", default=115200, show_default=True, type=int, help="Mark-10 baud rate.")
+def command(pressure_port, load_cell_port, rate, count, as_json, zero, timeout, pressure_baud, load_cell_baud):
+    """Show live readings of the pressure transducer and the load cell.
+
+    Run this to check the bench before a test: pressure in mmHg and kPa, force in N, the state of each
+    instrument and the achieved sample rate. With --count N --json it prints N timestamped samples of each
+    instrument as JSON lines, for scripts. Try it without hardware: `vfmlab sim-rig` prints the ports.
+    """
+    from acquisition import InstrumentError, Sampler
+
+    if not pressure_port and not load_cell_port:
+        raise CliError("give at least one instrument: --pressure PORT and/or --load-cell PORT")
+    if zero and not load_cell_port:
+        raise CliError("--zero tares the load cell; give --load-cell PORT")
+    devices = {}
+    try:
+        if pressure_port:
+            devices["pressure"] = _open("pressure", pressure_port, pressure_baud, timeout)
+        if load_cell_port:
+            devices["force"] = _open("force", load_cell_port, load_cell_baud, timeout)
+        if zero:
+            try:
+                devices["force"].zero()
+            except InstrumentError as exc:
+                raise CliError(f"zeroing the load cell failed: {exc}") from exc
+            err_console.print("load cell zeroed (tared)")
+        sampler = Sampler(devices.get("pressure"), devices.get("force"), rate_hz=rate)
+        _monitor(sampler, devices, count, as_json)
+    finally:
+        for dev in devices.values():
+            dev.close()
+
+
+def _monitor(sampler, devices, count, as_json) -> None:
+    from acquisition.sampler import Sample
+
+    printed = {ch: 0 for ch in sampler.channels}
+    started = time.monotonic()
+
+    def done() -> bool:
+        return count is not None and all(n >= count for n in printed.values())
+
+    def emit() -> None:
+        for channel in sampler.channels:
+            rec = sampler.drain(channel)
+            for i in range(len(rec)):
+                if count is not None and printed[channel] >= count:
+                    break
+                printed[channel] += 1
+                if as_json:
+                    s = Sample(int(rec.seq[i]), float(rec.t_monotonic[i]), float(rec.t_wall[i]),
+                               float(rec.value[i]), rec.raw[i])
+                    click.echo(json.dumps(_record(channel, s, devices[channel].unit)))
+        for ev in sampler.drain_events():
+            err_console.print(f"[yellow]{ev.channel}: {ev.kind}[/] {ev.message}", markup=True)
+
+    try:
+        with sampler:
+            if as_json:
+                while not done():
+                    time.sleep(0.02)
+                    emit()
+            else:
+                from rich.live import Live
+
+                with Live(_table(sampler, devices, started), console=console, refresh_per_second=8,
+                          transient=False) as live:
+                    while not done():
+                        time.sleep(0.1)
+                        emit()
+                        live.update(_table(sampler, devices, started))
+    except KeyboardInterrupt:
+        err_console.print("stopped")

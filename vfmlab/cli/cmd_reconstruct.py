@@ -1,0 +1,189 @@
+"""``vfmlab reconstruct``: detect, match, triangulate and track the markers of a session."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import click
+import numpy as np
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from vfmlab.cli._common import CliError, console, err_console, print_json
+
+log = logging.getLogger(__name__)
+
+_STAGES = ("detection", "correspondence", "tracking", "surface")
+
+
+def load_calibration_file(path: Path, units: str | None = None) -> list:
+    """Cameras from an aniposelib ``.toml`` or OpenCV ``.yaml``/``.yml`` calibration file."""
+    from reconstruction.calibration_io import CalibrationFileError, cameras_from_toml, cameras_from_yaml
+
+    suffix = path.suffix.lower()
+    if suffix not in (".toml", ".yaml", ".yml"):
+        raise CliError(f"--calibration must be a .toml (aniposelib) or .yaml/.yml (OpenCV) file; got {path.name!r}")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise CliError(f"--calibration: cannot read {path} ({exc.strerror})") from None
+    try:
+        cams, _ = (cameras_from_toml if suffix == ".toml" else cameras_from_yaml)(text, units=units)
+    except (CalibrationFileError, ValueError) as exc:
+        raise CliError(f"--calibration {path}: {exc}") from None
+    return cams
+
+
+def session_cameras(session, calibration: Path | None, units: str | None) -> tuple[list, str]:
+    """Calibrated cameras (ordered as the session's cameras) and a description of their source."""
+    from reconstruction.calibration_io import CalibrationFileError, cameras_from_arrays
+
+    if calibration is not None:
+        cams, source = load_calibration_file(calibration, units), str(calibration)
+    else:
+        latest = session.latest("calibration")
+        if latest is None:
+            raise CliError(
+                f"{session.path}: no calibration; run 'vfmlab calibrate {session.path}' or pass --calibration FILE"
+            )
+        try:
+            cams = cameras_from_arrays(latest["arrays"])
+        except CalibrationFileError as exc:
+            raise CliError(f"{session.path}: stored calibration is unusable ({exc})") from None
+        source = f"session result {latest.get('name', 'calibration')}"
+    by_name = {c.name: c for c in cams}
+    names = session.camera_names
+    missing = [n for n in names if n not in by_name]
+    used = [by_name[n] for n in names if n in by_name]
+    if len(used) < 2:
+        raise CliError(
+            f"the calibration ({source}) covers cameras {sorted(by_name)} but the session has {names}: "
+            "at least two session cameras must be calibrated"
+        )
+    if missing:
+        err_console.print(f"[yellow]Warning:[/] no calibration for camera(s) {missing}; they are ignored.")
+    return used, source
+
+
+def _summary_table(res, step_numbers, camera_names) -> Table:
+    d = res.diagnostics
+    t = Table(title=f"Markers: {res.visible.shape[1]} tracked identities")
+    for col in ("step", "detected", "reconstructed", "tracked", "lost", "recovered", "reproj. median [px]",
+                "median uncertainty [um]"):
+        t.add_column(col, justify="right")
+    for k, s in enumerate(step_numbers):
+        u = res.uncertainty[k][res.visible[k]]
+        t.add_row(str(s), str(int(d["detected"][k].sum())), str(int(d["reconstructed"][k])), str(int(d["tracked"][k])),
+                  str(int(d["lost"][k])), str(int(d["recovered"][k])), f"{d['reprojection_rms_median'][k]:.3f}",
+                  f"{np.median(u) * 1e6:.2f}" if u.size else "-")
+    return t
+
+
+@click.command()
+@click.argument("session", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--marker-diameter-mm", type=float, default=None,
+              help="Diameter of the spherical markers, mm [default: from the session (import-images), else 0.4].")
+@click.option("--calibration", type=click.Path(dir_okay=False, path_type=Path),
+              help="Calibration file (.toml aniposelib / .yaml OpenCV) [default: latest calibration in SESSION].")
+@click.option("--calibration-units", type=click.Choice(["mm", "m", "cm", "um"]), default=None,
+              help="Length unit of a calibration file without a units key [default: mm].")
+@click.option("--frame", type=click.Choice(["specimen", "calibration"]), default="specimen", show_default=True,
+              help="Output frame: the rig frame (z on the fitted specimen axis, origin at mid-length) or the "
+                   "calibration's world frame.")
+@click.option("--flip-axis", is_flag=True, help="Reverse +z of the specimen frame (towards the other cannula).")
+@click.option("--normals", type=click.Choice(["local", "cylinder"]), default="local", show_default=True,
+              help="Surface normals for the marker-centre offset.")
+@click.option("--epipolar-px", type=float, default=2.0, show_default=True, help="Epipolar gate of candidate matches, px.")
+@click.option("--max-reprojection-px", type=float, default=1.5, show_default=True,
+              help="Largest reprojection error of a view accepted in a point, px.")
+@click.option("--include-superseded", is_flag=True, help="Also reconstruct steps that were retaken.")
+@click.option("--store/--no-store", default=True, show_default=True, help="Write a 'markers' result into SESSION.")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
+def command(session, marker_diameter_mm, calibration, calibration_units, frame, flip_axis, normals, epipolar_px,
+            max_reprojection_px, include_superseded, store, as_json):
+    """Reconstruct the 3-D marker positions of every step of SESSION and track their identities.
+
+    Detects the dark spherical markers in each camera image with sub-pixel centres, matches them
+    across cameras, triangulates them (with uncertainty), follows each marker from the reference
+    step (step 0) through all steps, and moves each sphere centre one marker radius back onto the
+    wall. Writes positions (n_steps, n_markers, 3), visibility and uncertainty as a new "markers"
+    result; markers not seen in a step are NaN there.
+    """
+    from acquisition.session import SessionError, write_result
+    from reconstruction.pipeline import ReconstructionSettings, reconstruct_series
+    from vfmlab.cli._sessions import cli_session
+
+    with cli_session(session) as s:
+        cams, source = session_cameras(s, calibration, calibration_units)
+        steps = s.steps
+        rows = np.arange(s.n_steps) if include_superseded else np.flatnonzero(steps["active"])
+        if rows.size == 0:
+            raise CliError(f"{session}: no steps to reconstruct")
+        rig = s.rig_settings or {}
+        if marker_diameter_mm is None:
+            marker_diameter_mm = float(rig.get("marker_diameter_mm", 0.4))
+        if not marker_diameter_mm > 0:
+            raise CliError(f"--marker-diameter-mm must be positive; got {marker_diameter_mm}")
+        try:
+            settings = ReconstructionSettings(
+                marker_diameter=marker_diameter_mm * 1e-3, specimen_radius=s.specimen.radius, normals=normals,
+                epipolar_px=epipolar_px, max_reprojection_px=max_reprojection_px,
+            )
+        except ValueError as exc:
+            raise CliError(str(exc)) from None
+        names = [c.name for c in cams]
+
+        def images(k: int) -> dict:
+            return {n: s.image(n, int(rows[k])) for n in names}
+
+        with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total} steps"),
+                      TimeElapsedColumn(), console=err_console, transient=True, disable=as_json) as progress:
+            tasks = {st: progress.add_task(st, total=int(rows.size)) for st in _STAGES}
+
+            def report(step: int, n: int, stage: str) -> None:
+                progress.update(tasks[stage], completed=step + 1)
+
+            try:
+                res = reconstruct_series(images, cams, settings, n_steps=int(rows.size), progress=report,
+                                         frame=frame, axis_sign=-1 if flip_axis else 1)
+            except ValueError as exc:
+                raise CliError(f"{session}: reconstruction failed: {exc}") from None
+        step_numbers = rows
+    d = res.diagnostics
+    stored = None
+    if store:
+        arrays = {
+            "positions": res.positions, "visible": res.visible, "uncertainty": res.uncertainty,
+            "marker_id": res.marker_id, "step_index": rows.astype(np.int64), "centres": res.centres,
+            "n_views": res.n_views, "reprojection_rms": res.reprojection_rms, "world_to_rig": res.world_to_rig,
+            "camera_names": np.array(names, dtype=object), "detected": d["detected"], "rejects": d["rejects"],
+            "reject_reasons": np.array(d["reject_reasons"], dtype=object),
+        }
+        params = {"marker_diameter_mm": marker_diameter_mm, "calibration": source, "frame": frame,
+                  "flip_axis": flip_axis, "normals": normals, "epipolar_px": epipolar_px,
+                  "max_reprojection_px": max_reprojection_px, "include_superseded": include_superseded}
+        attrs = {"tracked_per_step": d["tracked"].tolist(), "lost_per_step": d["lost"].tolist(),
+                 "swaps_detected": int(d["swaps"].sum()), "sigma_px": d["sigma_px"].tolist()}
+        try:
+            stored = write_result(session, "markers", arrays, params, attrs,
+                                  units={"positions": "m", "centres": "m", "uncertainty": "m",
+                                         "reprojection_rms": "px", "world_to_rig": "m"})
+        except SessionError as exc:
+            raise CliError(str(exc)) from None
+    summary = {
+        "session": str(session), "n_steps": int(rows.size), "n_markers": int(res.visible.shape[1]),
+        "tracked_per_step": d["tracked"], "lost_per_step": d["lost"], "detected_per_camera": d["detected"].sum(0),
+        "rejects": dict(zip(d["reject_reasons"].tolist(), d["rejects"].sum(axis=(0, 1)).tolist())),
+        "reprojection_rms_median_px": d["reprojection_rms_median"], "median_uncertainty_m":
+            float(np.nanmedian(res.uncertainty)) if res.visible.any() else None,
+        "swaps_detected": int(d["swaps"].sum()), "calibration": source, "stored_as": stored,
+    }
+    if as_json:
+        print_json(summary)
+        return
+    console.print(_summary_table(res, step_numbers, names))
+    rej = ", ".join(f"{k} {v}" for k, v in summary["rejects"].items() if v)
+    console.print(f"Rejected blobs: {rej or 'none'}. Calibration: {source}.")
+    if stored:
+        console.print(f"Stored as [bold]{stored}[/] in {session}.")

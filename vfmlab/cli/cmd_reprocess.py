@@ -1,0 +1,121 @@
+"""``vfmlab reprocess``: re-run stages on stored sessions with new settings, in parallel if asked."""
+
+from __future__ import annotations
+
+import click
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.markup import escape
+from rich.table import Table
+
+from vfmlab.cli._common import CliError, console, err_console, print_json
+
+
+def _split(value: str, name: str, allowed: tuple[str, ...] | None = None) -> list[str]:
+    items = [v.strip() for v in value.split(",") if v.strip()]
+    if not items:
+        raise CliError(f"{name} must list at least one value; got {value!r}")
+    if allowed is not None:
+        bad = [v for v in items if v not in allowed]
+        if bad:
+            raise CliError(f"{name} must be among {', '.join(allowed)}; got {', '.join(bad)}")
+    return items
+
+
+def _parse_set(pairs: tuple[str, ...]) -> dict:
+    import json
+
+    out = {}
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or not key.isidentifier():
+            raise CliError(f"--set expects KEY=VALUE with KEY an identifier; got {pair!r}")
+        try:
+            out[key] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key] = value
+    return out
+
+
+@click.command("reprocess")
+@click.argument("sessions", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.option("--stages", default="identify", show_default=True,
+              help="Comma-separated stages to re-run, in pipeline order: reconstruct, identify.")
+@click.option("--model", "models", default="fung", show_default=True,
+              help="Comma-separated models to identify: fung, delfino, hgo, neohookean.")
+@click.option("--wall", "walls", default="membrane", show_default=True,
+              help="Wall formulation(s), comma-separated: membrane, thick.")
+@click.option("--ends", type=click.Choice(["clamped", "free"]), default="clamped", show_default=True,
+              help="Boundary of the marked region (identify).")
+@click.option("--optimizer", type=click.Choice(["lsq", "nelder-mead"]), default="lsq", show_default=True,
+              help="Optimiser (identify).")
+@click.option("--smooth", default=None, metavar="AXIAL,HARMONICS",
+              help="Smooth the measured displacements before identifying (as 'vfmlab identify --smooth'), e.g. 4,2.")
+@click.option("--set", "set_pairs", multiple=True, metavar="KEY=VALUE",
+              help="Extra setting for the reconstruct stage (JSON value), repeatable.")
+@click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
+              help="Sessions processed in parallel on this machine (process pool).")
+@click.option("--scheduler", metavar="ADDRESS",
+              help="Dask distributed scheduler (e.g. tcp://10.0.0.5:8786): one task per session on the cluster.")
+@click.option("--summary", type=click.Path(dir_okay=False),
+              help="Write a CSV of the identified parameters across sessions (one row per identification).")
+@click.option("--json", "as_json", is_flag=True, help="Print the outcomes as JSON.")
+def command(sessions, stages, models, walls, ends, optimizer, smooth, set_pairs, workers, scheduler, summary, as_json):
+    """Re-run STAGES on each SESSION with the given settings, appending new results (nothing is overwritten).
+
+    A session that fails (corrupt file, missing markers, failed fit) is reported and the others go on;
+    the exit code is 1 if any failed.
+    """
+    from vfmlab.pipeline import STAGES
+    from vfmlab.reprocess import plan_runs, reprocess, write_summary
+
+    stage_list = _split(stages, "--stages", tuple(STAGES))
+    smoothing = None
+    if smooth:
+        try:
+            smoothing = [int(v) for v in smooth.split(",")]
+            if len(smoothing) != 2 or min(smoothing) < 0:
+                raise ValueError
+        except ValueError:
+            raise CliError(f"--smooth must be two non-negative integers AXIAL,HARMONICS like 4,2; got {smooth!r}") from None
+    try:
+        runs = plan_runs(stage_list, models=_split(models, "--model", ("fung", "delfino", "hgo", "neohookean")),
+                         walls=_split(walls, "--wall", ("membrane", "thick")),
+                         identify_settings={"ends": ends, "optimizer": optimizer, "smoothing": smoothing},
+                         reconstruct_settings=_parse_set(set_pairs))
+    except ValueError as exc:
+        raise CliError(f"--set: {exc}" if set_pairs else str(exc)) from None
+    where = f"Dask scheduler {scheduler}" if scheduler else (f"{workers} worker processes" if workers > 1 else "serially")
+    if not as_json:
+        console.print(f"Reprocessing {len(sessions)} session(s) {where}: " + "; ".join(r.label() for r in runs))
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                  console=err_console, transient=True, disable=as_json) as progress:
+        task = progress.add_task("sessions", total=len(set(sessions)))
+
+        def on_done(outcome):
+            progress.advance(task)
+            if not outcome.ok and not as_json:
+                for err in outcome.errors:
+                    err_console.print(f"[red]failed:[/] {escape(err)}", soft_wrap=True)
+
+        try:
+            outcomes = reprocess(sessions, runs, workers=workers, scheduler=scheduler, on_done=on_done)
+        except (OSError, RuntimeError, ValueError, TimeoutError) as exc:
+            raise CliError(f"cannot run the batch: {exc}") from None
+    if summary:
+        path = write_summary(outcomes, summary)
+    if as_json:
+        print_json({"outcomes": [o.to_dict() for o in outcomes], "summary": summary})
+    else:
+        table = Table(title="Reprocessing")
+        for col in ("session", "specimen", "new results", "seconds", "status"):
+            table.add_column(col, overflow="fold")
+        for o in outcomes:
+            table.add_row(escape(o.path), escape(o.specimen), ", ".join(o.results) or "–", f"{o.seconds:.1f}",
+                          "ok" if o.ok else f"[red]{len(o.errors)} error(s)[/]")
+        console.print(table)
+        n_bad = sum(not o.ok for o in outcomes)
+        console.print(f"{len(outcomes) - n_bad} of {len(outcomes)} sessions processed without error."
+                      + (f" Summary: {path}" if summary else ""))
+    n_bad = sum(not o.ok for o in outcomes)
+    if n_bad:
+        raise CliError(f"{n_bad} of {len(outcomes)} session(s) failed; the others were processed (see above)")

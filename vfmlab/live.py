@@ -1,0 +1,199 @@
+"""The operator's live terminal view (rich) and the terminal operator (prompts).
+
+:func:`render_state` turns a :class:`acquisition.runner.RunnerState` into a rich renderable:
+pressure (mmHg and kPa) and force (N), the current block/step and its stability, a progress
+bar for the whole protocol with the time remaining, markers detected per camera at the last
+capture, and warnings. :class:`LiveView` keeps it on screen (``rich.live.Live``) while the
+runner works; :class:`TerminalOperator` asks the operator (pausing the live display).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections.abc import Sequence
+
+import click
+from rich.console import Console, Group
+from rich.live import Live
+from rich.panel import Panel
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
+from rich.table import Table
+from rich.text import Text
+
+from acquisition.protocol import MMHG
+from acquisition.runner import RunnerState
+
+__all__ = ["render_state", "LiveView", "TerminalOperator", "format_duration"]
+
+_PHASE_STYLE = {"paused": "bold yellow", "done": "bold green", "capturing": "bold cyan", "stabilising": "cyan",
+                "preconditioning": "magenta", "setting": "blue", "calibrating": "magenta"}
+
+
+def format_duration(seconds: float) -> str:
+    """``125.3`` -> ``'2:05'``; NaN -> ``'--:--'``."""
+    if seconds is None or not math.isfinite(seconds):
+        return "--:--"
+    s = int(round(seconds))
+    h, rem = divmod(s, 3600)
+    m, s = divmod(rem, 60)
+    return f"{h}:{m:02d}:{s:02d}" if h else f"{m}:{s:02d}"
+
+
+def _num(value: float, fmt: str) -> str:
+    return "—" if value is None or not math.isfinite(value) else format(value, fmt)
+
+
+def render_state(state: RunnerState, title: str = "vfmlab run"):
+    """A rich renderable of the runner's state (see module docstring)."""
+    readings = Table.grid(padding=(0, 2))
+    readings.add_column(justify="right", style="bold")
+    readings.add_column()
+    readings.add_row("Pressure", f"{_num(state.pressure / MMHG, '7.2f')} mmHg   {_num(state.pressure / 1e3, '7.3f')} kPa")
+    readings.add_row("Force", f"{_num(state.force, '8.4f')} N")
+    target = (f"{_num(state.target / MMHG, '.1f')} mmHg" if math.isfinite(state.target) else "—")
+    step_txt = (f"block {state.block + 1}  ·  L/L0 = {_num(state.stretch, '.3f')}  ·  target {target}"
+                if state.block >= 0 else "—")
+    readings.add_row("Step", f"{min(state.step + 1, state.n_steps)} / {state.n_steps}   {step_txt}")
+    stable = Text("stable", style="bold green") if state.stable else Text("settling", style="yellow")
+    readings.add_row("Stability", stable)
+    phase = Text(state.phase, style=_PHASE_STYLE.get(state.phase, ""))
+    if state.message:
+        phase.append(f"  {state.message}", style="")
+    readings.add_row("Phase", phase)
+    if state.markers:
+        readings.add_row("Markers", "   ".join(f"{name}: {n}" for name, n in state.markers.items()))
+
+    progress = Progress(TextColumn("Protocol"), BarColumn(bar_width=None), MofNCompleteColumn(),
+                        TextColumn("elapsed {task.fields[elapsed]}  ·  remaining ~{task.fields[remaining]}"),
+                        expand=True)
+    progress.add_task("protocol", total=max(state.n_steps, 1), completed=state.steps_done,
+                      elapsed=format_duration(state.elapsed_s), remaining=format_duration(state.remaining_s))
+    parts = [readings, progress]
+    if state.warnings:
+        warn = Text()
+        for w in state.warnings[-3:]:
+            warn.append("⚠ " + w + "\n", style="yellow")
+        parts.append(warn)
+    border = "yellow" if state.phase == "paused" else "blue"
+    return Panel(Group(*parts), title=title, border_style=border, subtitle="Ctrl-C: pause")
+
+
+class LiveView:
+    """Keeps :func:`render_state` on screen; ``update`` is the runner's ``on_update`` callback.
+
+    Updates are rate-limited to ``max_fps``; :meth:`suspend` hides the view for a prompt.
+    """
+
+    def __init__(self, console: Console, title: str = "vfmlab run", max_fps: float = 8.0):
+        self.console, self.title = console, title
+        self._min_dt = 1.0 / max_fps
+        self._last = 0.0
+        self.state = RunnerState()
+        self._live = Live(render_state(self.state, title), console=console, refresh_per_second=max_fps,
+                          transient=False, auto_refresh=False)
+        self._lock = threading.Lock()
+        self._active = False
+
+    def __enter__(self) -> LiveView:
+        self._live.start()
+        self._active = True
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._live.update(render_state(self.state, self.title), refresh=False)
+        self._live.stop()
+        self._active = False
+
+    def update(self, state: RunnerState) -> None:
+        self.state = state
+        now = time.monotonic()
+        if not self._active or (now - self._last < self._min_dt and state.phase not in ("paused", "done")):
+            return
+        self._last = now
+        with self._lock:
+            self._live.update(render_state(state, self.title), refresh=True)
+
+    def suspend(self):
+        """Context manager: stop the live display while prompting the operator."""
+        view = self
+
+        class _Suspend:
+            def __enter__(self_inner):
+                if view._active:
+                    view._live.stop()
+
+            def __exit__(self_inner, *exc):
+                if view._active:
+                    view._live.start()
+
+        return _Suspend()
+
+
+class TerminalOperator:
+    """Asks the operator at the terminal (click prompts), with the live view suspended.
+
+    ``hand_pressure`` / ``hand_stretch``: optional callables run after the operator confirms
+    (the simulated rig's valve and stage, so ``--sim`` without ``--yes`` behaves like the rig).
+    """
+
+    def __init__(self, console: Console, view: LiveView | None = None, hand_pressure=None, hand_stretch=None,
+                 hand_board=None, hand_unboard=None):
+        self.console, self.view = console, view
+        self.hand_pressure, self.hand_stretch = hand_pressure, hand_stretch
+        self.hand_board, self.hand_unboard = hand_board, hand_unboard
+
+    def _suspended(self):
+        return self.view.suspend() if self.view is not None else _Null()
+
+    def set_pressure(self, target: float) -> None:
+        with self._suspended():
+            click.prompt(f"Set the pressure to {target / MMHG:.1f} mmHg ({target / 1e3:.2f} kPa), then press Enter",
+                         default="", show_default=False)
+        if self.hand_pressure is not None:
+            self.hand_pressure(target)
+
+    def set_stretch(self, stretch: float) -> None:
+        with self._suspended():
+            click.prompt(f"Set the axial stretch to L/L0 = {stretch:.3f}, then press Enter", default="",
+                         show_default=False)
+        if self.hand_stretch is not None:
+            self.hand_stretch(stretch)
+
+    def precondition(self, message: str) -> None:
+        with self._suspended():
+            click.prompt(f"{message} (press Enter when done)", default="", show_default=False)
+
+    def place_board(self, index: int, n_views: int) -> None:
+        with self._suspended():
+            click.prompt(f"Calibration: place the board in pose {index + 1}/{n_views} (vary position and tilt; "
+                         "seen by at least two cameras), then press Enter", default="", show_default=False)
+        if self.hand_board is not None:
+            self.hand_board(index, n_views)
+
+    def remove_board(self) -> None:
+        with self._suspended():
+            click.prompt("Calibration done: remove the board, then press Enter", default="", show_default=False)
+        if self.hand_unboard is not None:
+            self.hand_unboard()
+
+    def choose(self, reason: str, options: Sequence[str]) -> str:
+        with self._suspended():
+            self.console.print(f"[bold yellow]{reason}[/]")
+            return click.prompt("Choose", type=click.Choice(list(options)), default=options[0])
+
+    def notify(self, message: str) -> None:
+        self.console.log(message)
+
+    def ask_text(self, prompt: str) -> str:
+        with self._suspended():
+            return click.prompt(prompt, default="", show_default=False)
+
+
+class _Null:
+    def __enter__(self):
+        return None
+
+    def __exit__(self, *exc):
+        return None

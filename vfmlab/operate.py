@@ -1,0 +1,312 @@
+"""Operating a session from the command line: ``vfmlab run`` and ``vfmlab resume`` share this.
+
+Loads and validates the files (before anything moves), assembles the rig (real or ``--sim``),
+creates or reopens the session file, runs :class:`acquisition.runner.SessionRunner` under the
+live view with Ctrl-C mapped to a pause, and reports the outcome.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import signal
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+from rich.console import Console
+
+from acquisition.cameras import CameraError
+from acquisition.protocol import (MMHG, ConfigError, Protocol, RigConfig, SpecimenFile, load_protocol, load_rig,
+                                  load_specimen, parse_protocol, parse_rig)
+from acquisition.runner import AutoOperator, RunnerState, SessionRunner, completed_steps
+from acquisition.session import CameraSpec, SessionError, SessionWriter, SpecimenInfo, open_session
+from vfmlab.bench import Bench, BenchError, open_bench
+from vfmlab.live import LiveView, TerminalOperator, format_duration
+
+__all__ = ["OperateError", "Outcome", "run_session", "resume_session", "DEFAULT_SIM_RIG"]
+
+log = logging.getLogger(__name__)
+
+#: The simulated rig used by ``--sim`` when no ``--rig`` file is given (same as examples/sim-rig.toml).
+DEFAULT_SIM_RIG = """
+[rig]
+name = "simulated rig"
+[pressure]
+port = "sim"
+mode = "controller"
+[load_cell]
+port = "sim"
+measures = "wall"
+[[camera]]
+name = "cam0"
+backend = "sim"
+settings = { width = 640, height = 480 }
+[[camera]]
+name = "cam1"
+backend = "sim"
+settings = { width = 640, height = 480 }
+[[camera]]
+name = "cam2"
+backend = "sim"
+settings = { width = 640, height = 480 }
+[[camera]]
+name = "cam3"
+backend = "sim"
+settings = { width = 640, height = 480 }
+[safety]
+max_pressure_mmHg = 200
+max_stretch = 1.5
+max_force_N = 50
+"""
+
+
+class OperateError(RuntimeError):
+    """A user-facing failure (bad file, missing instrument, identity mismatch); exit code 1."""
+
+
+@dataclass
+class Outcome:
+    status: str  # complete | aborted | interrupted
+    path: Path
+    n_steps: int
+    elapsed_s: float
+
+
+def _sim_bench(rig: RigConfig, specimen: SpecimenFile, protocol: Protocol, sim_speed: float):
+    from vfmlab.simrig import SimBench
+
+    return SimBench(rig, specimen, protocol, time_scale=sim_speed)
+
+
+def _load_rig(rig_path: str | None, sim: bool) -> RigConfig:
+    if rig_path:
+        rig = load_rig(rig_path)
+    elif sim:
+        rig = parse_rig(DEFAULT_SIM_RIG, text=DEFAULT_SIM_RIG, source="<built-in simulated rig>")
+    else:
+        raise OperateError("no rig: give --rig RIG.toml (ports, cameras, limits) or --sim")
+    if rig.simulated and not sim:
+        raise OperateError(f"{rig.source} describes the simulated rig (port = \"sim\"); add --sim")
+    return rig
+
+
+def _camera_specs(bench: Bench) -> list[CameraSpec]:
+    """Grab one frame per camera (they must all work before anything moves) -> CameraSpec."""
+    specs = []
+    for cam in bench.cameras:
+        try:
+            frame = cam.grab(5.0)
+        except CameraError as exc:
+            raise OperateError(f"camera check failed: {exc}") from exc
+        h, w = frame.pixels.shape
+        specs.append(CameraSpec(cam.name, cam.identity or cam.backend, w, h, str(frame.pixels.dtype)))
+    return specs
+
+
+@contextlib.contextmanager
+def _sigint_pauses(runner: SessionRunner, console: Console):
+    """Ctrl-C -> pause at the next safe point; a second Ctrl-C before it is handled -> hard stop."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    pending = {"n": 0}
+
+    def handler(signum, frame):
+        pending["n"] += 1
+        if runner._pause_requested and pending["n"] > 1:
+            raise KeyboardInterrupt
+        console.print("[yellow]Ctrl-C: pausing at the next safe point (Ctrl-C again to stop at once)[/]")
+        runner.request_pause()
+
+    old = signal.signal(signal.SIGINT, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
+
+
+def _execute(runner_kwargs: dict[str, Any], protocol: Protocol, writer: SessionWriter, bench: Bench,
+             console: Console, yes: bool, start_step: int, precondition: bool, calibrate: bool,
+             detector: Callable[[np.ndarray], int] | None,
+             observer: Callable[[RunnerState, Bench], None] | None = None) -> SessionRunner:
+    live = console.is_terminal
+    view = LiveView(console, title=f"vfmlab run · {writer.path.name}") if live else None
+    if yes:
+        operator = AutoOperator(set_pressure=bench.operator_pressure, set_stretch=bench.stage,
+                                place_board=bench.place_board, remove_board=bench.remove_board)
+    else:
+        operator = TerminalOperator(console, view, hand_pressure=bench.operator_pressure, hand_stretch=bench.stage,
+                                    hand_board=bench.place_board, hand_unboard=bench.remove_board)
+    last = {"steps": start_step}
+
+    def on_update(state: RunnerState) -> None:
+        if observer is not None:
+            observer(state, bench)
+        if view is not None:
+            view.update(state)
+        elif state.steps_done != last["steps"]:
+            last["steps"] = state.steps_done
+            console.print(f"step {state.steps_done}/{state.n_steps}: block {state.block + 1}, "
+                          f"L/L0 {state.stretch:.3f}, {state.pressure / MMHG:.1f} mmHg, {state.force:.4f} N, "
+                          f"remaining ~{format_duration(state.remaining_s)}")
+
+    runner = SessionRunner(protocol, writer, pressure=bench.pressure, sampler=bench.sampler, cameras=bench.cameras,
+                           operator=operator, pressure_mode=bench.config.pressure.mode, stage=bench.stage,
+                           safety=bench.config.safety, detector=detector, on_update=on_update, **runner_kwargs)
+    with _sigint_pauses(runner, console), (view if view is not None else contextlib.nullcontext()):
+        runner.run(start_step=start_step, precondition=precondition, calibrate=calibrate)
+    runner.state.message = runner.status
+    return runner
+
+
+def run_session(protocol_path: str, specimen_path: str, out: str, *, rig_path: str | None = None,
+                sim: bool = False, yes: bool = False, sim_speed: float = 1.0, console: Console,
+                detector: Callable[[np.ndarray], int] | None = None,
+                observer: Callable[[RunnerState, Bench], None] | None = None, **runner_kwargs: Any) -> Outcome:
+    """``vfmlab run``: validate, assemble the rig, create the session file and run the protocol.
+
+    ``observer(state, bench)`` is called at every runner update (tests inject faults with it).
+    """
+    try:
+        rig = _load_rig(rig_path, sim)
+        protocol = load_protocol(protocol_path, rig)
+        specimen = load_specimen(specimen_path)
+    except ConfigError as exc:
+        raise OperateError(str(exc)) from None
+    out_path = Path(out)
+    if out_path.exists():
+        raise OperateError(f"{out_path}: file exists; refusing to overwrite a session (choose another --out, "
+                           f"or 'vfmlab resume {out_path}' to continue it)")
+    pc = protocol.preconditioning
+    test_blocks = protocol.blocks[int(protocol.has_reference):]
+    console.print(f"[bold]{protocol.name}[/]: {protocol.n_steps} steps: "
+                  + ("stress-free reference, then " if protocol.has_reference else "")
+                  + f"{len(test_blocks)} block(s) at L/L0 {', '.join(f'{b.stretch:g}' for b in test_blocks)}; "
+                  f"{protocol.calibration.views} calibration views; preconditioning "
+                  f"{pc.pressure_cycles} x 0-{pc.pressure_max / MMHG:.0f} mmHg, {pc.stretch_cycles} x L/L0 "
+                  f"1-{pc.stretch_max:g}; specimen {specimen.specimen_id}; rig {rig.name}")
+    with contextlib.ExitStack() as stack:
+        simbench = stack.enter_context(_sim_bench(rig, specimen, protocol, sim_speed)) if sim else None
+        try:
+            bench = stack.enter_context(open_bench(rig, simbench))
+        except (BenchError, CameraError) as exc:
+            raise OperateError(str(exc)) from None
+        specs = _camera_specs(bench)
+        names = protocol.camera_names(rig)
+        specs = [s for s in specs if s.name in names]
+        bench.cameras = [c for c in bench.cameras if c.name in names]
+        if not yes and not TerminalOperator(console).choose("Start the test? Nothing has moved yet.",
+                                                           ["start", "cancel"]) == "start":
+            raise OperateError("cancelled by the operator before the start; no file written")
+        try:
+            writer = SessionWriter.create(
+                out_path, SpecimenInfo(specimen.specimen_id, specimen.radius, specimen.length, specimen.thickness,
+                                       specimen.notes),
+                cameras=specs, protocol_text=protocol.text, rig=bench.rig_record(), instruments=bench.instruments(),
+                load_cell_measures=rig.load_cell.measures)
+        except (SessionError, OSError) as exc:
+            raise OperateError(str(exc)) from None
+        runner = _execute(runner_kwargs, protocol, writer, bench, console, yes, 0, True, True, detector,
+                          observer)
+    return _report(runner, out_path, console)
+
+
+def resume_session(path: str, *, rig_path: str | None = None, sim: bool = False, yes: bool = False,
+                   sim_speed: float = 1.0, console: Console, detector: Callable[[np.ndarray], int] | None = None,
+                   observer: Callable[[RunnerState, Bench], None] | None = None, **runner_kwargs: Any) -> Outcome:
+    """``vfmlab resume``: continue an interrupted session from its last completed step."""
+    try:
+        with open_session(path) as s:
+            status = s.status
+            protocol_text, rig_settings = s.protocol_text, s.rig_settings
+            info = s.specimen
+            stored = s.instruments
+            camera_names = s.camera_names
+            start = completed_steps(s.steps)
+            kinds = [e["kind"] for e in s.events()]
+    except SessionError as exc:
+        raise OperateError(str(exc)) from None
+    if status != "interrupted":
+        raise OperateError(f"{path}: session status is {status!r}; only an interrupted session can be resumed")
+    try:
+        if rig_path:
+            rig = load_rig(rig_path)
+        else:
+            text = rig_settings.get("config_text", "")
+            if not text:
+                raise OperateError(f"{path}: the session does not hold its rig file; give --rig RIG.toml")
+            rig = parse_rig(text, text=text, source=f"{Path(path).name}:rig")
+        if rig.simulated and not sim:
+            raise OperateError(f"{path} was recorded on the simulated rig; resume it with --sim")
+        protocol = parse_protocol(protocol_text, text=protocol_text, source=f"{Path(path).name}:protocol", rig=rig)
+    except ConfigError as exc:
+        raise OperateError(str(exc)) from None
+    specimen = SpecimenFile(info.specimen_id, info.radius, info.length, info.thickness, info.notes)
+    done_pre = "preconditioning_done" in kinds or start > 0
+    done_cal = "calibration_done" in kinds or "preconditioning" in kinds or start > 0
+    console.print(f"Resuming {path}: {start}/{protocol.n_steps} steps done"
+                  + ("" if done_pre else "; preconditioning will be redone"))
+    if start >= protocol.n_steps:
+        console.print("every step is already captured; closing the session as complete")
+    with contextlib.ExitStack() as stack:
+        simbench = stack.enter_context(_sim_bench(rig, specimen, protocol, sim_speed)) if sim else None
+        try:
+            bench = stack.enter_context(open_bench(rig, simbench))
+        except (BenchError, CameraError) as exc:
+            raise OperateError(str(exc)) from None
+        for role, driver in (("pressure", bench.pressure), ("load_cell", bench.load_cell)):
+            was = stored.get(role, {}).get("identity", "")
+            if was and was != driver.identity:
+                raise OperateError(f"{role}: the session was recorded with {was!r} but the port now answers "
+                                   f"{driver.identity!r}; connect the same instrument (or start a new session)")
+        bench.cameras = [c for c in bench.cameras if c.name in camera_names]
+        missing = sorted(set(camera_names) - {c.name for c in bench.cameras})
+        if missing:
+            raise OperateError(f"cameras {missing} of the session are not in the rig file")
+        _camera_specs(bench)
+        try:
+            writer = SessionWriter.resume(path)
+        except SessionError as exc:
+            raise OperateError(str(exc)) from None
+        writer.add_event("resume", f"resuming at step {start}/{protocol.n_steps}; instruments "
+                                   f"{bench.pressure.identity!r}, {bench.load_cell.identity!r}")
+        runner = _execute(runner_kwargs, protocol, writer, bench, console, yes, start, not done_pre, not done_cal,
+                          detector, observer)
+    return _report(runner, Path(path), console)
+
+
+def _report(runner: SessionRunner, path: Path, console: Console) -> Outcome:
+    with open_session(path) as s:
+        n = s.n_steps
+    status = runner.status
+    style = {"complete": "green", "aborted": "red", "interrupted": "yellow"}[status]
+    console.print(f"[bold {style}]Session {status}[/]: {path} ({n} step rows, "
+                  f"{format_duration(runner.state.elapsed_s)})")
+    if status == "interrupted":
+        console.print(f"Continue with: vfmlab resume {path}" + (" --sim" if runner.stage is not None else ""))
+    return Outcome(status, path, n, runner.state.elapsed_s)
+
+
+def detector_from_reconstruction() -> Callable[[np.ndarray], int] | None:
+    """Marker counter for the live view (reconstruction's detector), or None if unavailable."""
+    try:
+        from reconstruction.detection import detect_markers
+    except ImportError:
+        return None
+
+    def count(image: np.ndarray) -> int:
+        try:
+            return len(detect_markers(image))
+        except Exception:  # noqa: BLE001 - the live view must not stop a test
+            return -1
+
+    return count
+
+
+def as_json(outcome: Outcome) -> str:
+    return json.dumps({"status": outcome.status, "path": str(outcome.path), "n_steps": outcome.n_steps,
+                       "elapsed_s": outcome.elapsed_s})

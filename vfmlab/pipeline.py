@@ -1,0 +1,225 @@
+"""Pipeline stages over session files: the functions the CLI commands, ``reprocess`` and the demo share.
+
+Each stage reads what it needs from a session file, runs a stage package on the arrays and appends
+one new result group (never overwriting); it returns the group's name. The registry ``STAGES`` maps
+stage names to these functions so that ``vfmlab reprocess --stages reconstruct,identify`` runs
+exactly the code ``vfmlab reconstruct`` / ``vfmlab identify`` run.
+
+Errors: :class:`StageError` with one readable sentence (session path first).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from acquisition.session import SessionError, open_session, write_result
+
+log = logging.getLogger(__name__)
+
+__all__ = ["STAGES", "StageError", "StageUnavailable", "identify_session", "load_identification_inputs",
+           "reconstruct_session"]
+
+
+class StageError(Exception):
+    """A stage could not run on a session (missing input, failed computation)."""
+
+
+class StageUnavailable(StageError):
+    """The stage's implementation is not installed in this build."""
+
+
+def load_identification_inputs(session, markers: str | None = None) -> dict[str, Any]:
+    """What the identification needs from an open session, from the latest (or named) markers result.
+
+    Returns positions (n_steps, n_markers, 3) m (NaN where not visible), pressure (n_steps,) Pa,
+    force (n_steps,) N (wall force: a "total" load-cell reading is corrected by + p pi r_i^2 with
+    the reference lumen radius r_i = radius - thickness, decision 0003), thickness m, rows
+    (n_steps,) rows of the step table, markers_result name and notes (corrections applied).
+    """
+    names = session.results("markers")
+    if markers is not None and markers not in names:
+        raise StageError(f"{session.path}: no markers result {markers!r}; markers results are {names}")
+    if not names:
+        raise StageError(f"{session.path}: no marker tracks yet; run 'vfmlab reconstruct' first "
+                         "(or build the session with 'vfmlab import-markers')")
+    result = session.result(markers or names[-1])
+    arrays = result["arrays"]
+    if "positions" not in arrays:
+        raise StageError(f"{session.path}: the markers result {result['name']} has no 'positions' array")
+    positions = np.asarray(arrays["positions"], dtype=float)
+    if "visible" in arrays:
+        positions = np.where(np.asarray(arrays["visible"], bool)[..., None], positions, np.nan)
+    rows = np.asarray(arrays.get("step_index", np.arange(positions.shape[0])), int)
+    if rows.size != positions.shape[0] or (rows.size and (rows.max() >= session.n_steps or rows.min() < 0)):
+        raise StageError(f"{session.path}: markers result {result['name']} refers to steps {rows.tolist()} but the "
+                         f"session has {session.n_steps} steps")
+    steps = session.steps
+    pressure = np.asarray(steps["pressure"], float)[rows]
+    force = np.asarray(steps["force"], float)[rows]
+    specimen = session.specimen
+    notes = []
+    if session.load_cell_measures == "total":
+        r_i = specimen.radius - specimen.thickness
+        force = force + pressure * np.pi * r_i**2
+        notes.append(f"load cell measures total force: wall force = total + p*pi*r_i^2 with r_i = {r_i * 1e3:.3f} mm")
+    return {"positions": positions, "pressure": pressure, "force": force, "thickness": float(specimen.thickness),
+            "markers_result": result["name"], "rows": rows, "notes": notes}
+
+
+def identify_session(path: str | os.PathLike, *, model: str = "fung", wall: str = "membrane", ends: str = "clamped",
+                     optimizer: str = "lsq", smoothing: tuple[int, int] | None = None, markers: str | None = None,
+                     invoked_by: str = "pipeline") -> str:
+    """Identify ``model`` from the session's marker tracks with the VFM and store an "identification" result.
+
+    Parameters
+    ----------
+    path : session file.
+    model : "fung" | "delfino" | "hgo" | "neohookean".
+    wall : "membrane" | "thick".
+    ends : "clamped" | "free".
+    optimizer : "lsq" | "nelder-mead".
+    smoothing : (axial Legendre degree, circumferential harmonics) to smooth the measured
+        displacements first (``vfmlab identify --smooth``), or None.
+    markers : markers result to use (default: the latest).
+    invoked_by : recorded in the result's attributes (e.g. "identify", "reprocess").
+
+    Returns
+    -------
+    Name of the new result group, e.g. "identification_003".
+    """
+    try:
+        from identification import IdentificationError, identify
+    except ImportError as exc:  # pragma: no cover - the identification package ships with vfmlab
+        raise StageUnavailable(f"the identification package is not available: {exc}") from None
+    try:
+        with open_session(path) as session:
+            data = load_identification_inputs(session, markers)
+    except SessionError as exc:
+        raise StageError(str(exc)) from None
+    if smoothing is not None:
+        smoothing = tuple(int(v) for v in smoothing)
+        if len(smoothing) != 2 or min(smoothing) < 0:
+            raise StageError(f"smoothing must be two non-negative integers (axial, harmonics); got {smoothing!r}")
+    try:
+        result = identify(data["positions"], data["pressure"], data["force"], thickness=data["thickness"],
+                          model=model, wall=wall, ends=ends, optimizer=optimizer, smoothing=smoothing)
+    except (IdentificationError, ValueError) as exc:
+        raise StageError(f"{path}: cannot identify {model}: {exc}") from None
+    names = list(result.parameters)
+    arrays = {
+        "parameters": np.array([result.parameters[n] for n in names]),
+        "stderr": np.array([result.stderr[n] for n in names]),
+        "parameter_names": np.array(names, dtype=object).astype(str),
+        "correlation": result.correlation,
+        "ivw": result.ivw,
+        "evw": result.evw,
+        "residuals": result.residuals,
+        "step_index": data["rows"],
+    }
+    settings = {"model": model, "wall": wall, "ends": ends, "optimizer": optimizer, "smoothing": smoothing,
+                "markers_result": data["markers_result"], "thickness": data["thickness"],
+                "force_correction": data["notes"]}
+    attrs = {"model": model, "wall": wall, "cost": result.cost, "converged": result.converged,
+             "flags": list(result.flags), "message": result.message, "n_evaluations": result.n_evaluations,
+             "field_names": list(result.field_names), "invoked_by": invoked_by}
+    try:
+        return write_result(path, "identification", arrays, settings, attrs=attrs,
+                            units={"ivw": "J", "evw": "J", "residuals": "1"})
+    except SessionError as exc:
+        raise StageError(str(exc)) from None
+
+
+def reconstruct_session(path: str | os.PathLike, *, marker_diameter_mm: float | None = None, normals: str = "local",
+                        epipolar_px: float = 2.0, max_reprojection_px: float = 1.5, include_superseded: bool = False,
+                        frame: str = "specimen", flip_axis: bool = False, invoked_by: str = "pipeline") -> str:
+    """Reconstruct and track the 3-D markers of a session from its images and latest calibration.
+
+    The same steps and stored arrays as ``vfmlab reconstruct`` with its defaults (a thin version over
+    ``reconstruction.reconstruct_series``): calibrated session cameras, active steps (or all with
+    ``include_superseded``), marker diameter from the rig settings (default 0.4 mm).
+
+    Returns
+    -------
+    Name of the new "markers" result.
+    """
+    import inspect
+
+    try:
+        from reconstruction.calibration_io import CalibrationFileError, cameras_from_arrays
+        from reconstruction.pipeline import ReconstructionSettings, reconstruct_series
+    except ImportError as exc:  # pragma: no cover - the reconstruction package ships with vfmlab
+        raise StageUnavailable(f"the reconstruction package is not available: {exc}") from None
+    try:
+        session = open_session(path)
+    except SessionError as exc:
+        raise StageError(str(exc)) from None
+    with session as s:
+        calib = s.latest("calibration")
+        if calib is None:
+            raise StageError(f"{path}: no calibration; run 'vfmlab calibrate {path}' first")
+        try:
+            by_name = {c.name: c for c in cameras_from_arrays(calib["arrays"])}
+        except CalibrationFileError as exc:
+            raise StageError(f"{path}: stored calibration {calib['name']} is unusable ({exc})") from None
+        cams = [by_name[n] for n in s.camera_names if n in by_name]
+        if len(cams) < 2:
+            raise StageError(f"{path}: calibration {calib['name']} covers cameras {sorted(by_name)} but the session "
+                             f"has {s.camera_names}: at least two session cameras must be calibrated")
+        rows = np.arange(s.n_steps) if include_superseded else np.flatnonzero(s.steps["active"])
+        if rows.size == 0:
+            raise StageError(f"{path}: no steps to reconstruct")
+        if marker_diameter_mm is None:
+            marker_diameter_mm = float((s.rig_settings or {}).get("marker_diameter_mm", 0.4))
+        try:
+            settings = ReconstructionSettings(marker_diameter=marker_diameter_mm * 1e-3,
+                                              specimen_radius=s.specimen.radius, normals=normals,
+                                              epipolar_px=epipolar_px, max_reprojection_px=max_reprojection_px)
+        except ValueError as exc:
+            raise StageError(f"{path}: {exc}") from None
+        names = [c.name for c in cams]
+        extra = {}
+        accepted = inspect.signature(reconstruct_series).parameters
+        if "frame" in accepted:
+            extra["frame"] = frame
+        if "axis_sign" in accepted:
+            extra["axis_sign"] = -1 if flip_axis else 1
+        try:
+            res = reconstruct_series(lambda k: {n: s.image(n, int(rows[k])) for n in names}, cams, settings,
+                                     n_steps=int(rows.size), **extra)
+        except ValueError as exc:
+            raise StageError(f"{path}: reconstruction failed: {exc}") from None
+    d = res.diagnostics
+    arrays = {"positions": res.positions, "visible": res.visible, "uncertainty": res.uncertainty,
+              "marker_id": res.marker_id, "step_index": rows.astype(np.int64), "centres": res.centres,
+              "n_views": res.n_views, "reprojection_rms": res.reprojection_rms,
+              "camera_names": np.array(names, dtype=object), "detected": d["detected"], "rejects": d["rejects"],
+              "reject_reasons": np.array(d["reject_reasons"], dtype=object)}
+    if hasattr(res, "world_to_rig"):
+        arrays["world_to_rig"] = res.world_to_rig
+    params = {"marker_diameter_mm": marker_diameter_mm, "calibration": f"session result {calib['name']}",
+              "frame": frame, "flip_axis": flip_axis, "normals": normals, "epipolar_px": epipolar_px,
+              "max_reprojection_px": max_reprojection_px, "include_superseded": include_superseded}
+    attrs = {"tracked_per_step": np.asarray(d["tracked"]).tolist(), "lost_per_step": np.asarray(d["lost"]).tolist(),
+             "swaps_detected": int(np.sum(d["swaps"])), "sigma_px": np.asarray(d["sigma_px"]).tolist(),
+             "invoked_by": invoked_by}
+    try:
+        return write_result(path, "markers", arrays, params, attrs,
+                            units={"positions": "m", "centres": "m", "uncertainty": "m", "reprojection_rms": "px",
+                                   "world_to_rig": "m"})
+    except SessionError as exc:
+        raise StageError(str(exc)) from None
+
+
+#: Stage name -> function(path, **settings) -> result group name.
+STAGES: dict[str, Callable[..., str]] = {
+    "reconstruct": reconstruct_session,
+    "identify": identify_session,
+}
+
+#: Order in which stages run when several are requested.
+STAGE_ORDER = ("reconstruct", "identify")

@@ -1,0 +1,109 @@
+"""Listing and comparing the derived results stored in a session (``/entry/results/<kind>_NNN``)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from acquisition.session import Session, SessionError
+
+__all__ = ["summarize_result", "list_results", "compare_results", "identification_parameters"]
+
+
+def identification_parameters(result: dict[str, Any]) -> dict[str, dict[str, float]]:
+    """``{name: {"value", "stderr"}}`` of an "identification" result (SI)."""
+    a = result["arrays"]
+    names = [str(n) for n in a.get("parameter_names", [])]
+    values = np.asarray(a.get("parameters", []), float).ravel()
+    stderr = np.asarray(a.get("stderr", np.full(len(values), np.nan)), float).ravel()
+    if len(names) != len(values):
+        names = [f"p{i}" for i in range(len(values))]
+    if len(stderr) != len(values):
+        stderr = np.full(len(values), np.nan)
+    return {n: {"value": float(v), "stderr": float(s)} for n, v, s in zip(names, values, stderr)}
+
+
+def _scalar(value: Any) -> Any:
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def summarize_result(result: dict[str, Any]) -> dict[str, Any]:
+    """One row describing a result: name, kind, date, version, settings and the key figures of its kind."""
+    attrs = result["attrs"]
+    row: dict[str, Any] = {
+        "name": result["name"], "kind": result["kind"], "date": str(attrs.get("date", "")),
+        "version": str(attrs.get("version", "")), "settings": dict(result["parameters"]),
+    }
+    a = result["arrays"]
+    kind = result["kind"]
+    if kind == "identification":
+        row.update(model=str(attrs.get("model", "")), wall=str(attrs.get("wall", "")),
+                   cost=_scalar(attrs.get("cost")), converged=bool(attrs.get("converged", False)),
+                   flags=attrs.get("flags", {}), parameters=identification_parameters(result))
+    elif kind == "markers" and "positions" in a:
+        pos = np.asarray(a["positions"])
+        visible = np.asarray(a.get("visible", np.isfinite(pos).all(axis=-1)), bool)
+        row.update(n_steps=int(pos.shape[0]), n_markers=int(pos.shape[1]),
+                   completeness=float(visible.mean()) if visible.size else 0.0)
+    elif kind == "calibration" and "rms" in a:
+        row.update(cameras=[str(c) for c in a.get("camera_names", [])],
+                   rms_px=[float(v) for v in np.asarray(a["rms"], float).ravel()])
+    return row
+
+
+def list_results(session: Session, kind: str | None = None) -> list[dict[str, Any]]:
+    """Summaries of every result of the session (oldest first), optionally of one kind."""
+    return [summarize_result(session.result(name)) for name in session.results(kind)]
+
+
+def _diff_settings(a: dict[str, Any], b: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    keys = sorted(set(a) | set(b))
+    return {k: {"a": a.get(k), "b": b.get(k)} for k in keys if a.get(k) != b.get(k)}
+
+
+def compare_results(session: Session, name_a: str, name_b: str) -> dict[str, Any]:
+    """Compare two results: settings that differ and, by kind, the differences of their outputs.
+
+    identification: per parameter a, b, b - a, relative difference and the difference in units of
+    the combined standard error; markers: RMS and max distance between the positions both measured.
+    """
+    known = session.results()
+    for name in (name_a, name_b):
+        if name not in known:
+            raise SessionError(f"{session.path}: no result {name!r}; results are {known}")
+    ra, rb = session.result(name_a), session.result(name_b)
+    out: dict[str, Any] = {"a": summarize_result(ra), "b": summarize_result(rb),
+                           "settings_diff": _diff_settings(ra["parameters"], rb["parameters"])}
+    attr_keys = ("model", "wall", "cost", "converged", "version")
+    out["attrs_diff"] = {k: {"a": _scalar(ra["attrs"].get(k)), "b": _scalar(rb["attrs"].get(k))} for k in attr_keys
+                         if _scalar(ra["attrs"].get(k)) != _scalar(rb["attrs"].get(k))}
+    if ra["kind"] != rb["kind"]:
+        out["note"] = f"different kinds ({ra['kind']} vs {rb['kind']}): only settings are compared"
+        return out
+    if ra["kind"] == "identification":
+        pa, pb = identification_parameters(ra), identification_parameters(rb)
+        rows = {}
+        for n in list(pa) + [n for n in pb if n not in pa]:
+            va = pa.get(n, {}).get("value", np.nan)
+            vb = pb.get(n, {}).get("value", np.nan)
+            sa = pa.get(n, {}).get("stderr", np.nan)
+            sb = pb.get(n, {}).get("stderr", np.nan)
+            diff = vb - va
+            se = float(np.hypot(sa, sb))
+            rows[n] = {"a": va, "b": vb, "diff": diff, "rel_diff": diff / abs(va) if va else np.nan,
+                       "diff_over_stderr": diff / se if se > 0 else np.nan}
+        out["parameters"] = rows
+    elif ra["kind"] == "markers":
+        xa, xb = np.asarray(ra["arrays"]["positions"], float), np.asarray(rb["arrays"]["positions"], float)
+        if xa.shape == xb.shape:
+            d = np.linalg.norm(xb - xa, axis=-1)
+            both = np.isfinite(d)
+            out["positions"] = {"common_marker_steps": int(both.sum()),
+                                "rms_distance_m": float(np.sqrt(np.mean(d[both] ** 2))) if both.any() else np.nan,
+                                "max_distance_m": float(d[both].max()) if both.any() else np.nan}
+        else:
+            out["positions"] = {"note": f"shapes differ: {xa.shape} vs {xb.shape}"}
+    return out
