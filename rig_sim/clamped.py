@@ -376,7 +376,8 @@ def _package(res, model, law, params, p, stretch, rc, radius, thickness, length,
     fun = _make_problem(law, params, p * radius / (thickness * s0), rc / radius, 0.0, s0)[0]
     eps = 1e-7 * (x[-1] - x[0])
     # second derivatives (1/m) for the Hermite data of the slopes: centred differences of the exact slope map
-    ap, bp = (np.asarray(fun(x, res.y + d * res.yp * eps)[0:2]) for d in (1.0, -1.0))
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        ap, bp = (np.asarray(fun(x, res.y + d * res.yp * eps)[0:2]) for d in (1.0, -1.0))
     curv = (ap - bp) / (2 * eps) / radius
     y = np.vstack([r * radius, z * radius, a, b])
     yp = np.vstack([a, b, curv])

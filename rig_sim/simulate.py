@@ -8,6 +8,7 @@ point of the marker surface: (theta, Z), Z in [-length/2, length/2]. Step 0 is t
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from dataclasses import dataclass, field
@@ -123,7 +124,8 @@ class SimulatedTest:
         Zq = np.asarray(Z, dtype=float)
         half = 0.5 * self.length
         if np.any(np.abs(Zq) > half * (1 + 1e-12)):
-            raise ValueError(f"Z must lie within [-{half}, {half}] m (the specimen); got values up to {np.abs(Zq).max()}")
+            raise ValueError(f"Z must lie within [-{half}, {half}] m (the specimen); "
+                             f"got values up to {np.abs(Zq).max()}")
         rs = CubicHermiteSpline(self.profile_Z, self.profile_r[s], self.profile_drdZ[s])
         zs = CubicHermiteSpline(self.profile_Z, self.profile_z[s], self.profile_dzdZ[s])
         return rs(Zq), zs(Zq), rs(Zq, 1), zs(Zq, 1)
@@ -154,6 +156,24 @@ class SimulatedTest:
             return np.full(Zq.shape, self.axial_force[s])
         r, _, _, _ = self.profile(s, Zq)
         return self.transducer_force[s] + self.pressure[s] * np.pi * r * r
+
+
+@functools.lru_cache(maxsize=32)
+def _clamped_block(model, params_items, pressures, stretch, radius, thickness, length, bvp_nodes, bvp_tol, n_profile):
+    """Clamped-tube profiles for one stretch block, cached: repeated simulations (noise seeds, layouts) reuse them.
+
+    Returns read-only arrays r, z, dr/dZ, dz/dZ of shape (n_pressures, n_profile), end wall force and clamp radius
+    of shape (n_pressures,).
+    """
+    from .clamped import solve_clamped  # local import: the BVP solver is only needed here
+
+    sols = solve_clamped(model, dict(params_items), np.asarray(pressures), stretch, radius=radius,
+                         thickness=thickness, length=length, n_nodes=bvp_nodes, tol=bvp_tol)
+    zp = np.linspace(-0.5 * length, 0.5 * length, n_profile)
+    prof = np.array([np.stack(sol.evaluate(zp)) for sol in sols])  # (n_p, 4, n_profile)
+    out = [prof[:, i] for i in range(4)]
+    out += [np.array([sol.end_wall_force for sol in sols]), np.array([sol.clamp_radius for sol in sols])]
+    return tuple(_ro(a) for a in out)
 
 
 def _validate(model, params, radius, length, thickness, stretches, pressures, n_markers, wall, noise_std, margin):
@@ -249,15 +269,11 @@ def simulate_test(model: str, params: Mapping[str, float], *, radius: float = 10
         sl = slice(1 + b * pr.size, 1 + (b + 1) * pr.size)
         pressure[sl], stretch[sl] = pr, lam
         if clamped:
-            from .clamped import solve_clamped  # local import: the BVP solver is only needed here
-
-            sols = solve_clamped(model, p, pr, lam, radius=radius, thickness=thickness, length=length,
-                                 n_nodes=bvp_nodes, tol=bvp_tol)
-            for j, sol in enumerate(sols):
-                k = sl.start + j
-                prof["r"][k], prof["z"][k], prof["drdZ"][k], prof["dzdZ"][k] = sol.evaluate(Zp)
-                force[k] = sol.end_wall_force
-                lumen[k] = sol.clamp_radius
+            cached = _clamped_block(model, tuple(p.items()), tuple(pr.tolist()), float(lam), float(radius),
+                                    float(thickness), float(length), int(bvp_nodes), float(bvp_tol), int(n_profile))
+            for key, arr in zip(("r", "z", "drdZ", "dzdZ"), cached[:4]):
+                prof[key][sl] = arr
+            force[sl], lumen[sl] = cached[4], cached[5]
         else:
             if wall == "membrane":
                 state = inflate_membrane(model, p, pr, lam, radius=radius, thickness=thickness)

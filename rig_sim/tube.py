@@ -215,7 +215,7 @@ class ThickState:
 
 
 def _thick_integrals(model, params, lam_outer, lam_z, radius, thickness, n_quad):
-    """Return p, N, r_i, r_o, mean sigma_rr for outer stretches lam_outer (n,) via Gauss-Legendre in reference radius."""
+    """p, N, r_i, r_o, mean sigma_rr for outer stretches lam_outer (n,); Gauss-Legendre in the reference radius."""
     lo = np.atleast_1d(np.asarray(lam_outer, dtype=float))
     ro_ref, ri_ref = radius, radius - thickness
     ro = lo * ro_ref
@@ -264,7 +264,10 @@ def thick_tube_state(model: str, params: Mapping[str, float], lam_outer, lam_z: 
 
 def inflate_thick(model: str, params: Mapping[str, float], pressure, lam_z: float, *, radius: float,
                   thickness: float, n_quad: int = 24) -> ThickState:
-    """Solve the thick-wall tube for the outer stretch at each lumen pressure (stable branch); see ``thick_tube_state``."""
+    """Solve the thick-wall tube for the outer stretch at each lumen pressure (stable branch).
+
+    Same arguments and result as ``thick_tube_state``, with ``pressure`` (n,) Pa instead of the outer stretch.
+    """
     params = check_params(model, params)
     _check_geometry(radius, thickness)
     lam_z = float(lam_z)

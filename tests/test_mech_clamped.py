@@ -103,6 +103,10 @@ def test_simulate_clamped_markers_on_profile():
     # heterogeneous: the circumferential stretch varies along the measured region
     rk = r[3] / R
     assert rk.max() - rk.min() > 0.02
+    # a second simulation (other layout, cached BVP) sees the same tube
+    other = simulate_test("fung", PAPER_PARAMETERS["fung"], stretches=(1.2,), pressures=P3, n_markers=80, seed=1)
+    np.testing.assert_array_equal(other.profile_r, sim.profile_r)
+    assert not np.array_equal(other.marker_Z, sim.marker_Z)
 
 
 def test_stretch_must_exceed_one():
