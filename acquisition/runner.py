@@ -260,6 +260,7 @@ class SessionRunner:
         self.state = RunnerState(n_steps=protocol.n_steps)
         self._pause_requested = False
         self._stretch: float | None = None
+        self._actuated_at = -math.inf  # clock time of the last stage or pressure command
         self._t_start = clock()
         self._step_times: list[float] = []
         self._last_step: tuple[int, int, float, float] | None = None  # (row, block, stretch, target)
@@ -385,6 +386,7 @@ class SessionRunner:
         """Mean pressure (Pa) and force (N) over the capture plus the end of the stable dwell
         (at most 1 s of it); the latest sample if that window is empty."""
         seconds = window_s + max(min(self.protocol.stability.dwell_s, 1.0), 2 * self.tick_s)
+        seconds = min(seconds, max(self.clock() - self._actuated_at, self.tick_s))  # nothing from before a move
         out = []
         for ch in CHANNELS:
             rec = self.sampler.history(ch, seconds=seconds)
@@ -415,6 +417,7 @@ class SessionRunner:
         else:
             self.operator.set_stretch(stretch)
         self._stretch = stretch
+        self._actuated_at = self.clock()
         self._event("stretch", f"axial stretch set to L/L0 = {stretch:.4f}")
 
     def _set_pressure(self, target: float) -> None:
@@ -424,6 +427,7 @@ class SessionRunner:
             self._command("pressure controller", self.pressure.set_mode, "control")
         else:
             self.operator.set_pressure(target)
+        self._actuated_at = self.clock()
 
     def _command(self, what: str, fn: Callable[..., Any], *args: Any, attempts: int = 3) -> Any:
         """Send a command to an instrument; on an instrument fault pause until it is back, then retry.
@@ -455,7 +459,10 @@ class SessionRunner:
             if self._check_fault():
                 t0 = self.clock()
                 continue
-            if self.sampler.is_stable(stab.band, stab.dwell_s, target):
+            # the dwell starts at the last actuation: samples from before a stage move (the pressure
+            # may already have been stable) say nothing about the state being captured
+            settled = self.clock() - self._actuated_at >= stab.dwell_s
+            if settled and self.sampler.is_stable(stab.band, stab.dwell_s, target):
                 self.state.stable = True
                 self._update()
                 return

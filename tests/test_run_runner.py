@@ -274,3 +274,34 @@ def test_pressure_controller_unplugged_while_commanding(tmp_path):
         st = s.steps
         assert st["t_monotonic"][4] > done[0] + 0.4  # step 5 waited for the controller
         assert np.all(np.abs(st["pressure"] - st["target_pressure"]) < 0.5 * MMHG)
+
+
+def test_readings_come_after_the_stage_moved(tmp_path):
+    """Pressure already stable at 0 when the stage moves to the next stretch: the step's force must be
+    the one at the new stretch, not an average reaching back before the move (fake force law:
+    F = 1e-4 * p + (stretch - 1))."""
+    class SamplerLikeRig(FakeRig):
+        """Stability judged on the samples alone, as acquisition.sampler.Sampler does (the plain fake
+        also waits a dwell after every set-point, which would hide the fault)."""
+
+        def is_stable(self, band, dwell, target=None):
+            self._gen()
+            now = time.monotonic()
+            win = np.array([s[3] for s in self._ring["pressure"] if s[1] >= now - dwell])
+            return bool(win.size >= 2 and np.all(np.abs(win - (win.mean() if target is None else target)) <= band))
+
+    rig = SamplerLikeRig()
+    cams = _cams(rig)
+
+    def stage(stretch):
+        rig._gen()  # samples up to the move were taken at the old stretch (the fake generates lazily)
+        rig.stretch = stretch
+
+    runner = SessionRunner(parse_protocol(PROTO.replace("dwell_s = 0.05", "dwell_s = 0.2")),
+                           _writer(tmp_path / "s.h5", cams), pressure=rig, sampler=rig, cameras=cams,
+                           operator=AutoOperator(), stage=stage, tick_s=0.01)
+    assert runner.run() == "complete"
+    with open_session(tmp_path / "s.h5") as s:
+        st = s.steps
+    expected = rig.force_per_pa * st["pressure"] + (st["stretch"] - 1.0)
+    np.testing.assert_allclose(st["force"], expected, atol=2e-3)
