@@ -10,6 +10,7 @@ Errors: :class:`StageError` with one readable sentence (session path first).
 
 from __future__ import annotations
 
+import inspect
 import logging
 import os
 from collections.abc import Callable
@@ -21,7 +22,7 @@ from acquisition.session import SessionError, open_session, write_result
 
 log = logging.getLogger(__name__)
 
-__all__ = ["STAGES", "StageError", "StageUnavailable", "identify_session", "load_identification_inputs",
+__all__ = ["STAGES", "StageError", "StageUnavailable", "identify_session", "identify_stored", "load_identification_inputs",
            "reconstruct_session"]
 
 
@@ -71,9 +72,9 @@ def load_identification_inputs(session, markers: str | None = None) -> dict[str,
             "markers_result": result["name"], "rows": rows, "notes": notes}
 
 
-def identify_session(path: str | os.PathLike, *, model: str = "fung", wall: str = "membrane", ends: str = "clamped",
-                     optimizer: str = "lsq", smoothing: tuple[int, int] | None = None, markers: str | None = None,
-                     invoked_by: str = "pipeline") -> str:
+def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str = "membrane", ends: str = "clamped",
+                    optimizer: str = "lsq", smoothing: str | tuple[int, int] | None = None, markers: str | None = None,
+                    invoked_by: str = "pipeline") -> tuple[str, Any, dict[str, Any]]:
     """Identify ``model`` from the session's marker tracks with the VFM and store an "identification" result.
 
     Parameters
@@ -84,27 +85,32 @@ def identify_session(path: str | os.PathLike, *, model: str = "fung", wall: str 
     ends : "clamped" | "free".
     optimizer : "lsq" | "nelder-mead".
     smoothing : (axial Legendre degree, circumferential harmonics) to smooth the measured
-        displacements first (``vfmlab identify --smooth``), or None.
+        displacements first, "auto" (smooth only when the estimated marker noise is large), or None.
     markers : markers result to use (default: the latest).
     invoked_by : recorded in the result's attributes (e.g. "identify", "reprocess").
 
     Returns
     -------
-    Name of the new result group, e.g. "identification_003".
+    (group name e.g. "identification_003", the identification result object, the inputs used
+    as returned by :func:`load_identification_inputs`).
     """
     try:
         from identification import IdentificationError, identify
     except ImportError as exc:  # pragma: no cover - the identification package ships with vfmlab
         raise StageUnavailable(f"the identification package is not available: {exc}") from None
+    if smoothing is not None and smoothing != "auto":
+        try:
+            smoothing = tuple(int(v) for v in smoothing)
+        except (TypeError, ValueError):
+            smoothing = ()
+        if len(smoothing) != 2 or min(smoothing) < 0:
+            raise StageError(f"smoothing must be 'auto' or two non-negative integers (axial, harmonics); "
+                             f"got {smoothing!r}")
     try:
         with open_session(path) as session:
             data = load_identification_inputs(session, markers)
     except SessionError as exc:
         raise StageError(str(exc)) from None
-    if smoothing is not None:
-        smoothing = tuple(int(v) for v in smoothing)
-        if len(smoothing) != 2 or min(smoothing) < 0:
-            raise StageError(f"smoothing must be two non-negative integers (axial, harmonics); got {smoothing!r}")
     try:
         result = identify(data["positions"], data["pressure"], data["force"], thickness=data["thickness"],
                           model=model, wall=wall, ends=ends, optimizer=optimizer, smoothing=smoothing)
@@ -128,10 +134,20 @@ def identify_session(path: str | os.PathLike, *, model: str = "fung", wall: str 
              "flags": list(result.flags), "message": result.message, "n_evaluations": result.n_evaluations,
              "field_names": list(result.field_names), "invoked_by": invoked_by}
     try:
-        return write_result(path, "identification", arrays, settings, attrs=attrs,
-                            units={"ivw": "J", "evw": "J", "residuals": "1"})
+        group = write_result(path, "identification", arrays, settings, attrs=attrs,
+                             units={"ivw": "J", "evw": "J", "residuals": "1"})
     except SessionError as exc:
         raise StageError(str(exc)) from None
+    return group, result, data
+
+
+def identify_session(path: str | os.PathLike, **options: Any) -> str:
+    """:func:`identify_stored`, returning only the new result group's name (the ``STAGES`` signature)."""
+    return identify_stored(path, **options)[0]
+
+
+# reprocess checks settings against a stage's keyword parameters: show identify_stored's
+identify_session.__signature__ = inspect.signature(identify_stored).replace(return_annotation=str)
 
 
 def reconstruct_session(path: str | os.PathLike, *, marker_diameter_mm: float | None = None, normals: str = "local",
@@ -147,7 +163,6 @@ def reconstruct_session(path: str | os.PathLike, *, marker_diameter_mm: float | 
     -------
     Name of the new "markers" result.
     """
-    import inspect
 
     try:
         from reconstruction.calibration_io import CalibrationFileError, cameras_from_arrays

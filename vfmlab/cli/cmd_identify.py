@@ -13,40 +13,6 @@ WALL_NOTE = {
 }
 
 
-def load_session_data(session) -> dict:
-    """Positions, pressure and wall force of the steps used by the latest markers result.
-
-    Returns a dict with positions (n_steps, n_markers, 3) m, pressure (n_steps,) Pa, force (n_steps,) N
-    (wall force), thickness m, and notes (list of str) about corrections applied.
-    """
-    from vfmlab.cli._sessions import latest_markers
-
-    markers = latest_markers(session)
-    arrays = markers["arrays"]
-    if "positions" not in arrays:
-        raise CliError(f"{session.path}: the markers result {markers['name']} has no 'positions' array")
-    positions = np.asarray(arrays["positions"], dtype=float)
-    if "visible" in arrays:
-        positions = np.where(np.asarray(arrays["visible"], bool)[..., None], positions, np.nan)
-    steps = session.steps
-    rows = np.asarray(arrays["step_index"], int) if "step_index" in arrays else np.arange(positions.shape[0])
-    if rows.size != positions.shape[0] or (rows.size and (rows.max() >= session.n_steps or rows.min() < 0)):
-        raise CliError(f"{session.path}: markers result {markers['name']} refers to steps {rows.tolist()} but the "
-                       f"session has {session.n_steps} steps")
-    pressure = np.asarray(steps["pressure"], float)[rows]
-    force = np.asarray(steps["force"], float)[rows]
-    specimen = session.specimen
-    notes = []
-    if session.load_cell_measures == "total":
-        # docs/decisions/0003: F_wall = F_total + p pi r_i^2, r_i = lumen radius at the cannula, which we take
-        # as the reference inner radius (specimen radius - thickness): the cannula fixes the lumen there.
-        r_i = specimen.radius - specimen.thickness
-        force = force + pressure * np.pi * r_i**2
-        notes.append(f"load cell measures total force: wall force = total + p*pi*r_i^2 with r_i = {r_i * 1e3:.3f} mm")
-    return {"positions": positions, "pressure": pressure, "force": force, "thickness": float(specimen.thickness),
-            "markers_result": markers["name"], "rows": rows, "notes": notes}
-
-
 @click.command(name="identify")
 @click.argument("session_path", metavar="SESSION", type=click.Path(exists=True, dir_okay=False))
 @click.option("--model", type=click.Choice(["fung", "delfino", "hgo", "neohookean"]), default="fung",
@@ -67,9 +33,7 @@ def command(session_path, model, wall, ends, optimizer, smooth, as_json):
 
     Units: parameters in SI (Pa, rad); the table shows kPa and degrees.
     """
-    from acquisition.session import SessionError, write_result
-    from identification import IdentificationError, identify
-    from vfmlab.cli._sessions import cli_session
+    from vfmlab.pipeline import StageError, identify_stored
 
     smoothing = None
     if smooth == "auto":
@@ -81,35 +45,12 @@ def command(session_path, model, wall, ends, optimizer, smooth, as_json):
                 raise ValueError
         except ValueError:
             raise CliError(f"--smooth must be two non-negative integers AXIAL,HARMONICS like 4,2; got {smooth!r}")
-    with cli_session(session_path) as session:
-        data = load_session_data(session)
     try:
-        result = identify(data["positions"], data["pressure"], data["force"], thickness=data["thickness"],
-                          model=model, wall=wall, ends=ends, optimizer=optimizer, smoothing=smoothing)
-    except IdentificationError as exc:
-        raise CliError(f"{session_path}: cannot identify: {exc}") from None
-    names = list(result.parameters)
-    arrays = {
-        "parameters": np.array([result.parameters[n] for n in names]),
-        "stderr": np.array([result.stderr[n] for n in names]),
-        "parameter_names": np.array(names, dtype=object).astype(str),
-        "correlation": result.correlation,
-        "ivw": result.ivw,
-        "evw": result.evw,
-        "residuals": result.residuals,
-        "step_index": data["rows"],
-    }
-    settings = {"model": model, "wall": wall, "ends": ends, "optimizer": optimizer, "smoothing": smoothing,
-                "markers_result": data["markers_result"], "thickness": data["thickness"],
-                "force_correction": data["notes"]}
-    attrs = {"model": model, "wall": wall, "cost": result.cost, "converged": result.converged,
-             "flags": list(result.flags), "message": result.message, "n_evaluations": result.n_evaluations,
-             "field_names": list(result.field_names)}
-    try:
-        group = write_result(session_path, "identification", arrays, settings, attrs=attrs,
-                             units={"ivw": "J", "evw": "J", "residuals": "1"})
-    except SessionError as exc:
+        group, result, data = identify_stored(session_path, model=model, wall=wall, ends=ends, optimizer=optimizer,
+                                              smoothing=smoothing, invoked_by="identify")
+    except StageError as exc:
         raise CliError(str(exc)) from None
+    names = list(result.parameters)
     if as_json:
         print_json({"model": model, "wall": wall, "parameters": result.parameters, "stderr": result.stderr,
                     "cost": result.cost, "converged": result.converged, "flags": list(result.flags),
