@@ -23,7 +23,7 @@ from acquisition.session import SessionError, open_session, write_result
 log = logging.getLogger(__name__)
 
 __all__ = ["STAGES", "StageError", "StageUnavailable", "identify_session", "identify_stored", "load_identification_inputs",
-           "reconstruct_session"]
+           "reconstruct_session", "reconstruct_stored", "session_calibrated_cameras", "session_step_rows"]
 
 
 class StageError(Exception):
@@ -150,22 +150,56 @@ def identify_session(path: str | os.PathLike, **options: Any) -> str:
 identify_session.__signature__ = inspect.signature(identify_stored).replace(return_annotation=str)
 
 
-def reconstruct_session(path: str | os.PathLike, *, marker_diameter_mm: float | None = None, normals: str = "local",
-                        epipolar_px: float = 2.0, max_reprojection_px: float = 1.5, include_superseded: bool = False,
-                        frame: str = "specimen", flip_axis: bool = False, invoked_by: str = "pipeline") -> str:
-    """Reconstruct and track the 3-D markers of a session from its images and latest calibration.
+def session_step_rows(session, include_superseded: bool = False) -> np.ndarray:
+    """Rows of the step table that are test steps: imaged preconditioning (block < 0, decision
+    0006) is left out, and so are retaken rows unless ``include_superseded``."""
+    steps = session.steps
+    keep = steps["block"] >= 0
+    if not include_superseded:
+        keep &= steps["active"]
+    return np.flatnonzero(keep)
 
-    The same steps and stored arrays as ``vfmlab reconstruct`` with its defaults (a thin version over
-    ``reconstruction.reconstruct_series``): calibrated session cameras, active steps (or all with
-    ``include_superseded``), marker diameter from the rig settings (default 0.4 mm).
+
+def session_calibrated_cameras(session) -> tuple[list, str]:
+    """The session's cameras from its latest "calibration" result, and a description of the source."""
+    from reconstruction.calibration_io import CalibrationFileError, cameras_from_arrays
+
+    calib = session.latest("calibration")
+    if calib is None:
+        raise StageError(f"{session.path}: no calibration; run 'vfmlab calibrate {session.path}' first")
+    try:
+        by_name = {c.name: c for c in cameras_from_arrays(calib["arrays"])}
+    except CalibrationFileError as exc:
+        raise StageError(f"{session.path}: stored calibration {calib['name']} is unusable ({exc})") from None
+    cams = [by_name[n] for n in session.camera_names if n in by_name]
+    if len(cams) < 2:
+        raise StageError(f"{session.path}: calibration {calib['name']} covers cameras {sorted(by_name)} but the "
+                         f"session has {session.camera_names}: at least two session cameras must be calibrated")
+    return cams, f"session result {calib['name']}"
+
+
+def reconstruct_stored(path: str | os.PathLike, *, cameras: list | None = None, calibration_source: str = "",
+                       marker_diameter_mm: float | None = None, normals: str = "local", epipolar_px: float = 2.0,
+                       max_reprojection_px: float = 1.5, include_superseded: bool = False, frame: str = "specimen",
+                       flip_axis: bool = False, store: bool = True,
+                       progress: Callable[[int, int, str], None] | None = None,
+                       invoked_by: str = "pipeline") -> tuple[str | None, Any, np.ndarray, list[str], str]:
+    """Reconstruct and track the 3-D markers of a session from its images; store a "markers" result.
+
+    Parameters
+    ----------
+    cameras : calibrated cameras to use (default: the session's latest calibration), with
+        ``calibration_source`` describing where they came from.
+    marker_diameter_mm : default: the rig settings' ``marker_diameter_mm``, else 0.4 mm.
+    progress : ``progress(step, n_steps, stage)`` callback of ``reconstruct_series``.
+    store : False to compute without writing a result.
 
     Returns
     -------
-    Name of the new "markers" result.
+    (result name or None, the ``reconstruct_series`` result, step-table rows used (n_steps,),
+    camera names, calibration source).
     """
-
     try:
-        from reconstruction.calibration_io import CalibrationFileError, cameras_from_arrays
         from reconstruction.pipeline import ReconstructionSettings, reconstruct_series
     except ImportError as exc:  # pragma: no cover - the reconstruction package ships with vfmlab
         raise StageUnavailable(f"the reconstruction package is not available: {exc}") from None
@@ -174,60 +208,58 @@ def reconstruct_session(path: str | os.PathLike, *, marker_diameter_mm: float | 
     except SessionError as exc:
         raise StageError(str(exc)) from None
     with session as s:
-        calib = s.latest("calibration")
-        if calib is None:
-            raise StageError(f"{path}: no calibration; run 'vfmlab calibrate {path}' first")
-        try:
-            by_name = {c.name: c for c in cameras_from_arrays(calib["arrays"])}
-        except CalibrationFileError as exc:
-            raise StageError(f"{path}: stored calibration {calib['name']} is unusable ({exc})") from None
-        cams = [by_name[n] for n in s.camera_names if n in by_name]
-        if len(cams) < 2:
-            raise StageError(f"{path}: calibration {calib['name']} covers cameras {sorted(by_name)} but the session "
-                             f"has {s.camera_names}: at least two session cameras must be calibrated")
-        rows = np.arange(s.n_steps) if include_superseded else np.flatnonzero(s.steps["active"])
+        if cameras is None:
+            cameras, calibration_source = session_calibrated_cameras(s)
+        rows = session_step_rows(s, include_superseded)
         if rows.size == 0:
             raise StageError(f"{path}: no steps to reconstruct")
         if marker_diameter_mm is None:
             marker_diameter_mm = float((s.rig_settings or {}).get("marker_diameter_mm", 0.4))
+        if not marker_diameter_mm > 0:
+            raise StageError(f"marker diameter must be positive (mm); got {marker_diameter_mm}")
         try:
             settings = ReconstructionSettings(marker_diameter=marker_diameter_mm * 1e-3,
                                               specimen_radius=s.specimen.radius, normals=normals,
                                               epipolar_px=epipolar_px, max_reprojection_px=max_reprojection_px)
         except ValueError as exc:
             raise StageError(f"{path}: {exc}") from None
-        names = [c.name for c in cams]
-        extra = {}
-        accepted = inspect.signature(reconstruct_series).parameters
-        if "frame" in accepted:
-            extra["frame"] = frame
-        if "axis_sign" in accepted:
-            extra["axis_sign"] = -1 if flip_axis else 1
+        names = [c.name for c in cameras]
         try:
-            res = reconstruct_series(lambda k: {n: s.image(n, int(rows[k])) for n in names}, cams, settings,
-                                     n_steps=int(rows.size), **extra)
+            res = reconstruct_series(lambda k: {n: s.image(n, int(rows[k])) for n in names}, cameras, settings,
+                                     n_steps=int(rows.size), progress=progress, frame=frame,
+                                     axis_sign=-1 if flip_axis else 1)
         except ValueError as exc:
             raise StageError(f"{path}: reconstruction failed: {exc}") from None
+    if not store:
+        return None, res, rows, names, calibration_source
     d = res.diagnostics
     arrays = {"positions": res.positions, "visible": res.visible, "uncertainty": res.uncertainty,
               "marker_id": res.marker_id, "step_index": rows.astype(np.int64), "centres": res.centres,
-              "n_views": res.n_views, "reprojection_rms": res.reprojection_rms,
+              "n_views": res.n_views, "reprojection_rms": res.reprojection_rms, "world_to_rig": res.world_to_rig,
               "camera_names": np.array(names, dtype=object), "detected": d["detected"], "rejects": d["rejects"],
               "reject_reasons": np.array(d["reject_reasons"], dtype=object)}
-    if hasattr(res, "world_to_rig"):
-        arrays["world_to_rig"] = res.world_to_rig
-    params = {"marker_diameter_mm": marker_diameter_mm, "calibration": f"session result {calib['name']}",
-              "frame": frame, "flip_axis": flip_axis, "normals": normals, "epipolar_px": epipolar_px,
+    params = {"marker_diameter_mm": marker_diameter_mm, "calibration": calibration_source, "frame": frame,
+              "flip_axis": flip_axis, "normals": normals, "epipolar_px": epipolar_px,
               "max_reprojection_px": max_reprojection_px, "include_superseded": include_superseded}
     attrs = {"tracked_per_step": np.asarray(d["tracked"]).tolist(), "lost_per_step": np.asarray(d["lost"]).tolist(),
              "swaps_detected": int(np.sum(d["swaps"])), "sigma_px": np.asarray(d["sigma_px"]).tolist(),
              "invoked_by": invoked_by}
     try:
-        return write_result(path, "markers", arrays, params, attrs,
+        name = write_result(path, "markers", arrays, params, attrs,
                             units={"positions": "m", "centres": "m", "uncertainty": "m", "reprojection_rms": "px",
                                    "world_to_rig": "m"})
     except SessionError as exc:
         raise StageError(str(exc)) from None
+    return name, res, rows, names, calibration_source
+
+
+def reconstruct_session(path: str | os.PathLike, *, marker_diameter_mm: float | None = None, normals: str = "local",
+                        epipolar_px: float = 2.0, max_reprojection_px: float = 1.5, include_superseded: bool = False,
+                        frame: str = "specimen", flip_axis: bool = False, invoked_by: str = "pipeline") -> str:
+    """:func:`reconstruct_stored` with the session's own calibration; returns the new result's name."""
+    return reconstruct_stored(path, marker_diameter_mm=marker_diameter_mm, normals=normals, epipolar_px=epipolar_px,
+                              max_reprojection_px=max_reprojection_px, include_superseded=include_superseded,
+                              frame=frame, flip_axis=flip_axis, invoked_by=invoked_by)[0]
 
 
 #: Stage name -> function(path, **settings) -> result group name.

@@ -14,9 +14,6 @@ from vfmlab.cli._common import CliError, console, err_console, print_json
 
 log = logging.getLogger(__name__)
 
-_STAGES = ("detection", "correspondence", "tracking", "surface")
-
-
 def load_calibration_file(path: Path, units: str | None = None) -> list:
     """Cameras from an aniposelib ``.toml`` or OpenCV ``.yaml``/``.yml`` calibration file."""
     from reconstruction.calibration_io import CalibrationFileError, cameras_from_toml, cameras_from_yaml
@@ -36,22 +33,16 @@ def load_calibration_file(path: Path, units: str | None = None) -> list:
 
 
 def session_cameras(session, calibration: Path | None, units: str | None) -> tuple[list, str]:
-    """Calibrated cameras (ordered as the session's cameras) and a description of their source."""
-    from reconstruction.calibration_io import CalibrationFileError, cameras_from_arrays
+    """Calibrated cameras (ordered as the session's cameras) and a description of their source:
+    the ``--calibration`` file if given, else the session's latest calibration result."""
+    from vfmlab.pipeline import StageError, session_calibrated_cameras
 
-    if calibration is not None:
-        cams, source = load_calibration_file(calibration, units), str(calibration)
-    else:
-        latest = session.latest("calibration")
-        if latest is None:
-            raise CliError(
-                f"{session.path}: no calibration; run 'vfmlab calibrate {session.path}' or pass --calibration FILE"
-            )
+    if calibration is None:
         try:
-            cams = cameras_from_arrays(latest["arrays"])
-        except CalibrationFileError as exc:
-            raise CliError(f"{session.path}: stored calibration is unusable ({exc})") from None
-        source = f"session result {latest.get('name', 'calibration')}"
+            return session_calibrated_cameras(session)
+        except StageError as exc:
+            raise CliError(f"{exc} (or pass --calibration FILE)") from None
+    cams, source = load_calibration_file(calibration, units), str(calibration)
     by_name = {c.name: c for c in cams}
     names = session.camera_names
     missing = [n for n in names if n not in by_name]
@@ -110,67 +101,30 @@ def command(session, marker_diameter_mm, calibration, calibration_units, frame, 
     wall. Writes positions (n_steps, n_markers, 3), visibility and uncertainty as a new "markers"
     result; markers not seen in a step are NaN there.
     """
-    from acquisition.session import SessionError, write_result
-    from reconstruction.pipeline import ReconstructionSettings, reconstruct_series
     from vfmlab.cli._sessions import cli_session
+    from vfmlab.pipeline import StageError, reconstruct_stored
 
     with cli_session(session) as s:
         cams, source = session_cameras(s, calibration, calibration_units)
-        steps = s.steps
-        rows = np.arange(s.n_steps) if include_superseded else np.flatnonzero(steps["active"])
-        if rows.size == 0:
-            raise CliError(f"{session}: no steps to reconstruct")
-        rig = s.rig_settings or {}
-        if marker_diameter_mm is None:
-            marker_diameter_mm = float(rig.get("marker_diameter_mm", 0.4))
-        if not marker_diameter_mm > 0:
-            raise CliError(f"--marker-diameter-mm must be positive; got {marker_diameter_mm}")
+    with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total} steps"),
+                  TimeElapsedColumn(), console=err_console, transient=True, disable=as_json) as progress:
+        tasks = {}
+
+        def report(step: int, n: int, stage: str) -> None:
+            if stage not in tasks:
+                tasks[stage] = progress.add_task(stage, total=n)
+            progress.update(tasks[stage], completed=step + 1)
+
         try:
-            settings = ReconstructionSettings(
-                marker_diameter=marker_diameter_mm * 1e-3, specimen_radius=s.specimen.radius, normals=normals,
-                epipolar_px=epipolar_px, max_reprojection_px=max_reprojection_px,
-            )
-        except ValueError as exc:
+            stored, res, rows, names, source = reconstruct_stored(
+                session, cameras=cams, calibration_source=source, marker_diameter_mm=marker_diameter_mm,
+                normals=normals, epipolar_px=epipolar_px, max_reprojection_px=max_reprojection_px,
+                include_superseded=include_superseded, frame=frame, flip_axis=flip_axis, store=store,
+                progress=report, invoked_by="reconstruct")
+        except StageError as exc:
             raise CliError(str(exc)) from None
-        names = [c.name for c in cams]
-
-        def images(k: int) -> dict:
-            return {n: s.image(n, int(rows[k])) for n in names}
-
-        with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total} steps"),
-                      TimeElapsedColumn(), console=err_console, transient=True, disable=as_json) as progress:
-            tasks = {st: progress.add_task(st, total=int(rows.size)) for st in _STAGES}
-
-            def report(step: int, n: int, stage: str) -> None:
-                progress.update(tasks[stage], completed=step + 1)
-
-            try:
-                res = reconstruct_series(images, cams, settings, n_steps=int(rows.size), progress=report,
-                                         frame=frame, axis_sign=-1 if flip_axis else 1)
-            except ValueError as exc:
-                raise CliError(f"{session}: reconstruction failed: {exc}") from None
-        step_numbers = rows
+    step_numbers = rows
     d = res.diagnostics
-    stored = None
-    if store:
-        arrays = {
-            "positions": res.positions, "visible": res.visible, "uncertainty": res.uncertainty,
-            "marker_id": res.marker_id, "step_index": rows.astype(np.int64), "centres": res.centres,
-            "n_views": res.n_views, "reprojection_rms": res.reprojection_rms, "world_to_rig": res.world_to_rig,
-            "camera_names": np.array(names, dtype=object), "detected": d["detected"], "rejects": d["rejects"],
-            "reject_reasons": np.array(d["reject_reasons"], dtype=object),
-        }
-        params = {"marker_diameter_mm": marker_diameter_mm, "calibration": source, "frame": frame,
-                  "flip_axis": flip_axis, "normals": normals, "epipolar_px": epipolar_px,
-                  "max_reprojection_px": max_reprojection_px, "include_superseded": include_superseded}
-        attrs = {"tracked_per_step": d["tracked"].tolist(), "lost_per_step": d["lost"].tolist(),
-                 "swaps_detected": int(d["swaps"].sum()), "sigma_px": d["sigma_px"].tolist()}
-        try:
-            stored = write_result(session, "markers", arrays, params, attrs,
-                                  units={"positions": "m", "centres": "m", "uncertainty": "m",
-                                         "reprojection_rms": "px", "world_to_rig": "m"})
-        except SessionError as exc:
-            raise CliError(str(exc)) from None
     summary = {
         "session": str(session), "n_steps": int(rows.size), "n_markers": int(res.visible.shape[1]),
         "tracked_per_step": d["tracked"], "lost_per_step": d["lost"], "detected_per_camera": d["detected"].sum(0),

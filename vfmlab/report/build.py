@@ -17,7 +17,7 @@ import numpy as np
 
 from acquisition.session import Session, open_session
 from vfmlab import __version__
-from vfmlab.fields import FieldsError, compute_fields, stress_strain_curves
+from vfmlab.fields import FieldsError, SurfaceFields, compute_fields, stress_strain_curves
 from vfmlab.report import figures
 
 log = logging.getLogger(__name__)
