@@ -84,6 +84,10 @@ class ReconstructionSettings:
     grazing_bias_px : float
         Centroid bias (px) assumed for such a view when a point cannot do without it (fewer than
         two better views): its uncertainty is computed with this instead of the pixel noise.
+    readmit_strong : bool
+        Keep a point beyond the outlier limit (below) when it has >= 2 views that all face their
+        camera (cosine >= ``min_view_cos``) and a usual reprojection error: near a clamped end the
+        neighbours predict the motion poorly, and rejecting it leaves only grazing views to recover it.
     detection : dict
         Extra keyword arguments for :func:`reconstruction.detection.detect_markers`.
     """
