@@ -81,6 +81,13 @@ class ReconstructionSettings:
         Views at grazing incidence (cosine between the surface normal and the direction to the
         camera below this) are dropped when at least two better views remain: near the limb the
         marker is seen against the silhouette and its centroid is biased by up to ~0.5 px.
+    grazing_bias_px : float
+        Centroid bias (px) assumed for such a view when a point cannot do without it (fewer than
+        two better views): its uncertainty is computed with this instead of the pixel noise.
+    readmit_strong : bool
+        Keep a point beyond the outlier limit (below) when it has >= 2 views that all face their
+        camera (cosine >= ``min_view_cos``) and a usual reprojection error: near a clamped end the
+        neighbours predict the motion poorly, and rejecting it leaves only grazing views to recover it.
     detection : dict
         Extra keyword arguments for :func:`reconstruction.detection.detect_markers`.
     """
@@ -93,6 +100,8 @@ class ReconstructionSettings:
     normals: str = "local"
     guided_gate_px: float = 4.0
     min_view_cos: float = 0.35
+    grazing_bias_px: float = 0.2
+    readmit_strong: bool = True
     min_facing: float = -0.15
     outlier_factor: float = 6.0
     outlier_floor: float = 15e-6
@@ -246,8 +255,10 @@ def points_from_detections(
     )
     obs = res.observations
     t = res.triangulation
+    weak = np.zeros(obs.shape[0], bool)
     if prior is not None and obs.shape[0] and settings.min_view_cos > -1:
         cosv = _view_cosines(t.points, prior, cameras)  # (n, n_cams)
+        weak = np.any((obs >= 0) & (cosv < settings.min_view_cos), axis=1)
         good = (obs >= 0) & (cosv >= settings.min_view_cos)
         if quality is not None:
             for c, q in enumerate(quality):
@@ -258,12 +269,16 @@ def points_from_detections(
         if np.any(drop):
             obs = np.where(drop, -1, obs)
             t = triangulate(observed_pixels(dets, obs), cameras, sigma_px=settings.sigma_px)
+            weak &= np.any((obs >= 0) & (cosv < settings.min_view_cos), axis=1)
     # a point whose views disagree more than usual (e.g. two views, one biased) is less certain
-    # than the pooled pixel noise says: scale its uncertainty by its excess reprojection error
-    unc = t.uncertainty
+    # than the pooled pixel noise says: scale its uncertainty by its excess reprojection error;
+    # one that cannot do without a grazing view inherits that view's centroid bias (the larger
+    # of the two: a grazing view's bias is what makes the views disagree)
+    excess = np.ones(obs.shape[0])
     if obs.shape[0] >= 10:
         typical = float(np.median(t.reprojection_rms))
-        unc = unc * np.maximum(1.0, t.reprojection_rms / max(typical, 1e-6))
+        excess = np.maximum(1.0, t.reprojection_rms / max(typical, 1e-6))
+    unc = np.maximum(t.uncertainty * excess, _weak_view_uncertainty(t.uncertainty, weak, t.sigma_px, settings))
     return StepPoints(t.points, obs, unc, t.reprojection_rms, t.n_views, prior, dets, t.sigma_px)
 
 
@@ -275,6 +290,18 @@ def _view_cosines(points: np.ndarray, prior: CylinderPrior, cameras: list[Camera
         v = cam.center - points
         out[:, c] = np.sum(nrm * v, axis=1) / np.linalg.norm(v, axis=1)
     return out
+
+
+def _strong_points(step: StepPoints, cameras: list[Camera], settings: ReconstructionSettings) -> np.ndarray:
+    """(n,) bool: points with >= 2 views, all facing their camera (cosine >= ``min_view_cos``)
+    and a reprojection error within the step's usual range."""
+    obs = step.observations >= 0
+    if step.prior is None or not obs.shape[0]:
+        return np.zeros(obs.shape[0], bool)
+    cosv = _view_cosines(step.centres, step.prior, cameras)
+    facing = np.all(~obs | (cosv >= settings.min_view_cos), axis=1)
+    typical = float(np.median(step.reprojection_rms))
+    return facing & (obs.sum(axis=1) >= 2) & (step.reprojection_rms <= 3.0 * typical + 0.05)
 
 
 def reconstruct_step(
@@ -372,11 +399,28 @@ def _guided_recovery(pred, lost, step: StepPoints, cameras, settings, gate3d):
     if not np.any(ok):
         return None
     li, obs = li[ok], obs[ok]
+    weak = np.zeros(obs.shape, bool)
+    if step.prior is not None and settings.min_view_cos > -1:
+        # grazing views (near the silhouette, often partly hidden by the wall) give biased centres:
+        # leave them out when two better views remain, else keep them and say so in the uncertainty
+        weak = (obs >= 0) & (_view_cosines(pred[li], step.prior, cameras) < settings.min_view_cos)
+        strong = (obs >= 0) & ~weak
+        drop = weak & (strong.sum(axis=1) >= 2)[:, None]
+        obs = np.where(drop, -1, obs)
+        weak &= ~drop
     tri = triangulate(observed_pixels(step.detections, obs), cameras, sigma_px=step.sigma_px)
     good = (tri.reprojection_rms <= settings.max_reprojection_px) & (np.linalg.norm(tri.points - pred[li], axis=1) <= gate3d)
     if not np.any(good):
         return None
-    return li[good], tri.points[good], tri.uncertainty[good], tri.reprojection_rms[good], tri.n_views[good], obs[good]
+    unc = _weak_view_uncertainty(tri.uncertainty, weak.any(axis=1), tri.sigma_px, settings)
+    return li[good], tri.points[good], unc[good], tri.reprojection_rms[good], tri.n_views[good], obs[good]
+
+
+def _weak_view_uncertainty(unc: np.ndarray, weak: np.ndarray, sigma_px: float, settings: ReconstructionSettings) -> np.ndarray:
+    """Uncertainty (m) of points built with grazing views: the pixel noise is replaced by the
+    centroid bias of a blob near the silhouette (``settings.grazing_bias_px``)."""
+    scale = max(1.0, settings.grazing_bias_px / max(float(sigma_px), 1e-6))
+    return np.where(weak, unc * scale, unc)
 
 
 def track_series(
@@ -509,6 +553,11 @@ def track_series(
                 scale = 1.4826 * np.median(np.abs(r - np.median(r))) + np.median(r)
                 limit = max(settings.outlier_factor * scale, settings.outlier_floor)
                 bad = np.isfinite(m.residual) & (m.residual > limit)
+                if settings.readmit_strong and np.any(bad) and step.prior is not None:
+                    # near a clamped end the neighbours predict the motion poorly; a point seen in
+                    # >= 2 views that all face the camera well is a sound measurement: keep it,
+                    # rather than replace it by a guided point from the grazing views left over
+                    bad &= ~_strong_points(step, cameras, settings)[np.maximum(a, 0)]
                 a = np.where(bad, -1, a)
                 diag["outliers"][k] = int(bad.sum())
         else:
