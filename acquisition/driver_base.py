@@ -77,3 +77,23 @@ class RetryingDriver:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def decode_reply_line(raw: bytes, device: str) -> str:
+    """One ASCII reply line without its CR LF, as both the Mensor and the Mark-10 send them.
+
+    Raises TypeError if ``raw`` is not bytes, GarbledReply if it is not ASCII, empty, or holds
+    control characters (line noise or a wrong baud rate).
+    """
+    if not isinstance(raw, (bytes, bytearray)):
+        raise TypeError(f"raw must be bytes; got {type(raw).__name__}")
+    body = bytes(raw)
+    if body.endswith(b"\r\n"):
+        body = body[:-2]
+    try:
+        text = body.decode("ascii")
+    except UnicodeDecodeError as exc:
+        raise GarbledReply(f"{device} reply is not ASCII: {bytes(raw)!r}", raw=bytes(raw)) from exc
+    if not text or any(ord(c) < 32 or ord(c) == 127 for c in text):
+        raise GarbledReply(f"{device} reply empty or with control characters: {bytes(raw)!r}", raw=bytes(raw))
+    return text

@@ -20,7 +20,7 @@ import math
 import re
 from typing import Any, Callable
 
-from acquisition.driver_base import Reading, RetryingDriver
+from acquisition.driver_base import Reading, RetryingDriver, decode_reply_line
 from acquisition.instrument_errors import DeviceError, GarbledReply
 from acquisition.serial_link import SerialLink
 
@@ -86,17 +86,9 @@ def decode_line(raw: bytes) -> str:
     DeviceError
         The reply is an error code (``.code`` = ``"*10"`` etc.).
     """
-    if not isinstance(raw, (bytes, bytearray)):
-        raise TypeError(f"raw must be bytes; got {type(raw).__name__}")
-    body = bytes(raw)
-    if body.endswith(b"\r\n"):
-        body = body[:-2]
-    try:
-        text = body.decode("ascii")
-    except UnicodeDecodeError as exc:
-        raise GarbledReply(f"Mark-10 reply is not ASCII: {bytes(raw)!r}", raw=bytes(raw)) from exc
-    if any(ord(c) < 32 or ord(c) == 127 for c in text) or not text.strip():
-        raise GarbledReply(f"Mark-10 reply empty or with control characters: {bytes(raw)!r}", raw=bytes(raw))
+    text = decode_reply_line(raw, "Mark-10")
+    if not text.strip():
+        raise GarbledReply(f"Mark-10 reply is blank: {bytes(raw)!r}", raw=bytes(raw))
     t = text.strip()
     if re.fullmatch(r"\*\d\d", t):
         raise DeviceError(f"Mark-10 error {t}: {ERROR_CODES.get(t, 'unknown error code')}", raw=text, code=t)

@@ -15,7 +15,7 @@ import re
 from dataclasses import dataclass
 from typing import Any, Callable
 
-from acquisition.driver_base import Reading, RetryingDriver
+from acquisition.driver_base import Reading, RetryingDriver, decode_reply_line
 from acquisition.instrument_errors import DeviceError, GarbledReply, InstrumentError
 from acquisition.serial_link import SerialLink
 
@@ -103,17 +103,7 @@ def parse_reply(raw: bytes) -> MensorReply:
     GarbledReply
         Not ASCII, control characters inside, or a first character other than space or ``E``.
     """
-    if not isinstance(raw, (bytes, bytearray)):
-        raise TypeError(f"raw must be bytes; got {type(raw).__name__}")
-    body = bytes(raw)
-    if body.endswith(b"\r\n"):
-        body = body[:-2]
-    try:
-        text = body.decode("ascii")
-    except UnicodeDecodeError as exc:
-        raise GarbledReply(f"Mensor reply is not ASCII: {bytes(raw)!r}", raw=bytes(raw)) from exc
-    if not text or any(ord(c) < 32 or ord(c) == 127 for c in text):
-        raise GarbledReply(f"Mensor reply empty or with control characters: {bytes(raw)!r}", raw=bytes(raw))
+    text = decode_reply_line(raw, "Mensor")
     flag = text[0]
     if flag not in (" ", "E", "e"):
         raise GarbledReply(f"Mensor reply must start with a space or 'E'; got {bytes(raw)!r}", raw=bytes(raw))
