@@ -46,6 +46,27 @@ class RetryingDriver:
         self.retries = int(retries)
         self.retry_pause = float(retry_pause)
         self.n_retries = 0  # total retries so far (diagnostics)
+        self._stale = False  # True after a reconnect: settings are re-read before the next command
+        link.on_reconnect = self._mark_stale
+
+    def _mark_stale(self) -> None:
+        self._stale = True
+
+    def _refresh(self) -> None:
+        """Read identity and settings from the device (drivers implement it)."""
+        raise NotImplementedError
+
+    def _ensure(self) -> None:
+        """Open the port if needed and, after a reconnect, re-read the device's settings first
+        (a replugged adapter may front a reconfigured or different device)."""
+        self.link.ensure_open()
+        if self._stale:
+            self._stale = False
+            try:
+                self._refresh()
+            except BaseException:
+                self._stale = True
+                raise
 
     @property
     def name(self) -> str:

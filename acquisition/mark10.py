@@ -183,12 +183,7 @@ class Mark10ForceGauge(RetryingDriver):
         self.identity = ""
         self.unit: str | None = None
         self.config: dict[str, Any] = {}
-        self._stale = False
-        link.on_reconnect = self._mark_stale
         self._refresh()
-
-    def _mark_stale(self) -> None:
-        self._stale = True
 
     def _refresh(self) -> None:
         self.config = self.list_settings()
@@ -200,16 +195,6 @@ class Mark10ForceGauge(RetryingDriver):
                 ident.append("?")
         self.identity = "Mark-10 model {} s/n {} fw {}".format(*ident)
         log.info("%s: %s, %s", self.name, self.identity, self.config)
-
-    def _ensure(self) -> None:
-        self.link.ensure_open()
-        if self._stale:
-            self._stale = False
-            try:
-                self._refresh()
-            except BaseException:
-                self._stale = True
-                raise
 
     def _text(self, command: str) -> str:
         with self.link.lock:

@@ -214,12 +214,7 @@ class MensorPressure(RetryingDriver):
         self.unit: str | None = None
         self.ptype: str | None = None
         self.is_controller = False
-        self._stale = False  # True after a reconnect: identity/unit are re-read before the next command
-        link.on_reconnect = self._mark_stale
         self._refresh()
-
-    def _mark_stale(self) -> None:
-        self._stale = True
 
     def _refresh(self) -> None:
         """Re-read identity, unit and pressure type (at open and after a reconnect)."""
@@ -236,14 +231,7 @@ class MensorPressure(RetryingDriver):
     def _checked(self, command: bytes) -> MensorReply:
         """Query; on an ``E`` flag drain the error queue and raise :class:`DeviceError` with its entries."""
         with self.link.lock:
-            self.link.ensure_open()
-            if self._stale:
-                self._stale = False
-                try:
-                    self._refresh()
-                except BaseException:
-                    self._stale = True
-                    raise
+            self._ensure()
             reply = self._query(command, parse_reply)
             if reply.error_flag:
                 messages = self.errors()
