@@ -173,3 +173,11 @@ def test_simulation_table_defaults_and_values():
     sim = parse_rig(RIG + '\n[simulation]\nmaterial = "hgo"\nn_markers = 120\nclamped = true\nseed = 4\n',
                     source="r.toml").simulation
     assert (sim.material, sim.n_markers, sim.clamped, sim.seed) == ("hgo", 120, True, 4)
+
+
+def test_built_in_sim_rig_is_the_example_file():
+    """``vfmlab run --sim`` without --rig uses the packaged copy of examples/sim-rig.toml."""
+    from vfmlab.operate import DEFAULT_SIM_RIG
+
+    assert DEFAULT_SIM_RIG == RIG
+    assert parse_rig(DEFAULT_SIM_RIG, source="<built-in>").simulated

@@ -13,6 +13,7 @@ import logging
 import signal
 import threading
 from dataclasses import dataclass
+from importlib import resources
 from pathlib import Path
 from typing import Any, Callable
 
@@ -31,37 +32,9 @@ __all__ = ["OperateError", "Outcome", "run_session", "resume_session", "DEFAULT_
 
 log = logging.getLogger(__name__)
 
-#: The simulated rig used by ``--sim`` when no ``--rig`` file is given (same as examples/sim-rig.toml).
-DEFAULT_SIM_RIG = """
-[rig]
-name = "simulated rig"
-[pressure]
-port = "sim"
-mode = "controller"
-[load_cell]
-port = "sim"
-measures = "wall"
-[[camera]]
-name = "cam0"
-backend = "sim"
-settings = { width = 640, height = 480 }
-[[camera]]
-name = "cam1"
-backend = "sim"
-settings = { width = 640, height = 480 }
-[[camera]]
-name = "cam2"
-backend = "sim"
-settings = { width = 640, height = 480 }
-[[camera]]
-name = "cam3"
-backend = "sim"
-settings = { width = 640, height = 480 }
-[safety]
-max_pressure_mmHg = 200
-max_stretch = 1.5
-max_force_N = 50
-"""
+#: The simulated rig used by ``--sim`` when no ``--rig`` file is given (packaged copy of
+#: examples/sim-rig.toml; tests/test_run_protocol.py checks they are the same file).
+DEFAULT_SIM_RIG = resources.files("vfmlab.data").joinpath("sim-rig.toml").read_text(encoding="utf-8")
 
 
 class OperateError(RuntimeError):
