@@ -29,6 +29,9 @@ flushes + fsyncs after every step, so a process killed at any point leaves a fil
 from __future__ import annotations
 
 import datetime as _dt
+import errno
+import fcntl
+import shutil
 import hashlib
 import json
 import logging
@@ -42,6 +45,7 @@ from typing import Any
 import h5py
 import numpy as np
 
+from acquisition.h5journal import JournalError, LockTimeout, journaled_h5, recover, wait_lock
 from acquisition.h5recover import clear_consistency_flags
 
 __all__ = [
@@ -725,6 +729,19 @@ class Session:
 
 def _h5_open_read(path: Path) -> h5py.File:
     try:
+        return _h5_open_read_once(path)
+    except OSError as exc:
+        if "unable to lock file" not in str(exc):
+            raise
+    # Another job is appending a result (an exclusive lock for a moment): wait for it, bounded.
+    with open(path, "rb") as fh:
+        wait_lock(fh.fileno(), path, exclusive=False, what="read")
+        fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
+    return _h5_open_read_once(path)
+
+
+def _h5_open_read_once(path: Path) -> h5py.File:
+    try:
         return h5py.File(path, "r")
     except OSError as exc:
         if "already open for write" in str(exc):
@@ -747,6 +764,10 @@ def open_session(path: str | os.PathLike) -> Session:
         raise SessionError(f"{path}: no such file")
     if path.is_dir():
         raise SessionError(f"{path}: is a directory, not a session file")
+    try:
+        recover(path)  # roll back a result write that a killed job left unfinished
+    except (JournalError, LockTimeout) as exc:
+        raise SessionError(str(exc)) from None
     with open(path, "rb") as fh:
         head = fh.read(8)
     if head != b"\x89HDF\r\n\x1a\n":
@@ -829,39 +850,60 @@ def write_result(
         if session.status == "running":
             raise SessionError(f"{path}: the session is still being written; add results once it has finished")
         interrupted = session.status == "interrupted"
+    prepare = None
     if interrupted:
-        # The writer is gone: clearing its "open for write" flag is safe, and resume still works after.
-        clear_consistency_flags(path)
+        # The writer is gone: clearing its "open for write" flag is safe (and journaled, so a
+        # kill right after leaves the file as it was); resume still works after.
+        def prepare(jf) -> None:
+            jf.save_original(0, 64)
+            clear_consistency_flags(path)
     try:
-        f = h5py.File(path, "a", libver="latest")
+        with journaled_h5(path, prepare=prepare) as f:
+            name = _write_result_group(f, kind, arrays, parameters, attrs, units)
+    except LockTimeout as exc:
+        raise SessionError(str(exc)) from None
     except OSError as exc:
-        raise SessionError(f"{path}: cannot open for writing ({exc})") from None
-    with f:
-        res = f["entry"].require_group("results")
-        existing = [n for n in res if n.startswith(kind + "_")]
-        number = 1 + max((int(n.rsplit("_", 1)[1]) for n in existing if n.rsplit("_", 1)[1].isdigit()), default=0)
-        name = f"{kind}_{number:03d}"
-        g = res.create_group(name)
-        g.attrs["NX_class"] = "NXprocess"
-        g.attrs["kind"] = kind
-        g.attrs["program"] = "vfmlab"
-        g.attrs["version"] = _software_version()
-        g.attrs["date"] = _now_iso()
-        g.attrs["parameters"] = json.dumps(dict(parameters), sort_keys=True, default=_json_default)
-        for key, value in (attrs or {}).items():
-            if isinstance(value, (dict, list, tuple)):
-                g.attrs[f"{key}_json"] = json.dumps(value, default=_json_default)
-            elif value is None:
-                g.attrs[key] = "None"
-            else:
-                g.attrs[key] = value
-        for key, value in arrays.items():
-            ds = _store_array(g, key, value)
-            if units and key in units:
-                ds.attrs["units"] = units[key]
-        f.flush()
+        raise SessionError(_write_failure(path, exc)) from None
     log.info("wrote result %s to %s", name, path)
     return name
+
+
+def _write_result_group(f: h5py.File, kind: str, arrays: Mapping[str, Any], parameters: Mapping[str, Any],
+                        attrs: Mapping[str, Any] | None, units: Mapping[str, str] | None) -> str:
+    res = f["entry"].require_group("results")
+    existing = [n for n in res if n.startswith(kind + "_")]
+    number = 1 + max((int(n.rsplit("_", 1)[1]) for n in existing if n.rsplit("_", 1)[1].isdigit()), default=0)
+    name = f"{kind}_{number:03d}"
+    g = res.create_group(name)
+    g.attrs["NX_class"] = "NXprocess"
+    g.attrs["kind"] = kind
+    g.attrs["program"] = "vfmlab"
+    g.attrs["version"] = _software_version()
+    g.attrs["date"] = _now_iso()
+    g.attrs["parameters"] = json.dumps(dict(parameters), sort_keys=True, default=_json_default)
+    for key, value in (attrs or {}).items():
+        if isinstance(value, (dict, list, tuple)):
+            g.attrs[f"{key}_json"] = json.dumps(value, default=_json_default)
+        elif value is None:
+            g.attrs[key] = "None"
+        else:
+            g.attrs[key] = value
+    for key, value in arrays.items():
+        ds = _store_array(g, key, value)
+        if units and key in units:
+            ds.attrs["units"] = units[key]
+    return name
+
+
+def _write_failure(path: Path, exc: OSError) -> str:
+    """One sentence for a result write that failed (and was rolled back)."""
+    if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        free = shutil.disk_usage(path.parent).free
+        needed = getattr(exc, "needed", 0)
+        return (f"{path}: disk full while writing the result ({free / 1e6:.1f} MB free"
+                + (f", about {needed / 1e6:.1f} MB needed" if needed else "")
+                + "); the session was left exactly as it was before. Free some space and run the command again")
+    return f"{path}: cannot write the result ({exc}); the session was left exactly as it was before"
 
 
 def _json_default(obj: Any) -> Any:
