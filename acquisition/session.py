@@ -214,6 +214,8 @@ class SessionWriter:
             raise ValueError(f"camera names must be unique; got {names}")
         if path.exists() and not overwrite:
             raise SessionError(f"{path}: file exists; refusing to overwrite a session (choose another --out)")
+        if path.exists():
+            _refuse_live_session(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         f = h5py.File(path, "w", libver="latest")
         try:
@@ -470,6 +472,19 @@ class SessionWriter:
 
     def __exit__(self, exc_type, exc, tb) -> None:
         self.close("complete" if exc_type is None else "aborted")
+
+
+def _refuse_live_session(path: Path) -> None:
+    """Two writers never share a file: refuse to replace a session another process is recording."""
+    try:
+        with open_session(path) as session:
+            status = session.status
+            pid = session.file["entry"].attrs.get("writer_pid", "?")
+    except SessionError:
+        return  # not a readable session: nothing is being recorded into it
+    if status == "running":
+        raise SessionError(f"{path}: a session is being recorded into this file right now (writer pid {pid}); "
+                           "refusing to replace it")
 
 
 def _trim_partial_records(entry: h5py.Group) -> list[str]:

@@ -141,8 +141,9 @@ def _import(path: Path, file_units: str, session, store: bool, out, units: str, 
 @click.option("--import-units", type=click.Choice(["m", "cm", "mm", "um"]), default="mm", show_default=True,
               help="Length unit of an imported file's translations when the file does not say (aniposelib does not).")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
+@click.option("--force", is_flag=True, help="Overwrite an existing --out file (never a session or an input).")
 def command(session, images_dir, board, squares, square_size_mm, marker_size_mm, dictionary, subpix_window, reference,
-            world_view, fix_k3, out, units, store, import_file, import_units, as_json):
+            world_view, fix_k3, out, units, store, import_file, import_units, as_json, force):
     """Calibrate the cameras jointly from calibration-board images.
 
     Each camera is initialised alone (OpenCV), camera poses are chained through shared board
@@ -158,6 +159,10 @@ def command(session, images_dir, board, squares, square_size_mm, marker_size_mm,
 
     if out is not None and out.suffix.lower() not in (".toml", ".yaml", ".yml"):
         raise CliError(f"--out must end in .toml, .yaml or .yml; got {out.name!r}")
+    if out is not None:
+        from vfmlab.cli._outputs import check_output_path
+
+        check_output_path(out, force=force, inputs=[session, import_file])
     if import_file is not None:
         if images_dir is not None:
             raise CliError("--import and --images exclude each other: calibrate from images or import a calibration")

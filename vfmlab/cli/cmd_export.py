@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 
 from vfmlab.cli._common import CliError, console
+from vfmlab.cli._outputs import check_output_dir
 from vfmlab.cli._sessions import cli_session, latest_markers
 
 
@@ -18,7 +19,8 @@ from vfmlab.cli._sessions import cli_session, latest_markers
               help="vtk: legacy ASCII VTK polydata with strain/stress cell data (+ .vtk.series index); "
                    "ply: binary PLY with E11 face colours and the fields as face properties.")
 @click.option("--markers", "markers_name", help="Markers result to export [default: the latest].")
-def command(session, out, fmt, markers_name):
+@click.option("--force", is_flag=True, help="Overwrite files in an existing, non-empty output folder.")
+def command(session, out, fmt, markers_name, force):
     """Export the marker mesh of SESSION at every step, with E11/E22/E12 strains and each identified
     model's stresses as cell data, in files ParaView opens. Lengths in m, stresses in Pa."""
     from vfmlab.export import export_fields
@@ -26,6 +28,7 @@ def command(session, out, fmt, markers_name):
 
     path = Path(session)
     out_dir = Path(out) if out else path.with_name(path.stem + "_export")
+    check_output_dir(out_dir, force=force, inputs=[path])
     with cli_session(path) as s:
         if markers_name:
             if markers_name not in s.results("markers"):

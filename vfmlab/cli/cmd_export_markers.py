@@ -7,6 +7,7 @@ import numpy as np
 
 from acquisition.markers_csv import write_markers_csv
 from vfmlab.cli._common import console
+from vfmlab.cli._outputs import check_output_path
 from vfmlab.cli._sessions import cli_session, latest_markers
 
 
@@ -14,9 +15,11 @@ from vfmlab.cli._sessions import cli_session, latest_markers
 @click.argument("session", type=click.Path(dir_okay=False))
 @click.option("-o", "--out", required=True, type=click.Path(dir_okay=False), help="CSV file to write.")
 @click.option("--result", default=None, help="A specific markers result (e.g. markers_002) [default: latest].")
-def command(session, out, result):
+@click.option("--force", is_flag=True, help="Overwrite an existing output file (never a session or an input).")
+def command(session, out, result, force):
     """Write the latest marker tracks of SESSION (imported or reconstructed) as
     marker_id,step,x_mm,y_mm,z_mm."""
+    check_output_path(out, force=force, inputs=[session])
     with cli_session(session) as s:
         res = s.result(result) if result else latest_markers(s)
     arrays = res["arrays"]

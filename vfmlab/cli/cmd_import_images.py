@@ -80,7 +80,7 @@ def _read(path: Path) -> np.ndarray:
 @click.option("--notes", default="", help="Free-text notes about the specimen.")
 @click.option("--force-is", type=click.Choice(["wall", "total"]), default="wall", show_default=True,
               help="What axial_force_N is: force carried by the wall, or a total reading behind a pressurised cannula.")
-@click.option("--force", "overwrite", is_flag=True, help="Overwrite OUT if it exists.")
+@click.option("--force", "overwrite", is_flag=True, help="Overwrite OUT if it exists (never a session or an input).")
 def command(images_dir, calibration, calibration_units, loads_csv, out, marker_diameter_mm, thickness_mm, radius_mm,
             length_mm, specimen_id, notes, force_is, overwrite):
     """Build a session from IMAGES_DIR/<camera>/<step>.png (camera names as in the calibration file,
@@ -90,6 +90,9 @@ def command(images_dir, calibration, calibration_units, loads_csv, out, marker_d
     from reconstruction.calibration_io import cameras_to_arrays
     from reconstruction.pipeline import ReconstructionSettings, reconstruct_step
 
+    from vfmlab.cli._outputs import check_output_path
+
+    check_output_path(out, force=overwrite, inputs=[calibration, loads_csv])
     if not marker_diameter_mm > 0:
         raise CliError(f"--marker-diameter-mm must be positive; got {marker_diameter_mm}")
     for name, value in (("--thickness-mm", thickness_mm), ("--radius-mm", radius_mm), ("--length-mm", length_mm)):

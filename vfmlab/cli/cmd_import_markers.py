@@ -11,6 +11,7 @@ from scipy.optimize import least_squares
 from acquisition.markers_csv import CsvFormatError, read_loads_csv, read_markers_csv
 from acquisition.session import SessionError, SessionWriter, SpecimenInfo, StepRecord, write_result
 from vfmlab.cli._common import CliError, console
+from vfmlab.cli._outputs import check_output_path
 
 
 def estimate_geometry(reference: np.ndarray) -> tuple[float, float]:
@@ -52,10 +53,11 @@ def estimate_geometry(reference: np.ndarray) -> tuple[float, float]:
 @click.option("--notes", default="", help="Free-text notes about the specimen.")
 @click.option("--force-is", type=click.Choice(["wall", "total"]), default="wall", show_default=True,
               help="What axial_force_N is: force carried by the wall, or a total reading behind a pressurised cannula.")
-@click.option("--force", "overwrite", is_flag=True, help="Overwrite OUT if it exists.")
+@click.option("--force", "overwrite", is_flag=True, help="Overwrite OUT if it exists (never a session or an input).")
 def command(markers_csv, loads_csv, out, thickness_mm, radius_mm, length_mm, specimen_id, notes, force_is, overwrite):
     """Build a session from MARKERS_CSV (marker_id,step,x_mm,y_mm,z_mm) and LOADS_CSV
     (step,pressure_Pa|pressure_kPa|pressure_mmHg,axial_force_N,stretch). Step 0 is the reference."""
+    check_output_path(out, force=overwrite, inputs=[markers_csv, loads_csv])
     try:
         table = read_markers_csv(markers_csv)
         loads = read_loads_csv(loads_csv)

@@ -8,6 +8,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from vfmlab.cli._common import CliError, console, err_console, print_json
+from vfmlab.cli._outputs import check_output_path
 
 
 def _split(value: str, name: str, allowed: tuple[str, ...] | None = None) -> list[str]:
@@ -59,7 +60,9 @@ def _parse_set(pairs: tuple[str, ...]) -> dict:
 @click.option("--summary", type=click.Path(dir_okay=False),
               help="Write a CSV of the identified parameters across sessions (one row per identification).")
 @click.option("--json", "as_json", is_flag=True, help="Print the outcomes as JSON.")
-def command(sessions, stages, models, walls, ends, optimizer, smooth, set_pairs, workers, scheduler, summary, as_json):
+@click.option("--force", is_flag=True, help="Overwrite an existing --summary file (never a session).")
+def command(sessions, stages, models, walls, ends, optimizer, smooth, set_pairs, workers, scheduler, summary, as_json,
+            force):
     """Re-run STAGES on each SESSION with the given settings, appending new results (nothing is overwritten).
 
     A session that fails (corrupt file, missing markers, failed fit) is reported and the others go on;
@@ -68,6 +71,8 @@ def command(sessions, stages, models, walls, ends, optimizer, smooth, set_pairs,
     from vfmlab.pipeline import STAGES
     from vfmlab.reprocess import plan_runs, reprocess, write_summary
 
+    if summary:
+        check_output_path(summary, force=force, inputs=sessions, option="--summary")
     stage_list = _split(stages, "--stages", tuple(STAGES))
     smoothing = None
     if smooth:

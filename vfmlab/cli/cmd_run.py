@@ -35,8 +35,10 @@ Exit codes: 0 complete or quit (resumable), 1 aborted or a file/instrument error
 def command(protocol: str, specimen: str, out: str, rig: str | None, sim: bool, sim_speed: float, yes: bool,
             detect: bool) -> None:
     """Run PROTOCOL (TOML) on the rig, writing every step to the session file --out as it happens."""
+    from vfmlab.cli._outputs import check_output_path
     from vfmlab.operate import OperateError, detector_from_reconstruction, run_session
 
+    check_output_path(out, force=False, inputs=[protocol, specimen, rig], can_force=False)
     try:
         outcome = run_session(protocol, specimen, out, rig_path=rig, sim=sim, yes=yes, sim_speed=sim_speed,
                               console=console, detector=detector_from_reconstruction() if detect else None)
