@@ -356,6 +356,12 @@ class SessionWriter:
     def camera_names(self) -> list[str]:
         return list(self._entry["steps/images"].keys())
 
+    @property
+    def n_calibration_views(self) -> int:
+        """Calibration-board views already stored (a resumed session continues after them)."""
+        calib = self._entry["calibration/images"]
+        return int(min((calib[name].shape[0] for name in calib), default=0))
+
     def append_log(
         self,
         channel: str,
@@ -502,6 +508,12 @@ def _trim_partial_records(entry: h5py.Group) -> list[str]:
             if ds.shape[0] > n:
                 dropped.append(f"{ds.name}[{n}:{ds.shape[0]}]")
                 ds.resize((n,) + ds.shape[1:])
+    calib = entry["calibration/images"] if "calibration/images" in entry else {}
+    n_views = min((ds.shape[0] for ds in calib.values()), default=0)
+    for ds in calib.values():  # a view is complete once every camera has its frame
+        if ds.shape[0] > n_views:
+            dropped.append(f"{ds.name}[{n_views}:{ds.shape[0]}]")
+            ds.resize((n_views,) + ds.shape[1:])
     steps = entry["steps"]
     n_rows = min(steps[name].shape[0] for name in _STEP_COLUMNS)
     for ds in [steps[name] for name in _STEP_COLUMNS] + list(steps["images"].values()):
