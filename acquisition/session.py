@@ -58,6 +58,7 @@ __all__ = [
     "Session",
     "open_session",
     "write_result",
+    "incomplete_leftover",
 ]
 
 log = logging.getLogger(__name__)
@@ -217,14 +218,18 @@ class SessionWriter:
         if path.exists():
             _refuse_live_session(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        f = h5py.File(path, "w", libver="latest")
+        # Built under a temporary name and renamed into place: a kill during creation never
+        # leaves a partial file at ``path`` that would block run and resume.
+        tmp = path.with_name(f".{path.name}.creating-{os.getpid()}")
+        f = h5py.File(tmp, "w", libver="latest")
         try:
             cls._build(f, specimen, cameras, protocol_text, rig or {}, instruments or {}, load_cell_measures)
             f.flush()
             f.swmr_mode = True
+            os.replace(tmp, path)
         except BaseException:
             f.close()
-            path.unlink(missing_ok=True)
+            tmp.unlink(missing_ok=True)
             raise
         writer = cls(f, path)
         writer._fsync()
@@ -243,8 +248,7 @@ class SessionWriter:
         entry.attrs["NX_class"] = "NXentry"
         entry.attrs["start_time"] = _now_iso()
         entry.attrs["software_version"] = _software_version()
-        entry.attrs["writer_pid"] = os.getpid()
-        entry.attrs["writer_host"] = socket.gethostname()
+        _stamp_writer(entry)
         entry.create_dataset("status", data=np.bytes_(b"running"), dtype=_STATUS_DTYPE)
         entry.create_dataset("end_time", data=np.bytes_(b""), dtype="S40")
 
@@ -333,12 +337,14 @@ class SessionWriter:
             raise SessionError(f"{path}: session status is {status!r}; only an interrupted session can be resumed")
         clear_consistency_flags(path)
         try:
-            f = h5py.File(path, "a", libver="latest")
+            # No HDF5 file lock: readers that have the interrupted file open (SWMR readers, a live
+            # view, 'vfmlab info' in another terminal) hold a shared lock and must not block resume.
+            # One writer at a time is kept by the status check above (a live writer = "running").
+            f = h5py.File(path, "a", libver="latest", locking=False)
         except OSError as exc:
             raise SessionError(f"{path}: cannot reopen for writing: {exc}") from None
         trimmed = _trim_partial_records(f["entry"])
-        f["entry"].attrs["writer_pid"] = os.getpid()
-        f["entry"].attrs["writer_host"] = socket.gethostname()
+        _stamp_writer(f["entry"])
         f.flush()
         f.swmr_mode = True
         f["entry/status"][()] = np.bytes_(b"running")
@@ -480,6 +486,22 @@ class SessionWriter:
         self.close("complete" if exc_type is None else "aborted")
 
 
+def incomplete_leftover(path: str | os.PathLike) -> bool:
+    """True if ``path`` is a tiny file that is not a readable session: what a run killed while it
+    created the file leaves (0 to a few dozen bytes, no data). Such a file may be replaced."""
+    path = Path(path)
+    try:
+        if not path.is_file() or path.stat().st_size >= 4096:
+            return False
+    except OSError:
+        return False
+    try:
+        open_session(path).close()
+    except SessionError:
+        return True
+    return False
+
+
 def _refuse_live_session(path: Path) -> None:
     """Two writers never share a file: refuse to replace a session another process is recording."""
     try:
@@ -538,9 +560,35 @@ def _read(ds: h5py.Dataset) -> Any:
     return _decode(ds[()])
 
 
-def _writer_alive(pid: int, host: str) -> bool:
+def _boot_id() -> str:
+    try:
+        return Path("/proc/sys/kernel/random/boot_id").read_text().strip()
+    except OSError:
+        return ""
+
+
+def _start_ticks(pid: int) -> int:
+    """Start time of process ``pid`` in clock ticks since boot (/proc/<pid>/stat field 22), or -1."""
+    try:
+        return int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[19])
+    except (OSError, IndexError, ValueError):
+        return -1
+
+
+def _stamp_writer(entry: h5py.Group) -> None:
+    """Record who writes: pid, host, boot id and the process start time (a reused pid is not us)."""
+    entry.attrs["writer_pid"] = os.getpid()
+    entry.attrs["writer_host"] = socket.gethostname()
+    entry.attrs["writer_boot_id"] = _boot_id()
+    entry.attrs["writer_start_ticks"] = _start_ticks(os.getpid())
+
+
+def _writer_alive(pid: int, host: str, boot_id: str = "", start_ticks: int = -1) -> bool:
+    """Is the process that recorded ``status = running`` still running (on this machine, this boot)?"""
     if host != socket.gethostname():
         return False  # another machine wrote it; nobody here is still writing
+    if boot_id and _boot_id() and boot_id != _boot_id():
+        return False  # the machine rebooted since: every writer of that boot is gone
     if pid == os.getpid():
         return True
     try:
@@ -548,7 +596,9 @@ def _writer_alive(pid: int, host: str) -> bool:
     except ProcessLookupError:
         return False
     except PermissionError:
-        return True
+        pass
+    if start_ticks >= 0 and _start_ticks(pid) not in (-1, start_ticks):
+        return False  # the pid was reused by another process
     try:
         state = Path(f"/proc/{pid}/stat").read_text().split(")")[-1].split()[0]
         return state != "Z"  # a zombie has exited
@@ -584,9 +634,11 @@ class Session:
         """complete | aborted | interrupted (recorded, or the writer died while running) | running."""
         status = self.recorded_status
         if status == "running":
-            pid = int(self._entry.attrs.get("writer_pid", -1))
-            host = str(_decode(self._entry.attrs.get("writer_host", "")))
-            if not _writer_alive(pid, host):
+            attrs = self._entry.attrs
+            pid = int(attrs.get("writer_pid", -1))
+            host = str(_decode(attrs.get("writer_host", "")))
+            if not _writer_alive(pid, host, str(_decode(attrs.get("writer_boot_id", ""))),
+                                 int(attrs.get("writer_start_ticks", -1))):
                 return "interrupted"
         return status
 

@@ -39,6 +39,12 @@ def _is_hdf5(path: Path) -> bool:
         return False
 
 
+def _leftover(path: Path) -> bool:
+    from acquisition.session import incomplete_leftover
+
+    return incomplete_leftover(path)
+
+
 def _session_note(path: Path) -> str:
     """' (being recorded by process N)' when a live writer is recording it, else ''."""
     try:
@@ -53,11 +59,12 @@ def _session_note(path: Path) -> str:
 
 
 def check_output_path(path: str | os.PathLike, *, force: bool, inputs: Iterable[str | os.PathLike] = (),
-                      option: str = "--out", can_force: bool = True) -> Path:
+                      option: str = "--out", can_force: bool = True, leftover_ok: bool = False) -> Path:
     """Check that writing the file ``path`` destroys nothing; returns it as a Path.
 
     Raises :class:`OutputPathError` (exit code 2) when ``path`` is one of ``inputs``, an existing
-    session (HDF5) file, a folder, or any other existing file without ``force``.
+    session (HDF5) file, a folder, or any other existing file without ``force``. With
+    ``leftover_ok``, the few bytes a run killed while creating its file left behind may be replaced.
     """
     path = Path(path)
     for source in inputs:
@@ -68,6 +75,8 @@ def check_output_path(path: str | os.PathLike, *, force: bool, inputs: Iterable[
         return path
     if path.is_dir():
         raise OutputPathError(f"{option} {path}: is a folder; give a file name")
+    if leftover_ok and _leftover(path):
+        return path
     if _is_hdf5(path):
         raise OutputPathError(f"{option} {path}: is a session (HDF5) file{_session_note(path)}; vfmlab never "
                               "overwrites a session, even with --force (choose another output file)")

@@ -33,6 +33,8 @@ def command(session: str, rig: str | None, sim: bool, sim_speed: float, yes: boo
         outcome = resume_session(session, rig_path=rig, sim=sim, yes=yes, sim_speed=sim_speed, console=console,
                                  detector=detector_from_reconstruction() if detect else None)
     except OperateError as exc:
-        raise CliError(str(exc)) from None
-    if outcome.status == "aborted":
+        error = CliError(str(exc))
+        error.exit_code = exc.exit_code
+        raise error from None
+    if outcome.failed:
         raise click.exceptions.Exit(1)

@@ -14,7 +14,8 @@ Examples:
 
 Ctrl-C pauses at the next safe point and offers: resume, retake the last step, quit (resume later
 with 'vfmlab resume'), abort. Abort and every other ending vent the pressure controller.
-Exit codes: 0 complete or quit (resumable), 1 aborted or a file/instrument error.
+Exit codes: 0 complete or quit (resumable), 1 aborted (safety limit: vented and resumable; operator:
+final), disk full (resumable once space is freed) or a file/instrument error, 2 bad input files.
 """
 
 
@@ -38,11 +39,13 @@ def command(protocol: str, specimen: str, out: str, rig: str | None, sim: bool, 
     from vfmlab.cli._outputs import check_output_path
     from vfmlab.operate import OperateError, detector_from_reconstruction, run_session
 
-    check_output_path(out, force=False, inputs=[protocol, specimen, rig], can_force=False)
+    check_output_path(out, force=False, inputs=[protocol, specimen, rig], can_force=False, leftover_ok=True)
     try:
         outcome = run_session(protocol, specimen, out, rig_path=rig, sim=sim, yes=yes, sim_speed=sim_speed,
                               console=console, detector=detector_from_reconstruction() if detect else None)
     except OperateError as exc:
-        raise CliError(str(exc)) from None
-    if outcome.status == "aborted":
+        error = CliError(str(exc))
+        error.exit_code = exc.exit_code
+        raise error from None
+    if outcome.failed:
         raise click.exceptions.Exit(1)
