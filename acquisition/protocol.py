@@ -699,13 +699,13 @@ def parse_rig(data: dict | str, text: str = "", source: str = "<rig>") -> RigCon
     safety = SafetyLimits()
     t = top.table("safety")
     if t is not None:
-        safety = SafetyLimits(t.pressure("max_pressure", safety.max_pressure),
-                              t.number("max_stretch", safety.max_stretch, lo=1.0),
-                              t.number("max_force_N", safety.max_force, lo=0.0, lo_open=True))
-        if safety.max_pressure <= 0:
+        limits = (t.pressure("max_pressure", safety.max_pressure), t.number("max_stretch", safety.max_stretch, lo=1.0),
+                  t.number("max_force_N", safety.max_force, lo=0.0, lo_open=True))
+        if limits[0] <= 0:
             t.fail("max_pressure_mmHg", "expected a limit > 0")
-        if safety.max_stretch <= 1.0:
-            t.fail("max_stretch", f"expected a limit > 1 (L/L0 = 1 is the unstretched length); got {safety.max_stretch:g}")
+        if limits[1] <= 1.0:
+            t.fail("max_stretch", f"expected a limit > 1 (L/L0 = 1 is the unstretched length); got {limits[1]:g}")
+        safety = SafetyLimits(*limits)
         t.done()
     simulation = SimulationConfig()
     t = top.table("simulation")

@@ -287,7 +287,6 @@ class SessionRunner:
         self.stop_reason = ""
         self._free_space = free_space or self._disk_free
         self._last_step_bytes = 0
-        self._judged: dict[str, float] = {}  # channel -> time of the last over-limit sample judged a glitch
 
     # ------------------------------------------------------------------ public
     def request_pause(self) -> None:
@@ -447,8 +446,8 @@ class SessionRunner:
     #: Fresh samples that must confirm an over-limit reading, and how long to wait for them, s.
     CONFIRM_SAMPLES, CONFIRM_WAIT_S = 3, 0.5
 
-    def _check_latest(self) -> None:
-        """Judge the newest sample of each channel against the limits, and against its neighbours.
+    def _check_readings(self, drained: dict[str, Any]) -> None:
+        """Judge every new sample against the limits, and an over-limit one against its neighbours.
 
         One corrupted reading (a well-formed reply with a wrong number) must not abort a test: an
         over-limit sample is retried, i.e. confirmed by the fresh samples that follow it; the
@@ -456,22 +455,25 @@ class SessionRunner:
         reading is recorded as an event and ignored otherwise.
         """
         for ch in CHANNELS:
-            s = self.sampler.latest(ch)
-            if s is None or s.t_monotonic <= self._judged.get(ch, -math.inf):
+            rec = drained.get(ch)
+            if rec is None or not len(rec.t_monotonic):
                 continue
-            what = self._over_limit(ch, float(s.value))
-            if what is None:
-                continue
-            fresh = self._fresh_samples(ch, s.t_monotonic)
-            bad = sum(self._over_limit(ch, v) is not None for v in fresh)
-            if len(fresh) < self.CONFIRM_SAMPLES or bad * 2 > len(fresh):
-                raise SessionAborted(what + f" (confirmed by {bad} of {len(fresh)} following readings); "
-                                            "pressure vented", resumable=True)
-            self._judged[ch] = s.t_monotonic
-            msg = (f"implausible {_NAMES[ch]} reading ignored: {what}, but {len(fresh) - bad} of the "
-                   f"{len(fresh)} readings that followed are normal (median {np.median(fresh):.4g})")
-            self._warn(msg)
-            self._event("implausible_reading", msg)
+            values, times = np.asarray(rec.value, dtype=float), np.asarray(rec.t_monotonic, dtype=float)
+            over = [i for i in range(values.size) if self._over_limit(ch, values[i]) is not None]
+            for i in over:
+                self._judge(ch, float(values[i]), float(times[i]))
+
+    def _judge(self, ch: str, value: float, t_sample: float) -> None:
+        what = self._over_limit(ch, value)
+        fresh = self._fresh_samples(ch, t_sample)
+        bad = sum(self._over_limit(ch, v) is not None for v in fresh)
+        if len(fresh) < self.CONFIRM_SAMPLES or bad * 2 > len(fresh):
+            raise SessionAborted(what + f" (confirmed by {bad} of {len(fresh)} following readings); "
+                                        "pressure vented", resumable=True)
+        msg = (f"implausible {_NAMES[ch]} reading ignored: {what}, but {len(fresh) - bad} of the "
+               f"{len(fresh)} readings that followed are normal (median {np.median(fresh):.4g})")
+        self._warn(msg)
+        self._event("implausible_reading", msg)
 
     def _fresh_samples(self, ch: str, t_after: float) -> list[float]:
         """Values of ``ch`` sampled after ``t_after``, waiting (bounded) for CONFIRM_SAMPLES of them."""
@@ -728,8 +730,9 @@ class SessionRunner:
         """Drain the sampler into the session log and refresh the live state."""
         if not self._finalizing:
             self._ensure_space(0, "the instrument log")
+        drained = {}
         for ch in CHANNELS:
-            rec = self.sampler.drain(ch)
+            rec = drained[ch] = self.sampler.drain(ch)
             if len(rec.t_monotonic):
                 self._write(self.writer.append_log, ch, rec.t_monotonic, rec.t_wall, rec.value, list(rec.raw),
                             seq=rec.seq)
@@ -743,7 +746,7 @@ class SessionRunner:
                 setattr(self.state, ch, float(s.value))
         self._update()
         if not self._finalizing:
-            self._check_latest()
+            self._check_readings(drained)
 
     # ------------------------------------------------------------------ disk space
     #: Free space kept in hand besides the next write (the log, events and HDF5 metadata), bytes.
@@ -839,7 +842,9 @@ class SessionRunner:
                 cam.close()
             # 'interrupted' = leave 'running' so readers report interrupted and resume accepts it
             # a resumable abort (safety limit, vented) is recorded as 'interrupted': resume accepts it
-            if status == "aborted" and self.resumable:
+            # an operator's quit leaves 'running' (readers report interrupted once the process is gone);
+            # a fault that stopped a resumable run (disk full, a safety trip, vented) says so at once
+            if (status == "aborted" and self.resumable) or (status == "interrupted" and self.stop_reason):
                 self.writer.close(status="interrupted")
             else:
                 self.writer.close(status="running" if status == "interrupted" else status)

@@ -337,12 +337,17 @@ class SessionWriter:
             raise SessionError(f"{path}: session status is {status!r}; only an interrupted session can be resumed")
         clear_consistency_flags(path)
         try:
-            # No HDF5 file lock: readers that have the interrupted file open (SWMR readers, a live
-            # view, 'vfmlab info' in another terminal) hold a shared lock and must not block resume.
-            # One writer at a time is kept by the status check above (a live writer = "running").
-            f = h5py.File(path, "a", libver="latest", locking=False)
+            f = h5py.File(path, "a", libver="latest")
         except OSError as exc:
-            raise SessionError(f"{path}: cannot reopen for writing: {exc}") from None
+            if "unable to lock file" not in str(exc):
+                raise SessionError(f"{path}: cannot reopen for writing: {exc}") from None
+            # Readers that have the interrupted file open (SWMR readers, a live view, 'vfmlab info'
+            # in another terminal) hold HDF5's shared lock; they must not block resume. One writer
+            # at a time is kept by the status check above (a live writer = "running").
+            try:
+                f = h5py.File(path, "a", libver="latest", locking=False)
+            except OSError as exc2:
+                raise SessionError(f"{path}: cannot reopen for writing: {exc2}") from None
         trimmed = _trim_partial_records(f["entry"])
         _stamp_writer(f["entry"])
         f.flush()
