@@ -547,29 +547,8 @@ def parse_protocol(data: dict | str, text: str = "", source: str = "<protocol>",
         meta.done()
 
     max_stretch = rig.safety.max_stretch if rig is not None else math.inf
-    pre = Preconditioning()
-    t = top.table("preconditioning")
-    if t is not None:
-        pc = t.integer("pressure_cycles", 0)
-        pmax = t.pressure("pressure_max", 0.0)
-        sc = t.integer("stretch_cycles", 0)
-        smax = t.number("stretch_max", 1.0, lo=1.0)
-        if pc and pmax <= 0:
-            t.fail("pressure_max_mmHg", f"pressure_cycles = {pc} needs a pressure_max > 0")
-        if sc and smax <= 1.0:
-            t.fail("stretch_max", f"stretch_cycles = {sc} needs a stretch_max > 1; got {smax:g}")
-        pre = Preconditioning(pc, pmax, sc, smax, t.number("cycle_s", 10.0, lo=MIN_CYCLE_S),
-                              t.get("imaged", False, bool))
-        t.done()
-
-    stab = Stability()
-    t = top.table("stability")
-    if t is not None:
-        stab = Stability(t.pressure("band", stab.band), t.number("dwell_s", stab.dwell_s, lo=0.0),
-                         t.number("timeout_s", stab.timeout_s, lo=0.0, lo_open=True))
-        if stab.band <= 0:
-            t.fail("band_mmHg", "expected a band > 0")
-        t.done()
+    pre = _preconditioning(top.table("preconditioning"))
+    stab = _stability(top.table("stability"))
 
     blocks: list[TestBlock] = []
     t = top.table("test")
@@ -629,6 +608,35 @@ def parse_protocol(data: dict | str, text: str = "", source: str = "<protocol>",
         proto.check_against(rig)
     proto.check_duration(len(proto.camera_names(rig)) if rig is not None else 1)
     return proto
+
+
+def _preconditioning(t: _Table | None) -> Preconditioning:
+    if t is None:
+        return Preconditioning()
+    pc = t.integer("pressure_cycles", 0)
+    pmax = t.pressure("pressure_max", 0.0)
+    sc = t.integer("stretch_cycles", 0)
+    smax = t.number("stretch_max", 1.0, lo=1.0)
+    if pc and pmax <= 0:
+        t.fail("pressure_max_mmHg", f"pressure_cycles = {pc} needs a pressure_max > 0")
+    if sc and smax <= 1.0:
+        t.fail("stretch_max", f"stretch_cycles = {sc} needs a stretch_max > 1; got {smax:g}")
+    pre = Preconditioning(pc, pmax, sc, smax, t.number("cycle_s", 10.0, lo=MIN_CYCLE_S),
+                          t.get("imaged", False, bool))
+    t.done()
+    return pre
+
+
+def _stability(t: _Table | None) -> Stability:
+    stab = Stability()
+    if t is None:
+        return stab
+    stab = Stability(t.pressure("band", stab.band), t.number("dwell_s", stab.dwell_s, lo=0.0),
+                     t.number("timeout_s", stab.timeout_s, lo=0.0, lo_open=True))
+    if stab.band <= 0:
+        t.fail("band_mmHg", "expected a band > 0")
+    t.done()
+    return stab
 
 
 def _check_band(stab: Stability, blocks: list[TestBlock], source: str, rig: RigConfig | None) -> None:

@@ -285,6 +285,13 @@ class SessionWriter:
         proto["data"] = protocol_text
         proto.attrs["sha256"] = hashlib.sha256(protocol_text.encode("utf-8")).hexdigest()
 
+        SessionWriter._build_growing(entry, cameras)
+        res = entry.create_group("results")
+        res.attrs["NX_class"] = "NXcollection"
+
+    @staticmethod
+    def _build_growing(entry: h5py.Group, cameras: Sequence[CameraSpec]) -> None:
+        """Every dataset that grows (logs, steps, frames, events), created before SWMR mode."""
         logs = entry.create_group("log")
         logs.attrs["NX_class"] = "NXcollection"
         for channel, units in _LOG_CHANNELS.items():
@@ -321,8 +328,6 @@ class SessionWriter:
         _growable(events, "time", "f8", "s", chunk=256)
         _growable(events, "kind", _EVENT_KIND_DTYPE, None, chunk=256)
         _growable(events, "message", _EVENT_MESSAGE_DTYPE, None, chunk=256)
-        res = entry.create_group("results")
-        res.attrs["NX_class"] = "NXcollection"
 
     @classmethod
     def resume(cls, path: str | os.PathLike) -> SessionWriter:
@@ -984,10 +989,18 @@ def _write_failure(path: Path, exc: OSError) -> str:
     if exc.errno in (errno.ENOSPC, errno.EDQUOT):
         free = shutil.disk_usage(path.parent).free
         needed = getattr(exc, "needed", 0)
-        return (f"{path}: disk full while writing the result ({free / 1e6:.1f} MB free"
-                + (f", about {needed / 1e6:.1f} MB needed" if needed else "")
+        return (f"{path}: disk full while writing the result ({_size(free)} free"
+                + (f", about {_size(needed)} more needed" if needed else "")
                 + "); the session was left exactly as it was before. Free some space and run the command again")
     return f"{path}: cannot write the result ({exc}); the session was left exactly as it was before"
+
+
+def _size(nbytes: float) -> str:
+    """A byte count for people: kB below 1 MB, MB below 1 GB, else GB."""
+    for unit, scale in (("GB", 1e9), ("MB", 1e6)):
+        if nbytes >= scale:
+            return f"{nbytes / scale:.1f} {unit}"
+    return f"{max(nbytes, 0) / 1e3:.0f} kB"
 
 
 def _json_default(obj: Any) -> Any:

@@ -194,7 +194,7 @@ def test_disk_full_at_every_write_leaves_the_session_byte_identical(command, bas
                 h5journal._JournaledFile._io = saved["io"]
             err = capsys.readouterr().err
             assert rc == 1, k
-            assert "disk full while writing the result" in err and "MB needed" in err, err
+            assert "disk full while writing the result" in err and "more needed" in err, err
             assert "left exactly as it was before" in err
             assert not h5journal.journal_path(path).exists()
             assert path.read_bytes() == original, f"{command}: disk full at write {k}/{n}: session changed"
