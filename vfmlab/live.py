@@ -42,7 +42,10 @@ def format_duration(seconds: float) -> str:
 
 
 def _num(value: float, fmt: str) -> str:
-    return "—" if value is None or not math.isfinite(value) else format(value, fmt)
+    if value is None or not math.isfinite(value):
+        return "—"
+    text = format(value, fmt)
+    return text.replace("-", " ", 1) if float(text) == 0 else text  # never "-0.00"
 
 
 def render_state(state: RunnerState, title: str = "vfmlab run"):

@@ -27,6 +27,7 @@ from acquisition.protocol import (MMHG, ConfigError, Protocol, RigConfig, Specim
 from acquisition.runner import AutoOperator, RunnerState, SessionRunner, completed_steps
 from acquisition.session import CameraSpec, SessionError, SessionWriter, SpecimenInfo, open_session
 from vfmlab.bench import Bench, BenchError, open_bench
+from vfmlab.display import fixed
 from vfmlab.live import LiveView, TerminalOperator, format_duration
 
 __all__ = ["OperateError", "Outcome", "run_session", "resume_session", "DEFAULT_SIM_RIG"]
@@ -125,7 +126,8 @@ def _execute(runner_kwargs: dict[str, Any], protocol: Protocol, writer: SessionW
         elif state.steps_done != last["steps"]:
             last["steps"] = state.steps_done
             console.print(f"step {state.steps_done}/{state.n_steps}: block {state.block + 1}, "
-                          f"L/L0 {state.stretch:.3f}, {state.pressure / MMHG:.1f} mmHg, {state.force:.4f} N, "
+                          f"L/L0 {state.stretch:.3f}, {fixed(state.pressure / MMHG, 1)} mmHg, "
+                          f"{fixed(state.force, 4)} N, "
                           f"remaining ~{format_duration(state.remaining_s)}")
 
     runner = SessionRunner(protocol, writer, pressure=bench.pressure, sampler=bench.sampler, cameras=bench.cameras,
@@ -221,7 +223,7 @@ def resume_session(path: str, *, rig_path: str | None = None, sim: bool = False,
     specimen = SpecimenFile(info.specimen_id, info.radius, info.length, info.thickness, info.notes)
     done_pre = "preconditioning_done" in kinds or start > 0
     done_cal = "calibration_done" in kinds or "preconditioning" in kinds or start > 0
-    console.print(f"Resuming {esc(path)}: {start}/{protocol.n_steps} steps done"
+    console.print(f"Resuming {esc(str(path))}: {start}/{protocol.n_steps} steps done"
                   + ("" if done_pre else "; preconditioning will be redone"))
     if start >= protocol.n_steps:
         console.print("every step is already captured; closing the session as complete")
@@ -257,10 +259,10 @@ def _report(runner: SessionRunner, path: Path, console: Console) -> Outcome:
         n = s.n_steps
     status = runner.status
     style = {"complete": "green", "aborted": "red", "interrupted": "yellow"}[status]
-    console.print(f"[bold {style}]Session {status}[/]: {esc(path)} ({n} step rows, "
+    console.print(f"[bold {style}]Session {status}[/]: {esc(str(path))} ({n} step rows, "
                   f"{format_duration(runner.state.elapsed_s)})")
     if status == "interrupted":
-        console.print(f"Continue with: vfmlab resume {esc(path)}")
+        console.print(f"Continue with: vfmlab resume {esc(str(path))}")
     return Outcome(status, path, n, runner.state.elapsed_s)
 
 

@@ -23,6 +23,8 @@ import numpy as np
 from rich.console import Console, ConsoleDimensions
 from rich.markup import escape as _rich_escape
 
+from vfmlab.display import display_quantity, fixed, num, quantity  # noqa: F401 - re-exported for the commands
+
 #: Width a non-terminal console renders at: wide enough that no table or line ever folds.
 UNLIMITED_WIDTH = 100_000
 #: ISO 8601 time stamps in every log line (never the locale's month/day order).
@@ -133,59 +135,3 @@ def to_jsonable(obj: Any) -> Any:
 def print_json(obj: Any) -> None:
     """Print ``obj`` as JSON on stdout (no colour, no wrapping), for scripts."""
     click.echo(json.dumps(to_jsonable(obj), indent=2, sort_keys=False))
-
-
-def num(value: Any, digits: int = 4) -> str:
-    """A number rounded to ``digits`` significant digits for people: no ``-0``, ``–`` for missing/NaN.
-
-    >>> num(0.0013000000000000002), num(-0.0), num(float("nan")), num(101325.0)
-    ('0.0013', '0', '–', '1.013e+05')
-    """
-    if value is None:
-        return "–"
-    try:
-        value = float(value)
-    except (TypeError, ValueError):
-        return str(value)
-    if not math.isfinite(value):
-        return "–" if math.isnan(value) else ("∞" if value > 0 else "-∞")
-    text = f"{value:.{digits}g}"
-    return "0" if float(text) == 0 else text
-
-
-def fixed(value: Any, decimals: int) -> str:
-    """``value`` with ``decimals`` decimals, never ``-0.0`` (a reading of -0.04 mmHg shows as 0.0)."""
-    try:
-        value = float(value)
-    except (TypeError, ValueError):
-        return "–"
-    if not math.isfinite(value):
-        return "–"
-    text = f"{value:.{decimals}f}"
-    return text.lstrip("-") if float(text) == 0 else text
-
-
-def describe_counts(counts: dict[str, Any], what: str = "") -> str:
-    """``{'nan_markers': 39, 'slivers': 2}`` -> ``'39 nan markers, 2 slivers'`` (zero counts left out)."""
-    parts = [f"{v} {str(k).replace('_', ' ')}" for k, v in counts.items() if v]
-    return ", ".join(parts) if parts else f"no {what}".strip()
-
-
-def display_quantity(value: Any, unit: str) -> tuple[float, str]:
-    """An SI value as people read it: Pa -> kPa, rad -> deg, m -> mm; "1" (dimensionless) -> "".
-
-    >>> display_quantity(6580.0, "Pa"), display_quantity(0.5, "rad")[1], display_quantity(2.0, "1")
-    ((6.58, 'kPa'), 'deg', (2.0, ''))
-    """
-    scale, shown = {"Pa": (1e-3, "kPa"), "rad": (180.0 / math.pi, "deg"), "m": (1e3, "mm"),
-                    "1": (1.0, "")}.get(unit, (1.0, unit))
-    try:
-        return float(value) * scale, shown
-    except (TypeError, ValueError):
-        return float("nan"), shown
-
-
-def quantity(value: Any, unit: str, digits: int = 4) -> str:
-    """``quantity(6580.0, "Pa")`` -> ``'6.58 kPa'``: the value in display units with its unit."""
-    shown, label = display_quantity(value, unit)
-    return "–" if not math.isfinite(shown) else f"{num(shown, digits)} {label}".rstrip()

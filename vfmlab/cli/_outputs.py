@@ -31,6 +31,15 @@ def _same_file(a: Path, b: Path) -> bool:
         return False
 
 
+def check_parent(path: str | os.PathLike, option: str = "--out") -> Path:
+    """``path`` as a Path, or a CliError when the folder it goes into does not exist (nothing creates it)."""
+    path = Path(path)
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        raise CliError(f"{option} {path}: the folder {parent} does not exist; create it first")
+    return path
+
+
 def check_output_path(path: str | os.PathLike, force: bool, inputs: Iterable[str | os.PathLike] = (),
                       option: str = "--out") -> Path:
     """Check that the file ``path`` may be written; returns it as a Path or raises CliError.
@@ -38,10 +47,7 @@ def check_output_path(path: str | os.PathLike, force: bool, inputs: Iterable[str
     Refused: a missing parent folder, an existing folder, one of ``inputs``, an HDF5 (session) file;
     an existing other file unless ``force``.
     """
-    path = Path(path)
-    parent = path.parent if str(path.parent) else Path(".")
-    if not parent.is_dir():
-        raise CliError(f"{option} {path}: the folder {parent} does not exist; create it first")
+    path = check_parent(path, option)
     if path.is_dir():
         raise CliError(f"{option} {path}: is a folder; give a file name")
     if not path.exists():
@@ -62,12 +68,9 @@ def check_output_dir(path: str | os.PathLike, force: bool, will_write: Iterable[
     The folder itself may be new, but its parent must exist. Files named in ``will_write`` that
     already exist in it are overwritten only with ``force``.
     """
-    path = Path(path)
+    path = check_parent(path, option)
     if path.exists() and not path.is_dir():
         raise CliError(f"{option} {path}: is a file; give a folder")
-    parent = path.parent if str(path.parent) else Path(".")
-    if not parent.is_dir():
-        raise CliError(f"{option} {path}: the folder {parent} does not exist; create it first")
     existing = [name for name in will_write if (path / name).exists()]
     if existing and not force:
         shown = ", ".join(existing[:3]) + (" …" if len(existing) > 3 else "")

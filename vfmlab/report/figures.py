@@ -196,11 +196,13 @@ def map_steps(n_steps: int) -> np.ndarray:
 
 
 def surface_maps(fields: SurfaceFields, values: np.ndarray, *, title: str, label: str, scale: float,
-                 diverging: bool = False, min_span: float = 0.0) -> Figure:
+                 diverging: bool = False, min_span: float = 0.0, shared: bool = True) -> Figure:
     """Small multiples of a per-triangle quantity ``values`` (n_steps, n_tri) on the unrolled surface.
 
-    Each panel has its own colour scale (1st-99th percentile of that step) so that the spatial
-    distribution stays visible at every pressure; the panel's range is on its colorbar.
+    ``shared``: one colour scale for every panel (1st-99th percentile over all shown steps), so that
+    steps compare and noise of a fraction of a percent does not look like structure; otherwise each
+    panel has its own scale (1st-99th percentile of that step, at least ``min_span`` wide), which shows
+    the spatial distribution within a step. The title says which is used.
     """
     steps = map_steps(len(values))
     ncols = min(3, len(steps))
@@ -214,6 +216,7 @@ def surface_maps(fields: SurfaceFields, values: np.ndarray, *, title: str, label
     # Manual layout (constrained layout costs more than drawing for these small multiples).
     fig = Figure(figsize=(width, height), dpi=110)
     v = values[steps] * scale
+    common = _limits(v, min_span) if shared else None
     axes = []
     for i, (k, vk) in enumerate(zip(steps, v)):
         row, col = divmod(i, ncols)
@@ -222,7 +225,7 @@ def surface_maps(fields: SurfaceFields, values: np.ndarray, *, title: str, label
         ax = fig.add_axes((left / width, bottom / height, panel_w / width, panel_h / height))
         cax = fig.add_axes(((left + panel_w + 0.08) / width, bottom / height, 0.1 / width, panel_h / height))
         axes.append(ax)
-        lo, hi = _limits(vk, min_span)
+        lo, hi = common if shared else _limits(vk, min_span)
         if diverging and lo < 0 < hi:
             norm, cmap = TwoSlopeNorm(0.0, lo, hi), colormaps["RdBu_r"]
         else:
@@ -246,7 +249,8 @@ def surface_maps(fields: SurfaceFields, values: np.ndarray, *, title: str, label
         cb.update_ticks()
         cb.ax.tick_params(labelsize=7)
         cb.set_label(label, fontsize=8)
-    fig.suptitle(f"{title} (grey: triangle not measured)", y=1 - 0.15 / height, va="top")
+    which = "one colour scale for all steps" if shared else "colour scale per step"
+    fig.suptitle(f"{title} ({which}; grey: triangle not measured)", y=1 - 0.15 / height, va="top")
     return fig
 
 
