@@ -96,7 +96,7 @@ def _rows(path: Path, required: tuple[str, ...], alternatives: dict[str, tuple[s
             hint = f" (unknown unit column {unknown[0]!r})" if unknown else ""
             raise CsvFormatError(
                 f"{path}, line 1: expected exactly one of the columns {', '.join(options)}; "
-                f"found {present or 'none'}{hint}"
+                f"found {', '.join(present) or 'none'}{hint}; header is {','.join(header)!r}"
             )
     index = {name: i for i, name in enumerate(header)}
     for line_no, row in enumerate(reader, start=2):
