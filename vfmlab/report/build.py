@@ -17,7 +17,7 @@ import numpy as np
 
 from acquisition.session import Session, open_session
 from vfmlab import __version__
-from vfmlab.display import display_quantity, num, quantity
+from vfmlab.display import display_quantity, fixed, num, quantity
 from vfmlab.fields import FieldsError, SurfaceFields, compute_fields, stress_strain_curves
 from vfmlab.report import figures
 from vfmlab.results import parameter_units
@@ -303,7 +303,7 @@ def _sec_pressure_radius(ctx: _Context, rep: _Report) -> str:
     out = [rep.figure(figures.pressure_radius(f.pressure, r, f.stretch), "pressure_radius",
                       "Pressure against the mean radius of the mid-span markers (middle 20 % of the marked length).")]
     out.append(_table(["step", "pressure (mmHg)", "λz", "mid-span radius (mm)"],
-                      [[k, f"{p / figures.MMHG:.1f}", f"{s:.3f}", _fmt(ri * 1e3, 5)]
+                      [[k, fixed(p / figures.MMHG, 1), f"{s:.3f}", _fmt(ri * 1e3, 5)]
                        for k, (p, s, ri) in enumerate(zip(f.pressure, f.stretch, r))], numeric={0, 1, 2, 3}))
     return "".join(out)
 

@@ -18,6 +18,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator, ScalarFormatter
 from matplotlib.tri import Triangulation
 
+from vfmlab.display import fixed
 from vfmlab.fields import SurfaceFields
 
 MMHG = 133.322387415
@@ -31,7 +32,7 @@ def _figure(width: float, height: float) -> Figure:
 
 
 def _step_label(pressure: float, stretch: float) -> str:
-    return f"{pressure / MMHG:.0f} mmHg, λz {stretch:.3f}"
+    return f"{fixed(pressure / MMHG, 0)} mmHg, λz {stretch:.3f}"
 
 
 def calibration_rms(camera_names: Sequence[str], rms: np.ndarray, per_view: np.ndarray | None = None) -> Figure:
@@ -318,7 +319,8 @@ def stress_strain(strain: Mapping[str, np.ndarray], laplace: Mapping[str, np.nda
     """Mean Cauchy stress (kPa) against mean Green-Lagrange strain (%), circumferential and axial.
 
     ``strain``: E11, E22 (n_steps,); ``laplace``: s11, s22 (n_steps,) global-equilibrium estimates;
-    ``models``: {label: {"s11", "s22"} (n_steps,)} median model stresses over the mid-span triangles;
+    ``models``: {label: {"s11", "s22"} (n_steps,)} model stresses at the measured strains of each step (both
+    E11 and E22: the loading path), drawn in loading order for every stretch;
     ``stretch`` (n_steps,) imposed axial stretch (one curve per stretch).
     """
     fig = _figure(9.0, 3.8)
@@ -326,8 +328,7 @@ def stress_strain(strain: Mapping[str, np.ndarray], laplace: Mapping[str, np.nda
     for ax, (e, s, name) in zip(axes, (("E11", "s11", "circumferential"), ("E22", "s22", "axial"))):
         groups = np.unique(np.round(stretch, 4))
         for g, lam in enumerate(groups):
-            sel = np.flatnonzero(np.round(stretch, 4) == lam)
-            sel = sel[np.argsort(strain[e][sel])]
+            sel = np.flatnonzero(np.round(stretch, 4) == lam)  # in loading order: the path the specimen took
             label = "reference" if len(sel) == 1 and lam == 1.0 else f"Laplace law, λz {lam:.3f}"
             ax.plot(strain[e][sel] * 100, laplace[s][sel] / 1e3, ls="none", color="k", mfc="none",
                     marker="*" if label == "reference" else "os^vD"[g % 5], label=label)
@@ -339,7 +340,7 @@ def stress_strain(strain: Mapping[str, np.ndarray], laplace: Mapping[str, np.nda
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
         ax.set_title(f"{name.capitalize()} direction")
-    fig.suptitle("Stress–strain at mid-span: identified models vs Laplace-law estimates")
+    fig.suptitle("Stress–strain at mid-span: identified models along the measured path vs Laplace-law estimates")
     return fig
 
 
