@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-__all__ = ["num", "fixed", "display_quantity", "quantity"]
+__all__ = ["num", "fixed", "display_quantity", "quantity", "settings_text"]
 
 
 def num(value: Any, digits: int = 4) -> str:
@@ -60,3 +60,25 @@ def quantity(value: Any, unit: str, digits: int = 4) -> str:
     """``quantity(6580.0, "Pa")`` -> ``'6.58 kPa'``: the value in display units with its unit."""
     shown, label = display_quantity(value, unit)
     return "–" if not math.isfinite(shown) else f"{num(shown, digits)} {label}".rstrip()
+
+
+def settings_text(settings: dict, keys: tuple[str, ...] | None = None) -> str:
+    """``key=value, ...`` of stored settings for people: floats rounded to 6 significant digits.
+
+    >>> settings_text({"thickness": 0.0013000000000000002, "model": "fung", "smoothing": [4, 2]})
+    'model=fung, smoothing=[4, 2], thickness=0.0013'
+    """
+    items = [(k, settings[k]) for k in keys if k in settings] if keys else sorted(settings.items())
+    return ", ".join(f"{k}={_setting(v)}" for k, v in items)
+
+
+def _setting(value: Any) -> str:
+    if isinstance(value, bool) or value is None:
+        return str(value).lower() if value is not None else "none"
+    if isinstance(value, float):
+        return num(value, 6)
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_setting(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{" + settings_text(value) + "}"
+    return str(value)

@@ -2,25 +2,20 @@
 
 from __future__ import annotations
 
-import json
-
 import click
-from rich.markup import escape
 from rich.table import Table
 
 from acquisition.session import SessionError
 from vfmlab.cli._common import CliError, console, esc, num, print_json, quantity
+from vfmlab.display import settings_text
 from vfmlab.cli._sessions import cli_session
 
 
 KEY_SETTINGS = {"identification": ("optimizer", "ends", "markers_result")}
 
 
-def _settings_text(kind: str, settings: dict, limit: int = 120) -> str:
-    keys = KEY_SETTINGS.get(kind)
-    items = [(k, settings[k]) for k in keys if k in settings] if keys else sorted(settings.items())
-    text = ", ".join(f"{k}={v}" if isinstance(v, str) else f"{k}={json.dumps(v)}" for k, v in items)
-    return text if len(text) <= limit else text[: limit - 1] + "…"
+def _settings_text(kind: str, settings: dict) -> str:
+    return settings_text(settings, KEY_SETTINGS.get(kind))  # --json or --compare show every setting
 
 
 EPILOG = """
@@ -96,7 +91,7 @@ def _print_comparison(data: dict) -> None:
         for col in ("setting", a, b):
             t.add_column(col)
         for k, v in diffs.items():
-            t.add_row(esc(k), esc(json.dumps(v["a"], default=str)), esc(json.dumps(v["b"], default=str)))
+            t.add_row(esc(k), esc(settings_text({"": v["a"]})[1:]), esc(settings_text({"": v["b"]})[1:]))
         console.print(t)
     else:
         console.print("Same settings.")

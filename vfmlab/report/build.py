@@ -5,7 +5,6 @@ from __future__ import annotations
 import base64
 import datetime as _dt
 import html
-import json
 import logging
 import time
 from collections.abc import Callable
@@ -17,7 +16,7 @@ import numpy as np
 
 from acquisition.session import Session, open_session
 from vfmlab import __version__
-from vfmlab.display import display_quantity, fixed, num, quantity
+from vfmlab.display import display_quantity, fixed, num, quantity, settings_text
 from vfmlab.fields import FieldsError, SurfaceFields, compute_fields, stress_strain_curves
 from vfmlab.report import figures
 from vfmlab.results import parameter_units
@@ -163,7 +162,7 @@ def _sec_instruments(ctx: _Context, rep: _Report) -> str:
     s = ctx.session
     rows = []
     for role, info in s.instruments.items():
-        settings = json.dumps(info["settings"], sort_keys=True) if info["settings"] else "–"
+        settings = settings_text(info["settings"]) if info["settings"] else "–"
         rows.append([role, info["identity"] or "–", settings])
     out = [_table(["instrument", "identity", "settings read back"], rows)]
     out.append(f"<p>The load cell measures the <b>{html.escape(s.load_cell_measures)}</b> force "
@@ -352,7 +351,7 @@ def _sec_parameters(ctx: _Context, rep: _Report) -> str:
         values = np.asarray(a.get("parameters", []), float)
         stderr = np.asarray(a.get("stderr", np.full(len(values), np.nan)), float)
         flags = r["attrs"].get("flags", {}) or {}
-        settings = ", ".join(f"{k}={v}" for k, v in sorted(r["parameters"].items()))
+        settings = settings_text(r["parameters"])
         out.append(f"<h3>{html.escape(r['name'])}: {html.escape(row['model'])} ({html.escape(row['wall'])})</h3>")
         out.append(f"<p>Settings: <code>{html.escape(settings) or '–'}</code>; cost {_fmt(row['cost'])}; "
                    f"{'converged' if row['converged'] else '<b>did not converge</b>'}; vfmlab "
@@ -422,7 +421,7 @@ def _sec_provenance(ctx: _Context, rep: _Report) -> str:
     for name in s.results():
         r = s.result(name)
         rows.append([name, r["kind"], str(r["attrs"].get("date", "")), str(r["attrs"].get("version", "")),
-                     json.dumps(r["parameters"], sort_keys=True)[:200]])
+                     settings_text(r["parameters"])])
     out = [_table(["result", "kind", "date", "vfmlab version", "settings"], rows) if rows else
            _absent("No derived result is stored.")]
     if ctx.fields is not None:
