@@ -23,7 +23,7 @@ Examples:
 @click.option("-o", "--out", "out", type=click.Path(file_okay=False),
               help="Output directory [default: <SESSION stem>_report next to the session]; its parent must exist.")
 @click.option("--strain-scale", type=click.Choice(["shared", "per-step"]), default="shared", show_default=True,
-              help="Colour scale of the strain maps: one scale for all steps (compare steps) or one per step "
+              help="Colour scale of the strain and stress maps: one scale for all steps (compare steps) or one per step "
                    "(detail within a step); the figure says which.")
 @click.option("--force", is_flag=True, help="Overwrite an earlier report in the output directory.")
 @click.option("--json", "as_json", is_flag=True, help="Print the files written as JSON.")

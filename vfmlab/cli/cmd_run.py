@@ -7,6 +7,7 @@ import sys
 import click
 
 from vfmlab.cli._common import CliError, console, err_console
+from vfmlab.cli._outputs import check_parent
 
 EPILOG = """
 \b
@@ -54,6 +55,7 @@ def command(protocol: str, specimen: str, out: str, rig: str | None, sim: bool, 
     from vfmlab.operate import OperateError, as_json as outcome_json, detector_from_reconstruction, run_session
 
     require_answers(yes)
+    check_parent(out)
     try:
         outcome = run_session(protocol, specimen, out, rig_path=rig, sim=sim, yes=yes,
                               sim_speed=old_speed if old_speed is not None else sim_speed,
