@@ -53,18 +53,18 @@ def session(tmp_path_factory) -> Path:
 # ---------------------------------------------------------------- item 2: output paths
 def test_export_markers_never_overwrites_its_session_or_another(session, tmp_path, capsys):
     original = session.read_bytes()
-    assert main(["export-markers", str(session), "-o", str(session)]) == 2
-    assert "is an input of this command; it is never overwritten" in capsys.readouterr().err
-    assert main(["export-markers", str(session), "-o", str(session), "--force"]) == 2
+    assert main(["export-markers", str(session), "-o", str(session)]) == 1
+    assert "is an input of this command; refusing to overwrite it" in capsys.readouterr().err
+    assert main(["export-markers", str(session), "-o", str(session), "--force"]) == 1
     other = tmp_path / "other.h5"
     other.write_bytes(original)
-    assert main(["export-markers", str(session), "-o", str(other), "--force"]) == 2
-    assert "is a session (HDF5) file; vfmlab never overwrites a session, even with --force" in capsys.readouterr().err
+    assert main(["export-markers", str(session), "-o", str(other), "--force"]) == 1
+    assert "is an HDF5 session file; vfmlab never overwrites a session, even with --force" in capsys.readouterr().err
     assert session.read_bytes() == original and other.read_bytes() == original
     csv = tmp_path / "m.csv"
     csv.write_text("keep me")
-    assert main(["export-markers", str(session), "-o", str(csv)]) == 2
-    assert "file exists; add --force to overwrite it" in capsys.readouterr().err
+    assert main(["export-markers", str(session), "-o", str(csv)]) == 1
+    assert "file exists; pass --force to overwrite it" in capsys.readouterr().err
     assert csv.read_text() == "keep me"
     assert main(["export-markers", str(session), "-o", str(csv), "--force"]) == 0
     assert csv.read_text().startswith("marker_id")
@@ -73,13 +73,14 @@ def test_export_markers_never_overwrites_its_session_or_another(session, tmp_pat
 def test_report_and_calibrate_outputs_need_force(session, tmp_path, capsys):
     out = tmp_path / "cal.toml"
     out.write_text("mine")
-    assert main(["calibrate", str(session), "--import", str(out), "-o", str(out)]) == 2
+    assert main(["calibrate", str(session), "--import", str(out), "-o", str(out)]) == 1
     assert "is an input of this command" in capsys.readouterr().err
     folder = tmp_path / "rep"
     folder.mkdir()
     (folder / "report.html").write_text("old")
-    assert main(["report", str(session), "-o", str(folder)]) == 2
-    assert "folder exists and is not empty; add --force" in capsys.readouterr().err
+    assert main(["report", str(session), "-o", str(folder)]) == 1
+    assert "already holds report.html; pass --force" in capsys.readouterr().err
+    assert (folder / "report.html").read_text() == "old"
 
 
 # ---------------------------------------------------------------- item 3: two writers never share a file
@@ -98,7 +99,7 @@ def test_import_onto_a_session_being_recorded_is_refused(tmp_path, capsys):
         loads.write_text("step,pressure_kPa,axial_force_N,stretch\n0,0,0,1\n1,10,0.1,1.1\n")
         rc = main(["import-markers", str(markers), str(loads), "-o", str(path), "--thickness-mm", "1", "--force"])
         err = capsys.readouterr().err
-        assert rc == 2 and "being recorded right now (writer pid" in err and "never overwrites a session" in err
+        assert rc == 1 and "being recorded right now (writer pid" in err and "never overwrites a session" in err
         with pytest.raises(SessionError, match="being recorded into this file right now"):
             SessionWriter.create(path, SpecimenInfo("x", 0.01, 0.03, 0.001), overwrite=True)
         assert proc.poll() is None  # the recording goes on

@@ -1,34 +1,19 @@
-"""The output-path guard every command that writes a file goes through.
+"""Where commands write: one check for every output path (``-o/--out``, ``--summary``).
 
-Rules (issue 16): an output never replaces a session file or one of the command's own inputs,
-whatever the options; any other existing file (or non-empty folder) is replaced only with
-``--force``. A refusal is bad input: exit code 2, one sentence saying what to do instead.
+The grammar (docs/decisions/0004-cli-and-console.md): an output path's folder must already exist
+(nothing creates missing folders behind the operator's back); a session file or one of the command's
+own inputs is never overwritten; any other existing file is overwritten only with ``--force``.
 """
 
 from __future__ import annotations
 
 import os
-from collections.abc import Iterable
 from pathlib import Path
+from typing import Iterable
 
 from vfmlab.cli._common import CliError
 
-__all__ = ["OutputPathError", "check_output_path", "check_output_dir"]
-
 _HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
-
-
-class OutputPathError(CliError):
-    """An output path that would destroy data; exit code 2 (bad input)."""
-
-    exit_code = 2
-
-
-def _same(a: Path, b: Path) -> bool:
-    try:
-        return a.exists() and b.exists() and os.path.samefile(a, b)
-    except OSError:
-        return False
 
 
 def _is_hdf5(path: Path) -> bool:
@@ -39,14 +24,24 @@ def _is_hdf5(path: Path) -> bool:
         return False
 
 
-def _leftover(path: Path) -> bool:
-    from acquisition.session import incomplete_leftover
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
 
-    return incomplete_leftover(path)
+
+def check_parent(path: str | os.PathLike, option: str = "--out") -> Path:
+    """``path`` as a Path, or a CliError when the folder it goes into does not exist (nothing creates it)."""
+    path = Path(path)
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        raise CliError(f"{option} {path}: the folder {parent} does not exist; create it first")
+    return path
 
 
 def _session_note(path: Path) -> str:
-    """' (being recorded by process N)' when a live writer is recording it, else ''."""
+    """' being recorded right now (writer pid N)' when a live writer is recording it, else ''."""
     try:
         from acquisition.session import SessionError, open_session
 
@@ -58,45 +53,48 @@ def _session_note(path: Path) -> str:
     return ""
 
 
-def check_output_path(path: str | os.PathLike, *, force: bool, inputs: Iterable[str | os.PathLike] = (),
-                      option: str = "--out", can_force: bool = True, leftover_ok: bool = False) -> Path:
-    """Check that writing the file ``path`` destroys nothing; returns it as a Path.
+def check_output_path(path: str | os.PathLike, force: bool, inputs: Iterable[str | os.PathLike] = (),
+                      option: str = "--out", *, can_force: bool = True, leftover_ok: bool = False) -> Path:
+    """Check that the file ``path`` may be written; returns it as a Path or raises CliError.
 
-    Raises :class:`OutputPathError` (exit code 2) when ``path`` is one of ``inputs``, an existing
-    session (HDF5) file, a folder, or any other existing file without ``force``. With
-    ``leftover_ok``, the few bytes a run killed while creating its file left behind may be replaced.
+    Refused: a missing parent folder, an existing folder, one of ``inputs``, an HDF5 (session) file
+    (two writers never share a file: a session being recorded is named as such); an existing other
+    file unless ``force``. ``can_force=False``: the command has no --force (the message does not
+    offer it). ``leftover_ok``: the few bytes a run killed while creating its file left may be replaced.
     """
-    path = Path(path)
-    for source in inputs:
-        if source is not None and (_same(path, Path(source)) or path.absolute() == Path(source).absolute()):
-            raise OutputPathError(f"{option} {path}: is an input of this command; it is never overwritten "
-                                  "(choose another output file)")
+    path = check_parent(path, option)
+    if path.is_dir():
+        raise CliError(f"{option} {path}: is a folder; give a file name")
     if not path.exists():
         return path
-    if path.is_dir():
-        raise OutputPathError(f"{option} {path}: is a folder; give a file name")
-    if leftover_ok and _leftover(path):
-        return path
+    if any(_same_file(path, Path(p)) for p in inputs if p is not None):
+        raise CliError(f"{option} {path}: is an input of this command; refusing to overwrite it")
+    if leftover_ok:
+        from acquisition.session import incomplete_leftover
+
+        if incomplete_leftover(path):
+            return path
     if _is_hdf5(path):
-        raise OutputPathError(f"{option} {path}: is a session (HDF5) file{_session_note(path)}; vfmlab never "
-                              "overwrites a session, even with --force (choose another output file)")
+        raise CliError(f"{option} {path}: is an HDF5 session file{_session_note(path)}; vfmlab never overwrites "
+                       "a session, even with --force")
     if not force:
-        raise OutputPathError(f"{option} {path}: file exists; " + ("add --force to overwrite it, or " if can_force else "")
-                              + "choose another name")
+        raise CliError(f"{option} {path}: file exists; " + ("pass --force to overwrite it" if can_force
+                                                             else "choose another name"))
     return path
 
 
-def check_output_dir(path: str | os.PathLike, *, force: bool, inputs: Iterable[str | os.PathLike] = (),
+def check_output_dir(path: str | os.PathLike, force: bool, will_write: Iterable[str] = (),
                      option: str = "--out") -> Path:
-    """As :func:`check_output_path` for an output folder: an existing non-empty folder needs ``force``."""
-    path = Path(path)
+    """Check that the folder ``path`` may receive this command's files; returns it or raises CliError.
+
+    The folder itself may be new, but its parent must exist. Files named in ``will_write`` that
+    already exist in it are overwritten only with ``force``.
+    """
+    path = check_parent(path, option)
     if path.exists() and not path.is_dir():
-        kind = "a session (HDF5) file" if _is_hdf5(path) else "a file"
-        raise OutputPathError(f"{option} {path}: is {kind}, not a folder (choose another output folder)")
-    for source in inputs:
-        if source is not None and _same(path, Path(source)):
-            raise OutputPathError(f"{option} {path}: is an input of this command; choose another output folder")
-    if path.is_dir() and any(path.iterdir()) and not force:
-        raise OutputPathError(f"{option} {path}: folder exists and is not empty; add --force to overwrite its files, "
-                              "or choose another folder")
+        raise CliError(f"{option} {path}: is a file; give a folder")
+    existing = [name for name in will_write if (path / name).exists()]
+    if existing and not force:
+        shown = ", ".join(existing[:3]) + (" …" if len(existing) > 3 else "")
+        raise CliError(f"{option} {path}: already holds {shown}; pass --force to overwrite, or choose another folder")
     return path
