@@ -37,6 +37,7 @@ import json
 import logging
 import os
 import socket
+import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -514,12 +515,22 @@ def incomplete_leftover(path: str | os.PathLike) -> bool:
 
 def _refuse_live_session(path: Path) -> None:
     """Two writers never share a file: refuse to replace a session another process is recording."""
-    try:
-        with open_session(path) as session:
-            status = session.status
-            pid = session.file["entry"].attrs.get("writer_pid", "?")
-    except SessionError:
-        return  # not a readable session: nothing is being recorded into it
+    for attempt in range(3):
+        try:
+            with open_session(path) as session:
+                status = session.status
+                pid = session.file["entry"].attrs.get("writer_pid", "?")
+            break
+        except SessionError:
+            if incomplete_leftover(path):
+                return  # the few bytes a killed creation left: nothing is recorded into it
+            time.sleep(0.2)  # a reader can catch a live writer mid-append: look again
+    else:
+        with open(path, "rb") as fh:
+            if fh.read(8) != b"\x89HDF\r\n\x1a\n":
+                return  # not HDF5: not a session
+        raise SessionError(f"{path}: an HDF5 file that cannot be read right now (a session being written?); "
+                           "refusing to replace it")
     if status == "running":
         raise SessionError(f"{path}: a session is being recorded into this file right now (writer pid {pid}); "
                            "refusing to replace it")

@@ -91,7 +91,7 @@ Then: vfmlab reconstruct a1.h5
 @click.option("--notes", default="", help="Free-text notes about the specimen.")
 @click.option("--force-is", type=click.Choice(["wall", "total"]), default="wall", show_default=True,
               help="What axial_force_N is: force carried by the wall, or a total reading behind a pressurised cannula.")
-@click.option("--force", "overwrite", is_flag=True, help="Overwrite OUT if it exists (never a session or an input).")
+@click.option("--force", "overwrite", is_flag=True, help="Overwrite OUT if it exists.")
 @click.option("--json", "as_json", is_flag=True, help="Print what was imported as JSON (SI: m).")
 def command(images_dir, calibration, calibration_units, loads_csv, out, marker_diameter_mm, thickness_mm, radius_mm,
             length_mm, specimen_id, notes, force_is, overwrite, as_json):
