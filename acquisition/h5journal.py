@@ -118,6 +118,7 @@ class _JournaledFile:
         #: the append is rolled back at the end: HDF5 never sees an error it would handle badly.
         self.error: OSError | None = None
         self.end = original_size  # the highest byte the append writes (its size once written)
+        self._overlay: list[tuple[int, bytes]] = []  # writes kept in memory after a failure, in order
 
     # The disk writes of one append, in order; tests patch this to inject faults.
     def _io(self, kind: str, fh, offset: int | None, data: bytes) -> None:
@@ -151,17 +152,32 @@ class _JournaledFile:
     def tell(self) -> int:
         return self._pos
 
-    def read(self, size: int = -1) -> bytes:
-        self._fh.seek(self._pos)
+    def _read_at(self, pos: int, size: int) -> bytes:
+        """Bytes at ``pos``: the file, with the writes kept in memory after a failure laid over it
+        (HDF5 reads back what it believes it wrote, so it never meets inconsistent metadata)."""
+        self._fh.seek(pos)
         data = self._fh.read(size)
+        if not self._overlay:
+            return data
+        want = min(size if size >= 0 else self.end - pos, max(self.end - pos, 0))
+        buf = bytearray(data) + bytearray(max(0, want - len(data)))
+        for off, chunk in self._overlay:
+            lo, hi = max(off, pos), min(off + len(chunk), pos + len(buf))
+            if lo < hi:
+                buf[lo - pos:hi - pos] = chunk[lo - off:hi - off]
+        return bytes(buf)
+
+    def read(self, size: int = -1) -> bytes:
+        data = self._read_at(self._pos, size)
         self._pos += len(data)
         return data
 
     def readinto(self, buffer) -> int:
-        self._fh.seek(self._pos)
-        n = self._fh.readinto(buffer)
-        self._pos += n
-        return n
+        view = memoryview(buffer).cast("B")
+        data = self._read_at(self._pos, len(view))
+        view[:len(data)] = data
+        self._pos += len(data)
+        return len(data)
 
     def write(self, data) -> int:
         data = bytes(data)
@@ -172,6 +188,8 @@ class _JournaledFile:
                 self._io("file", self._fh, self._pos, data)
             except OSError as exc:
                 self.error = exc
+        if self.error is not None:
+            self._overlay.append((self._pos, data))
         self._pos += len(data)
         self.end = max(self.end, self._pos)
         return len(data)
