@@ -356,20 +356,8 @@ def identify(
     initial : mapping, optional
     prepare_options
         Passed to ``prepare`` (fields, mesh, n_layers, quadrature, clamp_radius, smoothing...).
-        ``smoothing="auto"`` smooths with ``AUTO_SMOOTHING`` only when the estimated marker noise
-        exceeds ``NOISY_MARKERS`` (0.02 mm).
+        ``smoothing="auto"`` smooths with a basis chosen from the data (generalised
+        cross-validation, ``kinematics.select_smoothing``) unless the markers look exact.
     """
-    smoothing = prepare_options.pop("smoothing", None)
-    auto = isinstance(smoothing, str)
-    if auto and smoothing != "auto":
-        raise ValueError(f"smoothing must be None, 'auto' or (axial degree, harmonics); got {smoothing!r}")
-    data = prepare(positions, pressure, axial_force, thickness=thickness, wall=wall, ends=ends,
-                   smoothing=None if auto else smoothing, **prepare_options)
-    if auto and data.marker_noise > NOISY_MARKERS:
-        log.info("estimated marker noise %.3g mm: smoothing the displacements with %s", data.marker_noise * 1e3,
-                 AUTO_SMOOTHING)
-        opts = dict(prepare_options)
-        opts["mesh"] = data.mesh
-        data = prepare(positions, pressure, axial_force, thickness=thickness, wall=wall, ends=ends,
-                       smoothing=AUTO_SMOOTHING, **opts)
+    data = prepare(positions, pressure, axial_force, thickness=thickness, wall=wall, ends=ends, **prepare_options)
     return identify_prepared(data, model, initial=initial, optimizer=optimizer, n_starts=n_starts)
