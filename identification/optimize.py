@@ -10,7 +10,7 @@ over the parameters of exact complex-step stresses).
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Mapping
 
 import numpy as np
@@ -77,6 +77,8 @@ class IdentificationResult:
     uncertainty : uncertainty.Uncertainty or None
         Bootstrap uncertainty (intervals, bias, model-error factor) when asked for
         (``identify(..., uncertainty="bootstrap")``); ``stderr`` is then the bootstrap's.
+    smoothing : tuple or None
+        Smoothing degrees used by ``identify`` (three (axial degree, harmonics) pairs for r, theta, z).
     """
 
     model: str
@@ -97,6 +99,7 @@ class IdentificationResult:
     n_evaluations: int
     starts: tuple = field(default=())
     uncertainty: object = None
+    smoothing: tuple | None = None
 
     @property
     def residual_per_step(self) -> np.ndarray:
@@ -374,7 +377,8 @@ def identify(
     if uncertainty not in ("gauss-newton", "bootstrap"):
         raise ValueError(f"uncertainty must be 'gauss-newton' or 'bootstrap'; got {uncertainty!r}")
     data = prepare(positions, pressure, axial_force, thickness=thickness, wall=wall, ends=ends, **prepare_options)
-    result = identify_prepared(data, model, initial=initial, optimizer=optimizer, n_starts=n_starts)
+    result = replace(identify_prepared(data, model, initial=initial, optimizer=optimizer, n_starts=n_starts),
+                     smoothing=data.smoothing)
     if uncertainty == "bootstrap":
         from .uncertainty import with_uncertainty
 

@@ -23,10 +23,11 @@ WALL_NOTE = {
               help="clamped: tube tied on cannulae beyond the markers (pressure on the unmeasured strip counted).")
 @click.option("--optimizer", type=click.Choice(["lsq", "nelder-mead"]), default="lsq", show_default=True,
               help="lsq: fast least squares with several starts; nelder-mead: the paper's simplex.")
-@click.option("--smooth", default=None, metavar="AXIAL,HARMONICS|auto",
-              help="Smooth the measured displacements (Legendre degree along the axis, Fourier harmonics around) "
-                   "before differentiating; e.g. 4,2 for noisy markers (>~0.02 mm); 'auto' smooths (4,2) only when "
-                   "the estimated marker noise exceeds 0.02 mm.")
+@click.option("--smooth", default="auto", show_default=True, metavar="auto|none|AXIAL,HARMONICS",
+              help="Smooth the measured displacements before differentiating. auto: the basis (Legendre degree "
+                   "along the axis, Fourier harmonics around) of each displacement component chosen from the data "
+                   "by cross-validation, no smoothing when the markers look exact; none: raw markers; e.g. 4,2: "
+                   "that basis.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON (SI units) for scripts.")
 def command(session_path, model, wall, ends, optimizer, smooth, as_json):
     """Identify MODEL parameters from the latest marker tracks of SESSION and store the result in it.
@@ -35,16 +36,7 @@ def command(session_path, model, wall, ends, optimizer, smooth, as_json):
     """
     from vfmlab.pipeline import StageError, identify_stored
 
-    smoothing = None
-    if smooth == "auto":
-        smoothing = "auto"
-    elif smooth:
-        try:
-            smoothing = tuple(int(v) for v in smooth.split(","))
-            if len(smoothing) != 2 or min(smoothing) < 0:
-                raise ValueError
-        except ValueError:
-            raise CliError(f"--smooth must be two non-negative integers AXIAL,HARMONICS like 4,2; got {smooth!r}")
+    smoothing = parse_smooth_option(smooth)
     try:
         group, result, data = identify_stored(session_path, model=model, wall=wall, ends=ends, optimizer=optimizer,
                                               smoothing=smoothing, invoked_by="identify")
@@ -53,6 +45,8 @@ def command(session_path, model, wall, ends, optimizer, smooth, as_json):
     names = list(result.parameters)
     if as_json:
         print_json({"model": model, "wall": wall, "parameters": result.parameters, "stderr": result.stderr,
+                    "interval_95": (None if result.uncertainty is None else
+                                    {k: list(v) for k, v in result.uncertainty.interval.items()}),
                     "cost": result.cost, "converged": result.converged, "flags": list(result.flags),
                     "result_group": group})
         return
@@ -62,15 +56,18 @@ def command(session_path, model, wall, ends, optimizer, smooth, as_json):
     table.add_column("parameter")
     table.add_column("value", justify="right")
     table.add_column("std. error", justify="right")
+    unc = result.uncertainty
+    if unc is not None:
+        table.add_column("95 % interval", justify="right")
     table.add_column("unit")
     for n in names:
         v, s = result.parameters[n], result.stderr[n]
+        lo, hi = unc.interval[n] if unc is not None else (np.nan, np.nan)
         unit = get_unit(model, n)
-        if unit == "Pa":
-            v, s, unit = v / 1e3, s / 1e3, "kPa"
-        elif unit == "rad":
-            v, s, unit = np.degrees(v), np.degrees(s), "deg"
-        table.add_row(n, f"{v:.4g}", f"{s:.2g}", unit)
+        scale = {"Pa": 1e-3, "rad": 180.0 / np.pi}.get(unit, 1.0)
+        unit = {"Pa": "kPa", "rad": "deg"}.get(unit, unit)
+        interval = [f"{lo * scale:.4g} to {hi * scale:.4g}"] if unc is not None else []
+        table.add_row(n, f"{v * scale:.4g}", f"{s * scale:.2g}", *interval, unit)
     console.print(table)
     console.print(f"cost {result.cost:.3g}, RMS gap per field "
                   + ", ".join(f"{f}: {g:.2%}" for f, g in zip(result.field_names, result.residual_per_field))
@@ -80,6 +77,22 @@ def command(session_path, model, wall, ends, optimizer, smooth, as_json):
     for flag in result.flags:
         console.print(f"[yellow]warning:[/] {flag}")
     console.print(f"stored as {group}")
+
+
+def parse_smooth_option(text: str | None):
+    """``--smooth`` text -> "auto", None ("none") or (axial degree, harmonics); CliError otherwise."""
+    if text is None or text.strip().lower() == "auto":
+        return "auto"
+    if text.strip().lower() == "none":
+        return None
+    try:
+        smoothing = tuple(int(v) for v in text.split(","))
+        if len(smoothing) != 2 or min(smoothing) < 0:
+            raise ValueError
+    except ValueError:
+        raise CliError(f"--smooth must be 'auto', 'none' or two non-negative integers AXIAL,HARMONICS like 4,2; "
+                       f"got {text!r}") from None
+    return smoothing
 
 
 def get_unit(model: str, name: str) -> str:
