@@ -247,7 +247,7 @@ def _coverage_fit(sim, model, noise, seed, n_replicates):
     res = identify(pos, sim.pressure, sim.axial_force, thickness=sim.thickness, model=model,
                    ends="clamped" if CLAMPED else "free", smoothing="auto", uncertainty="bootstrap",
                    uncertainty_options={"n_replicates": n_replicates, "seed": seed})
-    gn = _gauss_newton_stderr(res, pos, sim, model)
+    gn = res.uncertainty.gauss_newton_stderr
     out = {}
     for k, v in truth.items():
         lo, hi = res.uncertainty.interval[k]
@@ -257,14 +257,7 @@ def _coverage_fit(sim, model, noise, seed, n_replicates):
     return out, failure, res
 
 
-def _gauss_newton_stderr(res, pos, sim, model):
-    """The Gauss-Newton standard errors of the same fit (before the bootstrap replaced them)."""
-    data = prepare(pos, sim.pressure, sim.axial_force, thickness=sim.thickness, smoothing="auto",
-                   ends="clamped" if CLAMPED else "free")
-    return identify_prepared(data, model, initial=res.parameters, n_starts=1).stderr
-
-
-def bench_coverage(n_seeds, models, n_replicates):
+def bench_coverage(n_seeds, models, n_replicates, noises=(0.17e-3, 0.05e-3, 0.01e-3)):
     print(f"\n## Coverage of the reported 95 % intervals over {n_seeds} seeds ("
           f"{'clamped' if CLAMPED else 'homogeneous'} membrane tube, 300 markers, paper protocol, --smooth auto, "
           f"bootstrap with {n_replicates} replicates)\n")
@@ -276,7 +269,7 @@ def bench_coverage(n_seeds, models, n_replicates):
     print("|---|---|---|---|---|---|---|---|---|---|")
     for model in models:
         sim = simulate(model)
-        for noise in (0.01e-3, 0.05e-3, 0.17e-3):
+        for noise in noises:
             rows, failed = [], []
             for seed in range(n_seeds):
                 try:
@@ -308,7 +301,8 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="fewer repeats and seeds (10 instead of 50)")
     ap.add_argument("--part", choices=["timing", "flat", "clamped", "thick", "noise", "coverage", "all"], default="all")
-    ap.add_argument("--replicates", type=int, default=16, help="bootstrap replicates per fit (coverage part)")
+    ap.add_argument("--replicates", type=int, default=8, help="bootstrap replicates per fit (coverage part)")
+    ap.add_argument("--noise", default="0.17,0.05,0.01", help="marker noise levels in mm (coverage part)")
     ap.add_argument("--seeds", type=int, default=None, help="noise seeds (default 50, --quick 10)")
     ap.add_argument("--models", default=",".join(MODELS), help="models for the noise study")
     ap.add_argument("--data", choices=["clamped", "clamped-synth", "homogeneous"], default="clamped",
@@ -334,7 +328,8 @@ def main(argv=None):
     if args.part in ("noise", "all"):
         bench_noise(seeds, args.models.split(","))
     if args.part in ("coverage", "all"):
-        bench_coverage(seeds, [m for m in args.models.split(",") if m != "neohookean"], args.replicates)
+        bench_coverage(seeds, [m for m in args.models.split(",") if m != "neohookean"], args.replicates,
+                       tuple(float(v) * 1e-3 for v in args.noise.split(",")))
 
 
 if __name__ == "__main__":

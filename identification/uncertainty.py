@@ -77,6 +77,8 @@ class Uncertainty:
         Actual RMS virtual-work gap over the replicates' median (>= 1): the inflation applied.
     n_failed : int
         Replicates whose identification failed.
+    gauss_newton_stderr : dict
+        The Gauss-Newton standard errors of the fit (SI), for comparison.
     """
 
     stderr: dict
@@ -89,6 +91,7 @@ class Uncertainty:
     force_noise: float
     model_error_factor: float
     n_failed: int
+    gauss_newton_stderr: dict
 
     @property
     def n_replicates(self) -> int:
@@ -274,7 +277,7 @@ def _summarise(model, estimate, reps, rms, result, level, pressure_noise, force_
         return Uncertainty(stderr=nan, interval={k: (float("nan"), float("nan")) for k in names}, bias=nan,
                            covariance=np.full((len(names),) * 2, np.nan), replicates=reps, marker_noise=level,
                            pressure_noise=pressure_noise, force_noise=force_noise, model_error_factor=float("nan"),
-                           n_failed=failed)
+                           n_failed=failed, gauss_newton_stderr=dict(result.stderr))
     x_hat = _to_x(model, estimate)
     xs = _to_x(model, reps)
     actual = float(np.sqrt(np.mean(result.residuals**2)))
@@ -296,7 +299,7 @@ def _summarise(model, estimate, reps, rms, result, level, pressure_noise, force_
         interval={k: (float(a), float(b)) for k, a, b in zip(names, lo, hi)},
         bias={k: float(v) for k, v in zip(names, bias)}, covariance=cov, replicates=reps, marker_noise=level,
         pressure_noise=float(pressure_noise), force_noise=float(force_noise), model_error_factor=factor,
-        n_failed=int(failed))
+        n_failed=int(failed), gauss_newton_stderr=dict(result.stderr))
 
 
 def uncertainty_flags(unc: Uncertainty, parameters: Mapping[str, float], positive: Mapping[str, bool],
