@@ -189,7 +189,7 @@ def bench_thick():
         sys.stdout.flush()
 
 
-def bench_noise(n_seeds, models):
+def bench_noise(n_seeds, models, smoothings=(None, (4, 2), "auto")):
     print(f"\n## Noise: bias and scatter over {n_seeds} seeds ({'clamped' if CLAMPED else 'homogeneous'} membrane tube, "
           "300 markers, lsq)\n")
     print("median relative error (robust scatter = half the 16-84 % range); 'ok' = fits whose every parameter "
@@ -201,7 +201,7 @@ def bench_noise(n_seeds, models):
         sim = simulate(model)
         truth = params_of(model)
         for noise in (0.17e-3, 0.01e-3):
-            for smoothing in (None, (4, 2)):
+            for smoothing in smoothings:
                 errs = {k: [] for k in truth}
                 ok = flagged = 0
                 for seed in range(n_seeds):
@@ -231,7 +231,8 @@ def bench_noise(n_seeds, models):
                         spread = 0.5 * (np.percentile(a, 84) - np.percentile(a, 16))
                     else:
                         med = spread = np.nan
-                    sm = "none" if smoothing is None else f"{smoothing[0]}x{smoothing[1]}"
+                    sm = ("none" if smoothing is None else smoothing if isinstance(smoothing, str)
+                          else f"{smoothing[0]}x{smoothing[1]}")
                     print(f"| {model} | {noise * 1e3:.2f} | {sm} | {k} | {med:+.2%} | {spread:.2%} | "
                           f"{ok}/{n_seeds} | {flagged}/{n_seeds} |")
                 sys.stdout.flush()
@@ -302,6 +303,7 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="fewer repeats and seeds (10 instead of 50)")
     ap.add_argument("--part", choices=["timing", "flat", "clamped", "thick", "noise", "coverage", "all"], default="all")
     ap.add_argument("--replicates", type=int, default=8, help="bootstrap replicates per fit (coverage part)")
+    ap.add_argument("--smoothing", default="none,4x2,auto", help="noise part: smoothing variants (none, AxH, auto)")
     ap.add_argument("--noise", default="0.17,0.05,0.01", help="marker noise levels in mm (coverage part)")
     ap.add_argument("--seeds", type=int, default=None, help="noise seeds (default 50, --quick 10)")
     ap.add_argument("--models", default=",".join(MODELS), help="models for the noise study")
@@ -326,7 +328,9 @@ def main(argv=None):
     if args.part in ("thick", "all"):
         bench_thick()
     if args.part in ("noise", "all"):
-        bench_noise(seeds, args.models.split(","))
+        variants = [None if v == "none" else v if v == "auto" else tuple(int(x) for x in v.split("x"))
+                    for v in args.smoothing.split(",")]
+        bench_noise(seeds, args.models.split(","), variants)
     if args.part in ("coverage", "all"):
         bench_coverage(seeds, [m for m in args.models.split(",") if m != "neohookean"], args.replicates,
                        tuple(float(v) * 1e-3 for v in args.noise.split(",")))

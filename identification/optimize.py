@@ -39,6 +39,8 @@ NOISY_MARKERS = 0.02e-3
 AUTO_SMOOTHING = (4, 2)
 #: RMS normalised gap below which the balance is considered exact (no further starts are tried).
 EXACT_GAP = 1e-5
+#: Fraction of a step's triangles left out (unobserved markers) above which unsmoothed fits are flagged.
+MISSING_AREA = 0.01
 #: Typical magnitude of parameters that may be zero or negative (for the scale of their changes).
 TYPICAL = {"alpha12": 1.0, "phi": 0.5}
 
@@ -379,6 +381,12 @@ def identify(
     data = prepare(positions, pressure, axial_force, thickness=thickness, wall=wall, ends=ends, **prepare_options)
     result = replace(identify_prepared(data, model, initial=initial, optimizer=optimizer, n_starts=n_starts),
                      smoothing=data.smoothing)
+    missing = 1.0 - data.n_valid_triangles[1:] / max(data.mesh.n_triangles, 1)
+    if data.smoothing is None and missing.size and missing.max() > MISSING_AREA:
+        result = replace(result, flags=result.flags + (
+            f"up to {missing.max():.0%} of the triangles of a step had an unobserved marker and were left out: the "
+            "axial balance (whose external work is the whole measured force) misses their share and the parameters "
+            "are biased; smooth the displacements (smoothing='auto', --smooth auto) to fill them in",))
     if uncertainty == "bootstrap":
         from .uncertainty import with_uncertainty
 

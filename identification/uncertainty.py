@@ -197,7 +197,7 @@ def bootstrap(
     marker_sigma: np.ndarray | None = None,
     pressure_noise: float = 0.0,
     force_noise: float = 0.0,
-    n_replicates: int = 24,
+    n_replicates: int = 16,
     seed: int = 0,
     prepare_options: Mapping | None = None,
 ) -> Uncertainty:

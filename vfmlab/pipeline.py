@@ -85,7 +85,7 @@ def load_identification_inputs(session, markers: str | None = None) -> dict[str,
 
 def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str = "membrane", ends: str = "clamped",
                     optimizer: str = "lsq", smoothing: str | tuple[int, int] | None = "auto", markers: str | None = None,
-                    invoked_by: str = "pipeline") -> tuple[str, Any, dict[str, Any]]:
+                    uncertainty: str = "bootstrap", invoked_by: str = "pipeline") -> tuple[str, Any, dict[str, Any]]:
     """Identify ``model`` from the session's marker tracks with the VFM and store an "identification" result.
 
     Parameters
@@ -100,6 +100,8 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
         exact), or None. The standard errors and 95 % intervals come from a parametric bootstrap
         (``identification.uncertainty``) with the sensor noise of ``PRESSURE_NOISE``/``FORCE_NOISE``.
     markers : markers result to use (default: the latest).
+    uncertainty : "bootstrap" (default, intervals that cover the truth; ~16 re-identifications) or
+        "gauss-newton" (fast, too small on noisy data).
     invoked_by : recorded in the result's attributes (e.g. "identify", "reprocess").
 
     Returns
@@ -127,9 +129,9 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
     try:
         result = identify(data["positions"], data["pressure"], data["force"], thickness=data["thickness"],
                           model=model, wall=wall, ends=ends, optimizer=optimizer, smoothing=smoothing,
-                          uncertainty="bootstrap", uncertainty_options={
+                          uncertainty=uncertainty, uncertainty_options={
                               "marker_sigma": data["uncertainty"], "pressure_noise": PRESSURE_NOISE,
-                              "force_noise": FORCE_NOISE})
+                              "force_noise": FORCE_NOISE} if uncertainty == "bootstrap" else None)
     except (IdentificationError, ValueError) as exc:
         raise StageError(f"{path}: cannot identify {model}: {exc}") from None
     names = list(result.parameters)
