@@ -309,6 +309,11 @@ def uncertainty_flags(unc: Uncertainty, parameters: Mapping[str, float], positiv
     ``skip``: parameters already flagged as poorly identifiable (not repeated).
     """
     flags = []
+    cause = (f"at the marker noise of these data (~{unc.marker_noise * 1e3:.2g} mm); more markers, better cameras "
+             "or more load levels would narrow it")
+    if unc.model_error_factor > 1.2:
+        cause = (f"with a virtual-work gap {unc.model_error_factor:.1f}x what the marker noise "
+                 f"(~{unc.marker_noise * 1e3:.2g} mm) explains: check the model, --ends and --wall")
     for name, (lo, hi) in unc.interval.items():
         if name in skip or not positive.get(name, False):
             continue
@@ -316,9 +321,7 @@ def uncertainty_flags(unc: Uncertainty, parameters: Mapping[str, float], positiv
         half = max(v - lo, hi - v) / abs(v) if v else float("inf")
         if not np.isfinite(half) or half > PRECISION:
             flags.append(f"{name} is not resolved to {PRECISION:.0%}: its {CONFIDENCE:.0%} interval is "
-                         f"{lo:.4g} to {hi:.4g} ({-(v - lo) / abs(v):+.0%}/{(hi - v) / abs(v):+.0%}) at the marker "
-                         f"noise of these data (~{unc.marker_noise * 1e3:.2g} mm); more markers, better "
-                         "cameras or more load levels would narrow it")
+                         f"{lo:.4g} to {hi:.4g} ({-(v - lo) / abs(v):+.0%}/{(hi - v) / abs(v):+.0%}) {cause}")
     total = unc.n_replicates
     if total and unc.n_failed > MAX_FAILED * total:
         flags.append(f"{unc.n_failed} of {total} re-simulated replicates failed to identify: the fit is "
