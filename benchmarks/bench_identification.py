@@ -258,29 +258,54 @@ def _coverage_fit(sim, model, noise, seed, n_replicates):
     return out, failure, res
 
 
-def bench_coverage(n_seeds, models, n_replicates, noises=(0.17e-3, 0.05e-3, 0.01e-3)):
-    print(f"\n## Coverage of the reported 95 % intervals over {n_seeds} seeds ("
-          f"{'clamped' if CLAMPED else 'homogeneous'} membrane tube, 300 markers, paper protocol, --smooth auto, "
-          f"bootstrap with {n_replicates} replicates)\n")
+def bench_coverage(n_seeds, models, n_replicates, noises=(0.17e-3, 0.05e-3, 0.01e-3), log_path=None):
+    """Seeds outermost (every level advances together); one JSON line per fit in ``log_path`` so that
+    an interrupted study can still be summarised (``--summarise LOG``)."""
+    import json
+
+    sims = {m: simulate(m) for m in models}
+    records = []
+    out = open(log_path, "a") if log_path else None
+    try:
+        for seed in range(n_seeds):
+            for model in models:
+                for noise in noises:
+                    try:
+                        fit, failure, _ = _coverage_fit(sims[model], model, noise, seed, n_replicates)
+                    except Exception as exc:  # a failed fit is reported, not hidden
+                        logging.getLogger("bench").warning("%s %.2f mm seed %d failed: %s", model, noise * 1e3,
+                                                           seed, exc)
+                        continue
+                    rec = {"model": model, "noise_m": noise, "seed": seed, "failure": bool(failure),
+                           "fit": {k: [float(v[0]), bool(v[1]), bool(v[2]), float(v[3])] for k, v in fit.items()}}
+                    records.append(rec)
+                    if out:
+                        out.write(json.dumps(rec) + "\n")
+                        out.flush()
+    finally:
+        if out:
+            out.close()
+    print_coverage(records, n_replicates)
+
+
+def print_coverage(records, n_replicates):
+    """The coverage table of the JSON records of ``bench_coverage``."""
+    seeds = len({r["seed"] for r in records})
+    print(f"\n## Coverage of the reported 95 % intervals ({'clamped' if CLAMPED else 'homogeneous'} membrane tube, "
+          f"300 markers, paper protocol, --smooth auto, bootstrap with {n_replicates} replicates, up to {seeds} "
+          "seeds)\n")
     print("'GN': estimate +- 1.96 Gauss-Newton stderr (before); 'bootstrap': the reported interval (after). "
           "'unflagged' = fits without a failure flag (non-convergence, bounds, poor fit, failed replicates, model "
           "error); 'resolved' = fits whose interval is within +-5 % (no 'not resolved' flag).\n")
-    print("| model | noise (mm) | parameter | median error | within 5 % | GN coverage | bootstrap coverage "
+    print("| model | noise (mm) | fits | parameter | median error | within 5 % | GN coverage | bootstrap coverage "
           "| bootstrap coverage, unflagged | median 95 % half-width | resolved |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
-    for model in models:
-        sim = simulate(model)
-        for noise in noises:
-            rows, failed = [], []
-            for seed in range(n_seeds):
-                try:
-                    out, failure, _ = _coverage_fit(sim, model, noise, seed, n_replicates)
-                except Exception as exc:  # a failed fit is reported, not hidden
-                    logging.getLogger("bench").warning("seed %d failed: %s", seed, exc)
-                    continue
-                rows.append(out)
-                failed.append(bool(failure))
-            _print_coverage_rows(model, noise, rows, np.array(failed), n_seeds)
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    groups = {}
+    for r in records:
+        groups.setdefault((r["model"], r["noise_m"]), []).append(r)
+    for (model, noise), recs in sorted(groups.items(), key=lambda kv: (kv[0][0], -kv[0][1])):
+        rows = [{k: tuple(v) for k, v in r["fit"].items()} for r in recs]
+        _print_coverage_rows(model, noise, rows, np.array([r["failure"] for r in recs]), len(rows))
 
 
 def _print_coverage_rows(model, noise, rows, failed, n_seeds):
@@ -292,7 +317,7 @@ def _print_coverage_rows(model, noise, rows, failed, n_seeds):
         bs = np.array([r[k][2] for r in rows])
         half = np.array([r[k][3] for r in rows])
         ok = ~failed
-        print(f"| {model} | {noise * 1e3:.2f} | {k} | {np.median(err):+.2%} | {np.mean(np.abs(err) < 0.05):.0%} | "
+        print(f"| {model} | {noise * 1e3:.2f} | {len(rows)} | {k} | {np.median(err):+.2%} | {np.mean(np.abs(err) < 0.05):.0%} | "
               f"{gn.mean():.0%} | {bs.mean():.0%} | {bs[ok].mean() if ok.any() else float('nan'):.0%} "
               f"({ok.sum()}/{len(rows)}) | {np.median(half):.1%} | {np.mean(half <= 0.05):.0%} |")
     sys.stdout.flush()
@@ -303,6 +328,8 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="fewer repeats and seeds (10 instead of 50)")
     ap.add_argument("--part", choices=["timing", "flat", "clamped", "thick", "noise", "coverage", "all"], default="all")
     ap.add_argument("--replicates", type=int, default=8, help="bootstrap replicates per fit (coverage part)")
+    ap.add_argument("--log", help="coverage part: append one JSON line per fit to this file")
+    ap.add_argument("--summarise", metavar="LOG", help="coverage part: only print the table of a --log file")
     ap.add_argument("--smoothing", default="none,4x2,auto", help="noise part: smoothing variants (none, AxH, auto)")
     ap.add_argument("--noise", default="0.17,0.05,0.01", help="marker noise levels in mm (coverage part)")
     ap.add_argument("--seeds", type=int, default=None, help="noise seeds (default 50, --quick 10)")
@@ -331,9 +358,14 @@ def main(argv=None):
         variants = [None if v == "none" else v if v == "auto" else tuple(int(x) for x in v.split("x"))
                     for v in args.smoothing.split(",")]
         bench_noise(seeds, args.models.split(","), variants)
-    if args.part in ("coverage", "all"):
+    if args.summarise:
+        import json
+
+        with open(args.summarise) as fh:
+            print_coverage([json.loads(line) for line in fh if line.strip()], args.replicates)
+    elif args.part in ("coverage", "all"):
         bench_coverage(seeds, [m for m in args.models.split(",") if m != "neohookean"], args.replicates,
-                       tuple(float(v) * 1e-3 for v in args.noise.split(",")))
+                       tuple(float(v) * 1e-3 for v in args.noise.split(",")), args.log)
 
 
 if __name__ == "__main__":
