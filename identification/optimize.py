@@ -39,6 +39,8 @@ NOISY_MARKERS = 0.02e-3
 AUTO_SMOOTHING = (4, 2)
 #: RMS normalised gap below which the balance is considered exact (no further starts are tried).
 EXACT_GAP = 1e-5
+#: Fraction of the reference markers a loaded step must observe to enter the balance (``identify``).
+MIN_COVERAGE = 0.8
 #: Fraction of a step's triangles left out (unobserved markers) above which unsmoothed fits are flagged.
 MISSING_AREA = 0.01
 #: Typical magnitude of parameters that may be zero or negative (for the scale of their changes).
@@ -81,6 +83,9 @@ class IdentificationResult:
         (``identify(..., uncertainty="bootstrap")``); ``stderr`` is then the bootstrap's.
     smoothing : tuple or None
         Smoothing degrees used by ``identify`` (three (axial degree, harmonics) pairs for r, theta, z).
+    steps : tuple of int or None
+        Indices of the input steps in the balance (``identify`` leaves out steps seen only in part);
+        the step axis of ``residuals``, ``ivw`` and ``evw``.
     """
 
     model: str
@@ -102,6 +107,7 @@ class IdentificationResult:
     starts: tuple = field(default=())
     uncertainty: object = None
     smoothing: tuple | None = None
+    steps: tuple | None = None
 
     @property
     def residual_per_step(self) -> np.ndarray:
@@ -331,6 +337,24 @@ def identify_prepared(
     )
 
 
+def drop_partial_steps(positions, pressure, axial_force):
+    """Leave out the loaded steps in which fewer than ``MIN_COVERAGE`` of the reference step's markers
+    were observed (a region out of view: smoothing would extrapolate into it and the balance would
+    miss its area). Returns the kept positions, pressure, force and the dropped step indices."""
+    x = np.asarray(positions, dtype=float)
+    if x.ndim != 3 or x.shape[0] < 3:
+        return positions, pressure, axial_force, []
+    seen = np.all(np.isfinite(x), axis=-1)
+    ref = seen[0]
+    coverage = (seen & ref[None]).sum(axis=1) / max(int(ref.sum()), 1)
+    keep = coverage >= MIN_COVERAGE
+    keep[0] = True
+    if keep.all() or keep.sum() < 2:
+        return positions, pressure, axial_force, []
+    return (x[keep], np.asarray(pressure, float).reshape(-1)[keep], np.asarray(axial_force, float).reshape(-1)[keep],
+            np.flatnonzero(~keep).tolist())
+
+
 def identify(
     positions: np.ndarray,
     pressure: np.ndarray,
@@ -378,9 +402,15 @@ def identify(
     """
     if uncertainty not in ("gauss-newton", "bootstrap"):
         raise ValueError(f"uncertainty must be 'gauss-newton' or 'bootstrap'; got {uncertainty!r}")
+    n_input = np.shape(positions)[0]
+    positions, pressure, axial_force, dropped = drop_partial_steps(positions, pressure, axial_force)
     data = prepare(positions, pressure, axial_force, thickness=thickness, wall=wall, ends=ends, **prepare_options)
     result = replace(identify_prepared(data, model, initial=initial, optimizer=optimizer, n_starts=n_starts),
-                     smoothing=data.smoothing)
+                     smoothing=data.smoothing, steps=tuple(k for k in range(n_input) if k not in dropped))
+    if dropped:
+        result = replace(result, flags=result.flags + (
+            f"steps {dropped} were left out: the cameras saw less than {MIN_COVERAGE:.0%} of the reference markers "
+            "there (markers out of view), too little to fill in the rest of the surface",))
     missing = 1.0 - data.n_valid_triangles[1:] / max(data.mesh.n_triangles, 1)
     if data.smoothing is None and missing.size and missing.max() > MISSING_AREA:
         result = replace(result, flags=result.flags + (

@@ -143,7 +143,7 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
         "ivw": result.ivw,
         "evw": result.evw,
         "residuals": result.residuals,
-        "step_index": data["rows"],
+        "step_index": data["rows"] if result.steps is None else data["rows"][list(result.steps)],
     }
     if result.uncertainty is not None:
         arrays["interval_low"] = np.array([result.uncertainty.interval[n][0] for n in names])
