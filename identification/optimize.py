@@ -347,7 +347,7 @@ def drop_partial_steps(positions, pressure, axial_force):
     seen = np.all(np.isfinite(x), axis=-1)
     ref = seen[0]
     coverage = (seen & ref[None]).sum(axis=1) / max(int(ref.sum()), 1)
-    keep = coverage >= MIN_COVERAGE
+    keep = (coverage >= MIN_COVERAGE) | (coverage == 0)  # an empty step is an input error: prepare says so
     keep[0] = True
     if keep.all() or keep.sum() < 2:
         return positions, pressure, axial_force, []
