@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 import click
-import numpy as np
 
-from vfmlab.cli._common import CliError, console, print_json
+from vfmlab.cli._common import CliError, console, display_quantity, esc, num, print_json
 
 WALL_NOTE = {
     "membrane": "paper's plain membrane form (pressure on the marker surface)",
@@ -13,7 +12,16 @@ WALL_NOTE = {
 }
 
 
-@click.command(name="identify")
+EPILOG = """
+\b
+Examples:
+  vfmlab identify a1.h5                                   # Fung, membrane, clamped ends
+  vfmlab identify a1.h5 --model hgo --wall thick --smooth 4,2
+  vfmlab identify a1.h5 --model delfino --json > delfino.json
+"""
+
+
+@click.command(name="identify", epilog=EPILOG)
 @click.argument("session_path", metavar="SESSION", type=click.Path(exists=True, dir_okay=False))
 @click.option("--model", type=click.Choice(["fung", "delfino", "hgo", "neohookean"]), default="fung",
               show_default=True, help="Constitutive model.")
@@ -31,7 +39,8 @@ WALL_NOTE = {
 @click.option("--uncertainty", type=click.Choice(["bootstrap", "gauss-newton"]), default="bootstrap",
               show_default=True, help="bootstrap: standard errors and 95 % intervals from re-simulated measurements "
                                       "(a few seconds); gauss-newton: instant, but too small on noisy markers.")
-@click.option("--json", "as_json", is_flag=True, help="Print the result as JSON (SI units) for scripts.")
+@click.option("--json", "as_json", is_flag=True,
+              help="Print the result as JSON for scripts (SI; the unit of each parameter under 'units').")
 def command(session_path, model, wall, ends, optimizer, smooth, uncertainty, as_json):
     """Identify MODEL parameters from the latest marker tracks of SESSION and store the result in it.
 
@@ -50,6 +59,7 @@ def command(session_path, model, wall, ends, optimizer, smooth, uncertainty, as_
         print_json({"model": model, "wall": wall, "parameters": result.parameters, "stderr": result.stderr,
                     "interval_95": (None if result.uncertainty is None else
                                     {k: list(v) for k, v in result.uncertainty.interval.items()}),
+                    "units": {n: get_unit(model, n) for n in names},
                     "cost": result.cost, "converged": result.converged, "flags": list(result.flags),
                     "result_group": group})
         return
@@ -64,22 +74,23 @@ def command(session_path, model, wall, ends, optimizer, smooth, uncertainty, as_
         table.add_column("95 % interval", justify="right")
     table.add_column("unit")
     for n in names:
-        v, s = result.parameters[n], result.stderr[n]
-        lo, hi = unc.interval[n] if unc is not None else (np.nan, np.nan)
-        unit = get_unit(model, n)
-        scale = {"Pa": 1e-3, "rad": 180.0 / np.pi}.get(unit, 1.0)
-        unit = {"Pa": "kPa", "rad": "deg"}.get(unit, unit)
-        interval = [f"{lo * scale:.4g} to {hi * scale:.4g}"] if unc is not None else []
-        table.add_row(n, f"{v * scale:.4g}", f"{s * scale:.2g}", *interval, unit)
+        v, unit = display_quantity(result.parameters[n], get_unit(model, n))
+        s, _ = display_quantity(result.stderr[n], get_unit(model, n))
+        interval = []
+        if unc is not None:
+            lo, _ = display_quantity(unc.interval[n][0], get_unit(model, n))
+            hi, _ = display_quantity(unc.interval[n][1], get_unit(model, n))
+            interval = [f"{num(lo, 4)} to {num(hi, 4)}"]
+        table.add_row(esc(n), num(v, 4), num(s, 2), *interval, unit or "–")
     console.print(table)
-    console.print(f"cost {result.cost:.3g}, RMS gap per field "
-                  + ", ".join(f"{f}: {g:.2%}" for f, g in zip(result.field_names, result.residual_per_field))
+    console.print(f"cost {num(result.cost, 3)}, RMS gap per field "
+                  + ", ".join(f"{esc(f)}: {g:.2%}" for f, g in zip(result.field_names, result.residual_per_field))
                   + f", {result.n_evaluations} evaluations, converged: {result.converged}")
     for note in data["notes"]:
-        console.print(f"[dim]{note}[/]")
+        console.print(f"[dim]{esc(note)}[/]")
     for flag in result.flags:
-        console.print(f"[yellow]warning:[/] {flag}")
-    console.print(f"stored as {group}")
+        console.print(f"[yellow]warning:[/] {esc(flag)}")
+    console.print(f"stored as {esc(group)}")
 
 
 def parse_smooth_option(text: str | None):
