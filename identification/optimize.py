@@ -35,8 +35,6 @@ RESOLUTION_LIMIT = 0.3
 LOG_RANGE = 12.0
 #: Estimated marker noise (m) above which unsmoothed data are flagged.
 NOISY_MARKERS = 0.02e-3
-#: Smoothing used by ``identify(..., smoothing="auto")`` when the markers look noisy.
-AUTO_SMOOTHING = (4, 2)
 #: RMS normalised gap below which the balance is considered exact (no further starts are tried).
 EXACT_GAP = 1e-5
 #: Fraction of the reference markers a loaded step must observe to enter the balance (``identify``).
@@ -327,7 +325,7 @@ def identify_prepared(
     if data.smoothing is None and data.marker_noise > NOISY_MARKERS:
         flags.append(f"the markers look noisy (about {data.marker_noise * 1e3:.2g} mm): per-triangle strains are "
                      "dominated by noise and the exponential laws by a few triangles; smooth the displacements "
-                     "(smoothing=(4, 2), --smooth 4,2) or measure better")
+                     "(smoothing='auto', --smooth auto) or measure better")
     if np.any(data.n_outliers):
         flags.append(f"{int(np.sum(data.n_outliers))} marker observations disagreed with their neighbours "
                      "(mis-tracked?) and were ignored")
