@@ -30,7 +30,7 @@ cost evaluation is then a few vectorised array operations.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -38,10 +38,10 @@ from .errors import DegenerateDataError
 from .kinematics import _cross, _grad, align_steps, reference_frame, surface_state, tangents
 from .mesh import SurfaceMesh, build_mesh, wrap_angle
 from .models import get_model
-from .models._base import Model, pk2_components
+from .models._base import Model, pk2_components, seed_virtual_strains, virtual_work_sensitivities
 from .virtual_fields import VirtualFields, check_fields, paper_fields
 
-__all__ = ["VFMData", "prepare", "internal_virtual_work", "end_force"]
+__all__ = ["VFMData", "prepare", "internal_virtual_work", "virtual_work_basis", "end_force"]
 
 log = logging.getLogger(__name__)
 
@@ -97,6 +97,8 @@ class VFMData:
     pressure: np.ndarray
     axial_force: np.ndarray
     thickness: float
+    #: parameter-independent intermediates of the cost (seeded virtual strains), filled on first use
+    cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @property
     def n_steps(self) -> int:
@@ -375,3 +377,42 @@ def internal_virtual_work(data: VFMData, model: str | Model, parameters) -> np.n
     if batched:
         return np.einsum("fspc,espc->efs", data.work_density, S)
     return np.einsum("fspc,spc->fs", data.work_density, S)
+
+
+def virtual_work_basis(data: VFMData, model: str | Model, parameters) -> tuple[np.ndarray, np.ndarray]:
+    """IVW of each linear (stress-like) parameter's part of W and its derivatives (variable projection).
+
+    W = sum_l p_l W_l(C; q) with p the model's ``linear`` parameters and q the others, so
+    ``IVW = sum_l p_l A_l(q)``. Values of the linear parameters in ``parameters`` are ignored.
+
+    Returns
+    -------
+    A : ndarray, shape (n_linear, n_fields, n_steps)
+        IVW (J) of W_l (that is of W with p_l = 1 and the other linear parameters 0).
+    dA : ndarray, shape (n_linear, n_nonlinear, n_fields, n_steps)
+        Exact derivatives of ``A`` with respect to the nonlinear parameters, in model order.
+    """
+    model = get_model(model)
+    seeds = data.cache.get("seeds")
+    if seeds is None:
+        seeds = seed_virtual_strains(data.c[..., 0], data.c[..., 1], data.c[..., 2], data.work_density)
+        data.cache["seeds"] = seeds
+    linear = [n for n, lin in zip(model.parameter_names, model.linear) if lin]
+    nonlinear = tuple(n for n, lin in zip(model.parameter_names, model.linear) if not lin)
+    A, dA = [], []
+    for name in linear:
+        key = ("constant basis", model.name, name)  # a part of W that no nonlinear parameter enters
+        if key in data.cache:
+            A.append(data.cache[key])
+            dA.append(np.zeros((len(nonlinear),) + data.evw.shape))
+            continue
+        values = {n: float(parameters[n]) for n in nonlinear}
+        values.update({n: float(n == name) for n in linear})
+        work, d_work, constant = virtual_work_sensitivities(model, seeds, values, nonlinear)
+        A.append(work.sum(-1))
+        dA.append(np.swapaxes(d_work.sum(-1), 0, 1))
+        if constant:
+            data.cache[key] = A[-1]
+    n_f, n_s = data.evw.shape
+    return (np.array(A).reshape(len(linear), n_f, n_s),
+            np.array(dA).reshape(len(linear), len(nonlinear), n_f, n_s))
