@@ -437,7 +437,8 @@ def internal_virtual_work(data: VFMData, model: str | Model, parameters) -> np.n
     return np.einsum("fspc,spc->fs", data.work_density, S)
 
 
-def virtual_work_basis(data: VFMData, model: str | Model, parameters) -> tuple[np.ndarray, np.ndarray]:
+def virtual_work_basis(data: VFMData, model: str | Model, parameters, *,
+                       closed_form: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """IVW of each linear (stress-like) parameter's part of W and its derivatives (variable projection).
 
     W = sum_l p_l W_l(C; q) with p the model's ``linear`` parameters and q the others, so
@@ -449,19 +450,27 @@ def virtual_work_basis(data: VFMData, model: str | Model, parameters) -> tuple[n
         IVW (J) of W_l (that is of W with p_l = 1 and the other linear parameters 0).
     dA : ndarray, shape (n_linear, n_nonlinear, n_fields, n_steps)
         Exact derivatives of ``A`` with respect to the nonlinear parameters, in model order.
+
+    The derivatives come from the shared second-order AD of the strain energy
+    (``models.virtual_work_sensitivities``), or from the model's closed form (``Model.work``) when it
+    has one and ``closed_form`` is true (both agree to rounding; the closed form is ~10x faster).
     """
     model = get_model(model)
-    chunks = _seeded_chunks(data)
     linear = [n for n, lin in zip(model.parameter_names, model.linear) if lin]
     nonlinear = tuple(n for n, lin in zip(model.parameter_names, model.linear) if not lin)
     n_f, n_s = data.evw.shape
     A = np.zeros((len(linear), n_f, n_s))
     dA = np.zeros((len(linear), len(nonlinear), n_f, n_s))
+    closed = _closed_form_work(data, model, parameters, nonlinear) if closed_form else {}
     for i, name in enumerate(linear):
         key = ("constant basis", model.name, name)  # a part of W that no nonlinear parameter enters
+        if name in closed:
+            A[i], dA[i] = closed[name][0], np.swapaxes(closed[name][1], 0, 1)
+            continue
         if key in data.cache:
             A[i] = data.cache[key]
             continue
+        chunks = _seeded_chunks(data)
         values = {n: float(parameters[n]) for n in nonlinear}
         values.update({n: float(n == name) for n in linear})
         constant = True
@@ -473,6 +482,20 @@ def virtual_work_basis(data: VFMData, model: str | Model, parameters) -> tuple[n
         if constant:
             data.cache[key] = A[i].copy()
     return A, dA
+
+
+def _closed_form_work(data: VFMData, model: Model, parameters, nonlinear: tuple[str, ...]) -> dict:
+    """``model.work`` on this data set (features cached on ``data``); {} if the model has none."""
+    if model.work is None or model.work_features is None:
+        return {}
+    key = ("work features", model.name)
+    features = data.cache.get(key)
+    if features is None:
+        w = data.work_density
+        features = model.work_features(data.c[..., 0], data.c[..., 1], data.c[..., 2],
+                                       2.0 * w[..., 0], 2.0 * w[..., 1], w[..., 2])
+        data.cache[key] = features
+    return model.work(features, **{n: float(parameters[n]) for n in nonlinear})
 
 
 #: Quadrature points per block of the derivative evaluation (its arrays then stay in the CPU cache).

@@ -51,6 +51,15 @@ class Model:
         Stress-like parameters W is proportional to (the optimiser fits them linearly at each start).
     lower, upper : tuple of float
         Bounds for the parameters that are not log-scaled (ignored for positive ones).
+    work_features, work : callable, optional
+        A closed-form shortcut of the identification's hot path: ``work_features(c11, c22, c12,
+        d11, d22, d12)`` precomputes what does not depend on the parameters (C components
+        ``(...)``, virtual-strain directions ``(k, ...)``), and ``work(features, **nonlinear)``
+        returns ``{linear name: (virtual work (k, ...[:-1]), its derivatives by the nonlinear
+        parameters (k, n_nonlinear, ...[:-1]))}`` summed over the last axis, for W with that
+        linear parameter 1 and the others 0. It must equal the shared AD path
+        (``virtual_work_sensitivities``; tests/test_ident_models.py checks it); linear parameters it
+        leaves out go through the AD path.
     """
 
     name: str
@@ -63,6 +72,8 @@ class Model:
     lower: tuple[float, ...] = field(default=())
     upper: tuple[float, ...] = field(default=())
     description: str = ""
+    work_features: Callable[..., object] | None = None
+    work: Callable[..., dict] | None = None
 
     def __post_init__(self) -> None:
         n = len(self.parameter_names)
@@ -174,7 +185,7 @@ def virtual_work_sensitivities(model: Model, seeds, parameters: Mapping[str, flo
     d_work : ndarray, shape ``(k, len(nonlinear), ...)``
         Its exact derivatives with respect to the nonlinear parameters.
     constant : bool
-        True if W does not depend on the nonlinear parameters at all (its work can be cached).
+        True if the derivatives of W by the nonlinear parameters vanish identically (its work can be cached).
     """
     c11 = seeds[0]
     ndim = np.ndim(c11.v)
@@ -187,7 +198,10 @@ def virtual_work_sensitivities(model: Model, seeds, parameters: Mapping[str, flo
     work = np.zeros((k,) + shape) if w.a is None else np.broadcast_to(w.a, (k,) + shape)
     d_work = (np.zeros((k, len(nonlinear)) + shape) if w.ab is None
               else np.broadcast_to(w.ab, (k, len(nonlinear)) + shape))
-    return work, d_work, w.b is None
+    # exactly zero parameter derivatives at every point: the part does not depend on them (e.g. HGO's
+    # matrix term, whose fibre terms are multiplied by k1 = 0)
+    constant = (w.b is None or not np.any(w.b)) and (w.ab is None or not np.any(w.ab))
+    return work, d_work, constant
 
 
 def pk2_stress(model: str | Model, C: np.ndarray, parameters: Mapping[str, float]) -> np.ndarray:
