@@ -205,7 +205,7 @@ class _Projection:
 
     def linear_solve(self, A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Best linear parameters within their bounds, and which of them are free (not on a bound)."""
-        p, *_ = np.linalg.lstsq(A, self.y, rcond=None)
+        p = _solve_normal(A, self.y)
         if np.all((p > self.p_lo) & (p < self.p_hi)):
             return p, np.ones(len(p), bool)
         p = lsq_linear(A, self.y, bounds=(self.p_lo, self.p_hi), method="bvls").x
@@ -228,7 +228,7 @@ class _Projection:
             Af = A[:, free]
             # Golub-Pereyra: p follows q, dp_free = -(Af^T Af)^-1 (Af^T dA p + dA_free^T r)
             rhs = Af.T @ dAp + np.einsum("rlj,r->lj", dA[:, free], r)
-            dp = -np.linalg.pinv(Af.T @ Af, rcond=1e-13) @ rhs if free.any() else np.zeros((0, len(self.nl)))
+            dp = -_solve_normal(Af, None, rhs) if free.any() else np.zeros((0, len(self.nl)))
             J = (dAp + Af @ dp) * dq_dx
         self._memo = (xq.copy(), r, J)
         return r, J
@@ -258,6 +258,19 @@ class _Projection:
         J[:, self.lin] = A * dp_dx[self.lin]
         J[:, self.nl] = np.einsum("rlj,l->rj", dA, p[self.lin]) * dp_dx[self.nl]
         return r.reshape(self.data.evw.shape), J
+
+
+def _solve_normal(A: np.ndarray, y: np.ndarray | None, rhs: np.ndarray | None = None) -> np.ndarray:
+    """``(A^T A)^-1 A^T y`` (or ``(A^T A)^-1 rhs``) for the few columns of A; pseudo-inverse if singular."""
+    ata = A.T @ A
+    b = A.T @ y if rhs is None else rhs
+    try:
+        out = np.linalg.solve(ata, b)
+        if np.all(np.isfinite(out)):
+            return out
+    except np.linalg.LinAlgError:
+        pass
+    return np.linalg.pinv(ata, rcond=1e-13) @ b
 
 
 def _fit_projected(vp: _Projection, starts: list[dict]) -> tuple:

@@ -45,8 +45,8 @@ def work(features, *, alpha11, alpha22, alpha12):
     """
     phi, psi = features
     a = np.array([alpha11, alpha22, alpha12])
-    half_exp = 0.5 * np.exp(np.tensordot(a, phi, 1))  # (...)
-    weighted = half_exp * np.tensordot(a, psi, 1)  # (k, ...)
+    half_exp = 0.5 * np.exp(a[0] * phi[0] + a[1] * phi[1] + a[2] * phi[2])  # (...)
+    weighted = half_exp * (a[0] * psi[0] + a[1] * psi[1] + a[2] * psi[2])  # (k, ...)
     d_work = (np.einsum("j...p,k...p->kj...", phi, weighted)
               + np.einsum("...p,jk...p->kj...", half_exp, psi))
     return {"beta": (weighted.sum(-1), d_work)}
