@@ -246,6 +246,8 @@ def marker_outliers(mesh: SurfaceMesh, r, theta, z, *, floor: float = 0.25, n_si
 
     outlier = np.zeros(disp.shape[:2], bool)
     for _ in range(2):  # second pass without the first pass's outliers among the neighbours
+        if _ == 1 and not outlier.any():
+            break  # the second pass would repeat the first exactly
         ok = np.all(np.isfinite(disp), -1) & ~outlier
         w = ok[:, nj].astype(float)  # (s, n_e2)
         dj = np.where(ok[:, nj, None], disp[:, nj], 0.0)

@@ -1,10 +1,16 @@
-"""Minimise the virtual-work gap: Levenberg-Marquardt style least squares (default) or Nelder-Mead.
+"""Minimise the virtual-work gap: variable-projection least squares (default) or Nelder-Mead.
 
 Cost (paper eq. 9, normalised): ``cost = 1/2 sum_k sum_m ((IVW[k,m] - EVW[k,m]) / scale_k)^2`` with
 ``scale_k`` the RMS external virtual work of field k over the steps, so both fields weigh alike
 whatever their units of work. Positive parameters are optimised on a log scale, the others scaled
-by their typical magnitude. The Jacobian is evaluated in one vectorised call (central differences
-over the parameters of exact complex-step stresses).
+by their typical magnitude.
+
+The stress-like parameters (``Model.linear``: Fung and Delfino beta, HGO c and k1, neo-Hookean mu)
+enter IVW linearly, so ``"lsq"`` solves them in closed form at every step (variable projection,
+Golub & Pereyra 1973) and searches only the others; residuals and their exact Jacobian come from
+one evaluation (``vfm.virtual_work_basis``: second-order AD of the energy or the model's closed
+form). Standard errors and correlations are those of the full parameter vector (linear ones
+included), from the exact Jacobian of all parameters at the solution.
 """
 
 from __future__ import annotations
@@ -74,7 +80,8 @@ class IdentificationResult:
     converged : bool
     message : str
     n_evaluations : int
-        Cost evaluations (a Jacobian counts as 2 n_params).
+        Evaluations of the virtual work: for ``"lsq"`` each gives the residuals and their exact
+        Jacobian; for ``"nelder-mead"`` each is one cost.
     starts : tuple of dict
         Initial guesses tried.
     """
