@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._dual import apply_ufunc
+
 __all__ = ["HyperDual", "seed_directions", "seed_parameters"]
 
 
@@ -46,6 +48,7 @@ def _outer(a, b):
 class HyperDual:
     __array_priority__ = 1000
     __slots__ = ("v", "a", "b", "ab")
+    order = 2
 
     def __init__(self, v, a=None, b=None, ab=None):
         self.v = v
@@ -106,37 +109,7 @@ class HyperDual:
     def __array_ufunc__(self, ufunc, method, *inputs, **kwargs):
         if method != "__call__" or kwargs:
             return NotImplemented
-        binary = {np.add: lambda x, y: x + y, np.subtract: lambda x, y: x - y,
-                  np.multiply: lambda x, y: x * y, np.true_divide: lambda x, y: x / y}
-        if ufunc in binary:
-            x, y = inputs
-            if isinstance(x, HyperDual):
-                return binary[ufunc](x, y)
-            return {np.add: y.__radd__, np.subtract: y.__rsub__, np.multiply: y.__rmul__,
-                    np.true_divide: y.__rtruediv__}[ufunc](x)
-        if ufunc is np.power and isinstance(inputs[0], HyperDual):
-            return inputs[0] ** inputs[1]
-        x = inputs[0]
-        if len(inputs) != 1 or not isinstance(x, HyperDual):
-            return NotImplemented
-        if ufunc is np.negative:
-            return -x
-        if ufunc is np.exp:
-            e = np.exp(x.v)
-            return x._chain(e, e, e)
-        if ufunc is np.log:
-            inv = 1.0 / x.v
-            return x._chain(np.log(x.v), inv, -inv * inv)
-        if ufunc is np.sqrt:
-            s = np.sqrt(x.v)
-            return x._chain(s, 0.5 / s, -0.25 / (s * s * s))
-        if ufunc is np.sin:
-            s, c = np.sin(x.v), np.cos(x.v)
-            return x._chain(s, c, -s)
-        if ufunc is np.cos:
-            s, c = np.sin(x.v), np.cos(x.v)
-            return x._chain(c, -s, -c)
-        return NotImplemented
+        return apply_ufunc(HyperDual, ufunc, inputs)
 
     def __array_function__(self, func, types, args, kwargs):
         if func is np.real:
