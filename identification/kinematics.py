@@ -254,16 +254,24 @@ def marker_outliers(mesh: SurfaceMesh, r, theta, z, *, floor: float = 0.25, n_si
         AtA = per_centre(w[..., None, None] * (A[:, :, None] * A[:, None, :])[None])
         Atd = per_centre(w[..., None, None] * (A[:, :, None] * dj[:, :, None, :]))
         count = per_centre(w)
-        enough = (count >= 4) & (np.linalg.det(AtA) > 1e-6)
-        AtA = np.where(enough[..., None, None], AtA, np.eye(3))
-        coef = np.linalg.solve(AtA, Atd)  # (s, n, 3 coef, 3 comps)
-        dev = np.linalg.norm(disp - coef[:, :, 0, :], axis=-1)
+        first_row, det = _inverse_first_row(AtA)  # only the fit's value at the centre is needed
+        enough = (count >= 4) & (det > 1e-6)
+        centre = np.einsum("snk,snkc->snc", first_row, Atd) / np.where(enough, det, 1.0)[..., None]
+        dev = np.linalg.norm(disp - centre, axis=-1)
         dev = np.where(enough & ok, dev, np.nan)
         sigma = 1.4826 * np.nanmedian(dev, axis=1, keepdims=True)
         limit = np.maximum(n_sigma * sigma, floor * edge_len)
         outlier |= np.nan_to_num(dev) > limit
     noise = np.nanmedian(np.where(outlier, np.nan, dev), axis=1) / 2.2
     return outlier, noise
+
+
+def _inverse_first_row(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """First row of the adjugate and the determinant of symmetric 3 x 3 matrices ``a (..., 3, 3)``."""
+    row = np.stack([a[..., 1, 1] * a[..., 2, 2] - a[..., 1, 2] * a[..., 2, 1],
+                    a[..., 0, 2] * a[..., 2, 1] - a[..., 0, 1] * a[..., 2, 2],
+                    a[..., 0, 1] * a[..., 1, 2] - a[..., 0, 2] * a[..., 1, 1]], -1)
+    return row, np.einsum("...k,...k->...", row, a[..., :, 0])
 
 
 def surface_state(mesh: SurfaceMesh, aligned: np.ndarray, quadrature: int = 1,

@@ -417,7 +417,9 @@ def identify_prepared(
     model : str or Model
     initial : mapping, optional
         First starting point (default: the paper's footnote guess for Fung, the model's generic
-        guess otherwise); ``n_starts - 1`` generic starts are added and the best result kept.
+        guess otherwise); up to ``n_starts - 1`` generic starts are added and the best result kept.
+        They run only when the first fit is doubtful (not converged, on a search bound, RMS gap
+        above ``GAP_FOR_FLAGS``) and stop once two starts agree.
     optimizer : {"lsq", "nelder-mead"}
         ``"lsq"``: variable projection (the stress-like parameters solved in closed form at every
         step) with ``scipy.optimize.least_squares`` (trust-region reflective, bounded, exact
