@@ -81,7 +81,8 @@ def refit_axes(points: np.ndarray, observed: np.ndarray, initial: Axis, *, profi
     previous = np.full(len(pts), np.inf)
     floor = w.sum(axis=1) * (1e-12 * initial.radius) ** 2  # cost at the rounding level of the radii
     for _ in range(max_iterations):
-        res, *_unused = _profile_residual(pts, w, frame0, c0, x[:, None] + steps[None], profile_degree)
+        evaluated = _profile_residual(pts, w, frame0, c0, x[:, None] + steps[None], profile_degree)
+        res = evaluated[0]
         cost = np.sum(res[:, 0] ** 2, axis=-1)
         worse = cost > previous * (1.0 + 1e-9) + floor  # a Gauss-Newton step that overshot: step back halfway
         if worse.any():
@@ -96,7 +97,9 @@ def refit_axes(points: np.ndarray, observed: np.ndarray, initial: Axis, *, profi
         jtj = jtj + 1e-12 * np.trace(jtj, axis1=1, axis2=2)[:, None, None] * np.eye(4)
         delta = -np.linalg.solve(jtj, np.swapaxes(jac, 1, 2) @ res[:, 0, :, None])[..., 0]
         x = x + delta
-    res, d, o, r = _profile_residual(pts, w, frame0, c0, x[:, None], profile_degree)
+    else:  # out of iterations: evaluate where the last step went
+        evaluated = _profile_residual(pts, w, frame0, c0, x[:, None], profile_degree)
+    res, d, o, r = (a[:, :1] for a in evaluated)  # the untouched trial set (offset 0) is the solution
     for k, step in enumerate(np.flatnonzero(fit)):
         axes[step] = _axis_from(pts[k], w[k] > 0, d[k, 0], o[k, 0], r[k, 0], res[k, 0], initial)
     return axes
