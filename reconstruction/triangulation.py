@@ -119,7 +119,8 @@ def triangulate_rays(origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
     A = P.sum(axis=0)
     b = np.einsum("cpij,cpj->pi", P, o)
     out = np.full(b.shape, np.nan)
-    good = (ok.sum(axis=0) >= 2) & (np.abs(np.linalg.det(A)) > 1e-12)
+    with np.errstate(invalid="ignore"):
+        good = (ok.sum(axis=0) >= 2) & (np.abs(np.linalg.det(A)) > 1e-12)
     if np.any(good):
         out[good] = np.linalg.solve(A[good], b[good][..., None])[..., 0]
     return out

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from reconstruction.cameras import Camera, project_points
+from reconstruction.refraction import Window
 
 __all__ = ["FlatWindow", "tilted_window", "project_refracted", "rays_in_water"]
 
@@ -47,6 +48,11 @@ class FlatWindow:
         if not norm > 0:
             raise ValueError(f"FlatWindow.normal must be a non-zero 3-vector; got {self.normal}")
         object.__setattr__(self, "normal", w / norm)
+
+    def to_window(self, camera: Camera) -> Window:
+        """The same window as a world-frame :class:`reconstruction.refraction.Window` for ``camera``."""
+        nw = camera.R.T @ self.normal
+        return Window(nw, self.distance + nw @ camera.center, (self.thickness,), (self.n_glass,), self.n_water, self.n_air)
 
 
 def tilted_window(tilt: float, *, azimuth: float = 0.0, **kwargs) -> FlatWindow:

@@ -67,3 +67,37 @@ def read_target_file(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """Calibration body ``id x y z`` (mm): ids ``(n,)`` and points ``(n, 3)`` in m."""
     rows = np.loadtxt(path, ndmin=2)
     return rows[:, 0].astype(int), rows[:, 1:4] * 1e-3
+
+
+# ------------------------------------------------------------------------------------- the data set, end to end
+
+#: Particle detection settings of this kind of scene (OpenPTV's targ_rec.par of test_cavity: grey threshold 9,
+#: 4..500 px, summed grey >= 150), bright particles on a dark background.
+PARTICLE_SETTINGS = {"polarity": "bright", "threshold": 9.0, "pixels_range": (4, 500), "min_sum": 150.0}
+#: Calibration-body dots: large bright dots on a dark background.
+BODY_DOT_SETTINGS = {"polarity": "bright", "background_px": 41, "threshold": 20.0, "pixels_range": (10, 2000)}
+
+
+def detect_frame(folder: str | Path, frame: int, n_cameras: int = 4, **settings) -> list[np.ndarray]:
+    """Particle centres ``(n_i, 2)`` (OpenCV px) in every camera's image of ``frame``."""
+    from reconstruction.particles import detect_particles
+
+    opts = {**PARTICLE_SETTINGS, **settings}
+    return [detect_particles(read_image(frame_path(folder, c + 1, frame)), **opts).centres for c in range(n_cameras)]
+
+
+def calibrate_body_folder(folder: str | Path, seeds: list, **options) -> list:
+    """:func:`~reconstruction.calibration_body.calibrate_from_body` of every camera on ``cal/camN.tif`` and
+    ``cal/target_on_a_side.txt``, seeded by ``seeds`` (e.g. the imported calibration)."""
+    from reconstruction.calibration_body import calibrate_from_body, match_body_points
+    from reconstruction.particles import detect_particles
+
+    folder = Path(folder)
+    _, body = read_target_file(folder / "cal" / "target_on_a_side.txt")
+    out = []
+    for i, seed in enumerate(seeds):
+        dots = detect_particles(read_image(folder / "cal" / f"cam{i + 1}.tif"), **BODY_DOT_SETTINGS).centres
+        # coarse: a wide gate (dots are ~50 px apart) and a fixed focal length, then the fine match
+        coarse = calibrate_from_body(match_body_points(dots, seed, body, gate_px=20.0), body, seed, fix_focal=True)
+        out.append(calibrate_from_body(match_body_points(dots, coarse.camera, body, gate_px=4.0), body, seed, **options))
+    return out
