@@ -134,3 +134,37 @@ def test_calibration_body_refines_and_flags_ill_posed():
     # one plane of the body (a thin target): never passes silently
     thin = np.where((np.abs(body[:, 2] - body[0, 2]) < 1e-9)[:, None], px, np.nan)
     assert not calibrate_from_body(thin, body, cams[3]).well_posed
+
+
+def test_cli_imports_openptv_folder_and_refuses_ill_posed_body(tmp_path, capsys):
+    import json
+
+    from acquisition.session import CameraSpec, SessionWriter, SpecimenInfo, open_session
+    from vfmlab.cli import main
+
+    assert main(["calibrate", "--import", str(DATA), "--body", "free"]) != 0  # ill-posed: refused, not stored
+    assert "ill-posed" in capsys.readouterr().err
+    session = tmp_path / "s.h5"
+    specs = [CameraSpec(f"cam{i}", "imported", 1280, 1024, "uint8") for i in range(1, 5)]
+    with SessionWriter.create(session, SpecimenInfo("cavity", 5e-3, 50e-3, 0.5e-3, ""), cameras=specs, protocol_text="", rig={}):
+        pass
+    assert main(["calibrate", str(session), "--import", str(DATA), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["stored_as"]
+    from vfmlab.pipeline import session_calibrated_cameras
+
+    with open_session(session) as s:
+        cams, _ = session_calibrated_cameras(s)
+    assert all(c.window is not None and c.window.n_bath == 1.46 for c in cams)
+
+
+def test_particle_volume_is_not_measured_as_a_tube():
+    from reconstruction.surface import fit_cylinder
+    from vfmlab.cli._common import CliError
+    from vfmlab.cli.cmd_import_images import _check_tube
+
+    pts = _volume(300, seed=5)
+    with pytest.raises(CliError, match="do not lie on a tube"):
+        _check_tube(fit_cylinder(pts), pts)
+    a = np.random.default_rng(0).uniform(0, 2 * np.pi, 200)
+    tube = np.stack([5e-3 * np.cos(a), 5e-3 * np.sin(a), np.random.default_rng(1).uniform(0, 0.03, 200)], 1)
+    _check_tube(fit_cylinder(tube), tube)
