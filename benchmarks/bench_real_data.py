@@ -31,7 +31,10 @@ from reconstruction.triangulation import triangulate  # noqa: E402
 from vfmlab import openptv  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data" / "openptv-test-cavity"
-GATES = {"epipolar_px": 1.5, "max_reprojection_px": 1.0}
+#: correspondence gates (px) and particle detection: denser than vfmlab.openptv.PARTICLE_SETTINGS (OpenPTV's own
+#: targ_rec thresholds), which the CI test uses on frame 1 with tighter gates to stay fast
+GATES = {"epipolar_px": 2.0, "max_reprojection_px": 1.5}
+DETECTION = {"threshold": 6.0, "min_sum": 100.0, "pixels_range": (3, 500)}
 
 
 def openptv_result(frame: int):
@@ -39,12 +42,13 @@ def openptv_result(frame: int):
     return openptv.read_rt_is(path) if path.is_file() else (None, None)
 
 
-def frame_figures(frame: int, dets: list, cams: list, straight: list | None = None) -> dict | tuple[dict, dict]:
+def frame_figures(frame: int, dets: list, cams: list, straight: list | None = None,
+                  gates: dict | None = None) -> dict | tuple[dict, dict]:
     """Figures of one frame with ``cams``; with ``straight`` also those of the same matches triangulated
-    with straight rays (returned second)."""
+    with straight rays (returned second). ``gates``: correspondence gates (default GATES)."""
     P, tgt = openptv_result(frame)
     bounds = None if P is None else (P.min(0) - 5e-3, P.max(0) + 5e-3)
-    cor = match_views(dets, cams, bounds=bounds, **GATES)
+    cor = match_views(dets, cams, bounds=bounds, **(gates or GATES))
     out = _figures(cor.observations, cor.triangulation, P, tgt, dets, cams)
     if straight is None:
         return out
@@ -94,7 +98,7 @@ def run(frames: list[int]) -> dict:
         px = match_body_points(dots, cam, pts)
         out["calibration_body_rms_px_imported"][cam.name] = float(np.sqrt(np.nanmean(np.sum((cam.project(pts) - px) ** 2, 1))))
     for f in frames:
-        dets = openptv.detect_frame(DATA, f)
+        dets = openptv.detect_frame(DATA, f, **DETECTION)
         out["imported"][str(f)], out["no_refraction"][str(f)] = frame_figures(f, dets, imported, straight=straight)
         out["own"][str(f)] = frame_figures(f, dets, own)
     return out
