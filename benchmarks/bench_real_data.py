@@ -11,6 +11,7 @@ truth), with three calibrations:
   is that of the same correspondences as ``imported``, triangulated with straight rays.
 
     python benchmarks/bench_real_data.py [--json] [--frames 1 2 3 4]
+    python benchmarks/bench_real_data.py --rendered   # rig_sim window renderer instead
 """
 
 from __future__ import annotations
@@ -125,7 +126,18 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--json", action="store_true", help="print one JSON object")
     ap.add_argument("--frames", type=int, nargs="+", default=[1, 2, 3, 4])
+    ap.add_argument("--rendered", action="store_true",
+                    help="instead: rig_sim markers rendered through tilted windows (1224 x 1024 px, 4 cameras), 3-D RMS "
+                         "error with and without the window model")
     a = ap.parse_args(argv)
+    if a.rendered:
+        sys.path.insert(0, str(ROOT / "tests"))
+        from _rendered_window import rendered_window_errors
+
+        e = rendered_window_errors(image_size=(1224, 1024), n_markers=150)
+        print(json.dumps(e) if a.json else f"rendered through 10 deg windows: 3-D RMS {e['window'] * 1e6:.2f} um with the "
+              f"window model ({e['window_n']} markers), {e['straight'] * 1e6:.0f} um with straight rays")
+        return 0
     if not (DATA / "parameters" / "ptv.par").is_file():
         print(f"data not found: {DATA}", file=sys.stderr)
         return 1
