@@ -232,6 +232,7 @@ def triangulate(
     Jf = np.where(ok[..., None, None] & active[None, :, None, None], _jacobian(np.where(active[:, None], X, 0.0), cams), 0.0)
     JtJ = np.einsum("cmki,cmkj->mij", Jf, Jf)
     cov = np.full((n_pts, 3, 3), np.nan)
+    JtJ = np.where(np.isfinite(JtJ), JtJ, 0.0)  # a refracted point that left a window's bath side
     det = np.linalg.det(JtJ)
     inv_ok = active & (np.abs(det) > 0)
     if np.any(inv_ok):
