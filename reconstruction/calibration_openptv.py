@@ -24,6 +24,7 @@ centre is refused rather than approximated.
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from reconstruction.cameras import Camera
@@ -115,8 +116,6 @@ def camera_from_openptv(name: str, ori_text: str, addpar_text: str | None, contr
     dist = np.array([k1 * cc**2, k2 * cc**4, -p2 * cc, p1 * cc, k3 * cc**6])
     R = _FLIP @ openptv_rotation(*angles).T
     X0_m = X0 * 1e-3
-    import cv2
-
     rvec = cv2.Rodrigues(R)[0].ravel()
     window = _window_from_glass(name, g, control)
     meta = {"source": "openptv", "pixel_size_mm": (px, py), "shear_rad": float(she)}

@@ -229,14 +229,7 @@ def triangulate(
         sigma_px = float(np.sqrt(sq[active].sum() / dof)) if dof > 0 else 0.02
         if not np.isfinite(sigma_px) or sigma_px <= 0:
             sigma_px = 0.02
-    Jf = np.where(ok[..., None, None] & active[None, :, None, None], _jacobian(np.where(active[:, None], X, 0.0), cams), 0.0)
-    JtJ = np.einsum("cmki,cmkj->mij", Jf, Jf)
-    cov = np.full((n_pts, 3, 3), np.nan)
-    JtJ = np.where(np.isfinite(JtJ), JtJ, 0.0)  # a refracted point that left a window's bath side
-    det = np.linalg.det(JtJ)
-    inv_ok = active & (np.abs(det) > 0)
-    if np.any(inv_ok):
-        cov[inv_ok] = sigma_px**2 * np.linalg.inv(JtJ[inv_ok])
+    cov = _covariance(X, cams, ok, active, sigma_px)
     unc = np.sqrt(np.trace(cov, axis1=1, axis2=2))
     return Triangulation(
         points=X,
@@ -250,8 +243,21 @@ def triangulate(
     )
 
 
+def _covariance(X, cams, ok, active, sigma_px) -> np.ndarray:
+    """``sigma_px^2 (J^T J)^-1`` per point ``(n_pts, 3, 3)``, NaN where not determined."""
+    Jf = np.where(ok[..., None, None] & active[None, :, None, None], _jacobian(np.where(active[:, None], X, 0.0), cams), 0.0)
+    JtJ = np.einsum("cmki,cmkj->mij", Jf, Jf)
+    JtJ = np.where(np.isfinite(JtJ), JtJ, 0.0)  # a refracted point that left a window's bath side
+    cov = np.full((X.shape[0], 3, 3), np.nan)
+    inv_ok = active & (np.abs(np.linalg.det(JtJ)) > 0)
+    if np.any(inv_ok):
+        cov[inv_ok] = sigma_px**2 * np.linalg.inv(JtJ[inv_ok])
+    return cov
+
+
 def _jacobian(points: np.ndarray, cameras: list) -> np.ndarray:
-    """d(pixel)/d(X) for every camera and point, shape (n_cams, n_pts, 2, 3), by analytic chain rule."""
+    """d(pixel)/d(X) for every camera and point, shape (n_cams, n_pts, 2, 3): analytic chain rule, or
+    central differences through a window."""
     cams = [c if isinstance(c, _Cam) else _Cam(c) for c in cameras]
     out = np.empty((len(cams), points.shape[0], 2, 3))
     for c, cam in enumerate(cams):
