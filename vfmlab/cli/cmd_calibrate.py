@@ -146,6 +146,7 @@ Examples:
   vfmlab calibrate a1.h5                                  # board views stored in the session
   vfmlab calibrate --images boards/ --squares 8x6 --square-size-mm 4.5 -o calibration.toml
   vfmlab calibrate a1.h5 --import calibration.toml --import-units mm
+  vfmlab calibrate a1.h5 --import openptv-project/ --body fixed   # OpenPTV cameras + window, refined on its body
 """
 
 
