@@ -56,7 +56,7 @@ def command(protocol: str, specimen: str, out: str, rig: str | None, sim: bool, 
     from vfmlab.operate import OperateError, as_json as outcome_json, detector_from_reconstruction, run_session
 
     require_answers(yes)
-    check_output_path(out, False, inputs=[protocol, specimen, rig], can_force=False, leftover_ok=True)
+    check_output_path(out, force=False, inputs=[protocol, specimen, rig], can_force=False, leftover_ok=True)
     try:
         outcome = run_session(protocol, specimen, out, rig_path=rig, sim=sim, yes=yes,
                               sim_speed=old_speed if old_speed is not None else sim_speed,
