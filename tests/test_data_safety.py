@@ -79,7 +79,7 @@ def test_report_and_calibrate_outputs_need_force(session, tmp_path, capsys):
     folder.mkdir()
     (folder / "report.html").write_text("old")
     assert main(["report", str(session), "-o", str(folder)]) == 1
-    assert "already holds report.html; pass --force" in capsys.readouterr().err
+    assert "pass --force" in capsys.readouterr().err
     assert (folder / "report.html").read_text() == "old"
 
 
