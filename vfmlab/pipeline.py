@@ -14,6 +14,7 @@ import inspect
 import logging
 import os
 from collections.abc import Callable
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -23,7 +24,8 @@ from acquisition.session import SessionError, open_session, write_result
 log = logging.getLogger(__name__)
 
 __all__ = ["STAGES", "StageError", "StageUnavailable", "identify_session", "identify_stored", "load_identification_inputs",
-           "reconstruct_session", "reconstruct_stored", "session_calibrated_cameras", "session_step_rows"]
+           "reconstruct_session", "reconstruct_stored", "resolve_ends", "session_calibrated_cameras",
+           "session_step_rows"]
 
 
 class StageError(Exception):
@@ -64,15 +66,50 @@ def load_identification_inputs(session, markers: str | None = None) -> dict[str,
     force = np.asarray(steps["force"], float)[rows]
     specimen = session.specimen
     notes = []
+    ends = {"ends": specimen.ends, "source": specimen.ends_source}
     if session.load_cell_measures == "total":
         r_i = specimen.radius - specimen.thickness
         force = force + pressure * np.pi * r_i**2
         notes.append(f"load cell measures total force: wall force = total + p*pi*r_i^2 with r_i = {r_i * 1e3:.3f} mm")
     return {"positions": positions, "pressure": pressure, "force": force, "thickness": float(specimen.thickness),
+            "radius": float(specimen.radius), "length": float(specimen.length), "session_ends": ends,
             "markers_result": result["name"], "rows": rows, "notes": notes}
 
 
-def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str = "membrane", ends: str = "clamped",
+#: End condition assumed when neither the session nor the user says: real specimens are tied on cannulae.
+ASSUMED_ENDS = "clamped"
+
+
+def resolve_ends(session_ends: dict[str, str], requested: str | None) -> tuple[str, str, list[str], list[str]]:
+    """The end condition to identify with, where it comes from, notes and warnings.
+
+    Parameters
+    ----------
+    session_ends : ``{"ends": "clamped" | "free" | "", "source": str}`` as recorded in the session.
+    requested : the user's ``--ends`` or None (use the session's).
+
+    Returns
+    -------
+    (ends, source, notes, warnings): ``source`` says who decided ("session (simulated specimen ...)",
+    "--ends option", "assumed"); a ``requested`` value against the session's record gives a warning.
+    """
+    recorded, where = session_ends.get("ends", ""), session_ends.get("source", "") or "session"
+    if requested is not None and requested not in ("clamped", "free"):
+        raise StageError(f"ends must be 'clamped', 'free' or None (the session's); got {requested!r}")
+    if requested is None:
+        if recorded:
+            return recorded, f"session ({where})", [f"end conditions {recorded}, as the session records ({where})"], []
+        note = (f"the session does not record the end conditions: assumed {ASSUMED_ENDS} (tube tied on cannulae); "
+                "give --ends free if the marked tube is uniform up to the load cell")
+        return ASSUMED_ENDS, "assumed", [], [note]
+    if recorded and recorded != requested:
+        return requested, "--ends option", [], [
+            f"--ends {requested} contradicts the session, which records {recorded} ends ({where}); the result uses "
+            f"{requested} as asked: check that this is what the specimen had"]
+    return requested, "--ends option", [], []
+
+
+def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str = "membrane", ends: str | None = None,
                     optimizer: str = "lsq", smoothing: str | tuple[int, int] | None = None, markers: str | None = None,
                     invoked_by: str = "pipeline") -> tuple[str, Any, dict[str, Any]]:
     """Identify ``model`` from the session's marker tracks with the VFM and store an "identification" result.
@@ -82,7 +119,9 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
     path : session file.
     model : "fung" | "delfino" | "hgo" | "neohookean".
     wall : "membrane" | "thick".
-    ends : "clamped" | "free".
+    ends : "clamped" | "free", or None (default) for what the session records (assumed clamped,
+        with a warning, when it records nothing). A value against the session's record is used,
+        with a warning in the result's flags.
     optimizer : "lsq" | "nelder-mead".
     smoothing : (axial Legendre degree, circumferential harmonics) to smooth the measured
         displacements first, "auto" (smooth only when the estimated marker noise is large), or None.
@@ -111,11 +150,14 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
             data = load_identification_inputs(session, markers)
     except SessionError as exc:
         raise StageError(str(exc)) from None
+    ends, ends_source, ends_notes, warnings = resolve_ends(data["session_ends"], ends)
+    data["notes"] = data["notes"] + ends_notes
     try:
         result = identify(data["positions"], data["pressure"], data["force"], thickness=data["thickness"],
                           model=model, wall=wall, ends=ends, optimizer=optimizer, smoothing=smoothing)
     except (IdentificationError, ValueError) as exc:
         raise StageError(f"{path}: cannot identify {model}: {exc}") from None
+    result = replace(result, flags=tuple(warnings) + tuple(result.flags))
     names = list(result.parameters)
     arrays = {
         "parameters": np.array([result.parameters[n] for n in names]),
@@ -127,12 +169,14 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
         "residuals": result.residuals,
         "step_index": data["rows"],
     }
-    settings = {"model": model, "wall": wall, "ends": ends, "optimizer": optimizer, "smoothing": smoothing,
+    settings = {"model": model, "wall": wall, "ends": ends, "ends_source": ends_source, "optimizer": optimizer,
+                "smoothing": smoothing,
                 "markers_result": data["markers_result"], "thickness": data["thickness"],
                 "force_correction": data["notes"]}
     attrs = {"model": model, "wall": wall, "cost": result.cost, "converged": result.converged,
              "flags": list(result.flags), "message": result.message, "n_evaluations": result.n_evaluations,
              "field_names": list(result.field_names), "invoked_by": invoked_by}
+    data["settings"] = settings
     try:
         group = write_result(path, "identification", arrays, settings, attrs=attrs,
                              units={"ivw": "J", "evw": "J", "residuals": "1"})

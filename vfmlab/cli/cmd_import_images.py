@@ -80,9 +80,13 @@ def _read(path: Path) -> np.ndarray:
 @click.option("--notes", default="", help="Free-text notes about the specimen.")
 @click.option("--force-is", type=click.Choice(["wall", "total"]), default="wall", show_default=True,
               help="What axial_force_N is: force carried by the wall, or a total reading behind a pressurised cannula.")
+@click.option("--ends", type=click.Choice(["clamped", "free"]), default=None,
+              help="How the specimen was held: clamped (tied on cannulae) or free (uniform up to the load cell); "
+                   "recorded in the session for 'vfmlab identify' [default: not recorded; identify then assumes "
+                   "clamped and says so].")
 @click.option("--force", "overwrite", is_flag=True, help="Overwrite OUT if it exists.")
 def command(images_dir, calibration, calibration_units, loads_csv, out, marker_diameter_mm, thickness_mm, radius_mm,
-            length_mm, specimen_id, notes, force_is, overwrite):
+            length_mm, specimen_id, notes, force_is, ends, overwrite):
     """Build a session from IMAGES_DIR/<camera>/<step>.png (camera names as in the calibration file,
     step 0 = reference), the camera calibration and a loads CSV. Then run 'vfmlab reconstruct OUT'."""
     from acquisition.markers_csv import CsvFormatError, read_loads_csv
@@ -139,7 +143,8 @@ def command(images_dir, calibration, calibration_units, loads_csv, out, marker_d
         notes_extra.append("thickness not given: 10 % of the radius assumed")
     try:
         specimen = SpecimenInfo(specimen_id or images_dir.name, radius_mm * 1e-3, length_mm * 1e-3,
-                                thickness_mm * 1e-3, "; ".join([notes] * bool(notes) + notes_extra))
+                                thickness_mm * 1e-3, "; ".join([notes] * bool(notes) + notes_extra),
+                                ends or "", "import option --ends" if ends else "")
     except ValueError as exc:
         raise CliError(str(exc)) from None
     specs = [CameraSpec(c.name, "imported", c.image_size[0], c.image_size[1], dtype) for c in cams]

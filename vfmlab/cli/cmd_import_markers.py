@@ -52,8 +52,13 @@ def estimate_geometry(reference: np.ndarray) -> tuple[float, float]:
 @click.option("--notes", default="", help="Free-text notes about the specimen.")
 @click.option("--force-is", type=click.Choice(["wall", "total"]), default="wall", show_default=True,
               help="What axial_force_N is: force carried by the wall, or a total reading behind a pressurised cannula.")
+@click.option("--ends", type=click.Choice(["clamped", "free"]), default=None,
+              help="How the specimen was held: clamped (tied on cannulae) or free (uniform up to the load cell); "
+                   "recorded in the session for 'vfmlab identify' [default: not recorded; identify then assumes "
+                   "clamped and says so].")
 @click.option("--force", "overwrite", is_flag=True, help="Overwrite OUT if it exists.")
-def command(markers_csv, loads_csv, out, thickness_mm, radius_mm, length_mm, specimen_id, notes, force_is, overwrite):
+def command(markers_csv, loads_csv, out, thickness_mm, radius_mm, length_mm, specimen_id, notes, force_is, ends,
+            overwrite):
     """Build a session from MARKERS_CSV (marker_id,step,x_mm,y_mm,z_mm) and LOADS_CSV
     (step,pressure_Pa|pressure_kPa|pressure_mmHg,axial_force_N,stretch). Step 0 is the reference."""
     try:
@@ -71,7 +76,8 @@ def command(markers_csv, loads_csv, out, thickness_mm, radius_mm, length_mm, spe
     radius = radius_mm * 1e-3 if radius_mm else fitted_radius
     length = length_mm * 1e-3 if length_mm else fitted_length
     try:
-        specimen = SpecimenInfo(specimen_id or Path(markers_csv).stem, radius, length, thickness_mm * 1e-3, notes)
+        specimen = SpecimenInfo(specimen_id or Path(markers_csv).stem, radius, length, thickness_mm * 1e-3, notes,
+                                ends or "", "import option --ends" if ends else "")
     except ValueError as exc:
         raise CliError(str(exc)) from None
     rig = {"source": "import-markers", "markers_csv": str(markers_csv), "loads_csv": str(loads_csv)}
@@ -98,5 +104,6 @@ def command(markers_csv, loads_csv, out, thickness_mm, radius_mm, length_mm, spe
     console.print(
         f"Imported {len(table.labels)} markers x {len(table.steps)} steps into [bold]{out}[/] "
         f"(result {name}; radius {radius * 1e3:.3f} mm, length {length * 1e3:.3f} mm, "
-        f"thickness {thickness_mm:.3f} mm, load cell measures {force_is})."
+        f"thickness {thickness_mm:.3f} mm, load cell measures {force_is}, "
+        + (f"ends {ends})." if ends else "ends not recorded: identify will assume clamped unless --ends says).")
     )
