@@ -10,8 +10,8 @@ over the parameters of exact complex-step stresses).
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
-from typing import Mapping
+from dataclasses import dataclass, field, replace
+from typing import Any, Mapping
 
 import numpy as np
 from scipy.optimize import least_squares, minimize, nnls
@@ -74,6 +74,8 @@ class IdentificationResult:
         Cost evaluations (a Jacobian counts as 2 n_params).
     starts : tuple of dict
         Initial guesses tried.
+    data : VFMData or None
+        The virtual-work data fitted (set by ``identify``; ``identification.checks`` uses it).
     """
 
     model: str
@@ -93,6 +95,7 @@ class IdentificationResult:
     message: str
     n_evaluations: int
     starts: tuple = field(default=())
+    data: Any = field(default=None, repr=False, compare=False)  # the VFMData fitted (set by ``identify``)
 
     @property
     def residual_per_step(self) -> np.ndarray:
@@ -372,4 +375,4 @@ def identify(
         opts["mesh"] = data.mesh
         data = prepare(positions, pressure, axial_force, thickness=thickness, wall=wall, ends=ends,
                        smoothing=AUTO_SMOOTHING, **opts)
-    return identify_prepared(data, model, initial=initial, optimizer=optimizer, n_starts=n_starts)
+    return replace(identify_prepared(data, model, initial=initial, optimizer=optimizer, n_starts=n_starts), data=data)

@@ -77,6 +77,9 @@ class VFMData:
         Estimated marker noise (m, median over steps; ``kinematics.marker_outliers``).
     smoothing : tuple or None
     pressure, axial_force : ndarray, shape (n_steps,)
+    strip_force : ndarray, shape (n_steps,)
+        ``p (A_loop - A_clamp)`` (N): what ``ends="clamped"`` adds to the load-cell force for the
+        pressure on the unmeasured strip next to the clamp (used whatever ``ends``, by the checks).
     """
 
     c: np.ndarray
@@ -97,6 +100,7 @@ class VFMData:
     pressure: np.ndarray
     axial_force: np.ndarray
     thickness: float
+    strip_force: np.ndarray | None = None
 
     @property
     def n_steps(self) -> int:
@@ -338,14 +342,11 @@ def prepare(
     th_ref = np.broadcast_to(mesh.theta, th_all.shape)
     th_use = np.where(np.isfinite(th_all), th_all, th_ref)
     loop_area = _loop_area(mesh.top_edges, r2, th_use)
-    if ends == "clamped":
-        rc = float(np.mean(mesh.r[top])) if clamp_radius is None else float(clamp_radius)
-        if clamp_radius is None and wall == "thick":
-            rc -= e0
-        clamp_area = np.pi * rc * rc
-    else:
-        clamp_area = None
-    n_end = end_force(f, p, loop_area, clamp_area)
+    rc = float(np.mean(mesh.r[top])) if clamp_radius is None else float(clamp_radius)
+    if clamp_radius is None and wall == "thick":
+        rc -= e0
+    strip_force = end_force(f, p, loop_area, np.pi * rc * rc) - f  # pressure on the unmeasured strip (clamped)
+    n_end = end_force(f, p, loop_area, np.pi * rc * rc if ends == "clamped" else None)
     end_work = fields.load_end[:, None] * n_end[None]
     evw = pressure_work + end_work
     scale = np.sqrt(np.mean(evw**2, axis=1))
@@ -358,7 +359,8 @@ def prepare(
     return VFMData(c=c, work_density=work_density, evw=evw, pressure_work=pressure_work, end_work=end_work,
                    end_force=n_end, scale=scale, field_names=tuple(fields.names), wall=wall, ends=ends, mesh=mesh,
                    n_valid_triangles=n_valid, n_outliers=st.outliers.sum(axis=1),
-                   marker_noise=float(np.nanmedian(st.noise)), smoothing=smoothing, pressure=p, axial_force=f, thickness=e0)
+                   marker_noise=float(np.nanmedian(st.noise)), smoothing=smoothing, pressure=p, axial_force=f, thickness=e0,
+                   strip_force=strip_force)
 
 
 def internal_virtual_work(data: VFMData, model: str | Model, parameters) -> np.ndarray:

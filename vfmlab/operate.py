@@ -146,7 +146,7 @@ def specimen_ends(rig, specimen, sim: bool, console: Console | None = None) -> t
     said = [(specimen.ends, "specimen file"), (getattr(rig, "ends", ""), "rig file")]
     if sim:
         ends = "clamped" if rig.simulation.clamped else "free"
-        source = f"simulated specimen ([simulation] clamped = {str(rig.simulation.clamped).lower()})"
+        source = f"simulated specimen, rig file simulation.clamped = {str(rig.simulation.clamped).lower()}"
         for value, where in said:
             if value and value != ends and console is not None:
                 console.print(f"[yellow]warning:[/] the {where} says ends = {value!r} but the simulated specimen is "

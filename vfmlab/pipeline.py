@@ -111,7 +111,7 @@ def resolve_ends(session_ends: dict[str, str], requested: str | None) -> tuple[s
 
 def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str = "membrane", ends: str | None = None,
                     optimizer: str = "lsq", smoothing: str | tuple[int, int] | None = None, markers: str | None = None,
-                    invoked_by: str = "pipeline") -> tuple[str, Any, dict[str, Any]]:
+                    check: bool = True, invoked_by: str = "pipeline") -> tuple[str, Any, dict[str, Any]]:
     """Identify ``model`` from the session's marker tracks with the VFM and store an "identification" result.
 
     Parameters
@@ -126,6 +126,8 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
     smoothing : (axial Legendre degree, circumferential harmonics) to smooth the measured
         displacements first, "auto" (smooth only when the estimated marker noise is large), or None.
     markers : markers result to use (default: the latest).
+    check : run the setting checks (``identification.checks``: end conditions and wall form
+        against the data's own evidence) and add their warnings to the flags.
     invoked_by : recorded in the result's attributes (e.g. "identify", "reprocess").
 
     Returns
@@ -135,6 +137,7 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
     """
     try:
         from identification import IdentificationError, identify
+        from identification.mesh import describe_dropped
     except ImportError as exc:  # pragma: no cover - the identification package ships with vfmlab
         raise StageUnavailable(f"the identification package is not available: {exc}") from None
     if smoothing is not None and smoothing != "auto":
@@ -157,7 +160,10 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
                           model=model, wall=wall, ends=ends, optimizer=optimizer, smoothing=smoothing)
     except (IdentificationError, ValueError) as exc:
         raise StageError(f"{path}: cannot identify {model}: {exc}") from None
-    result = replace(result, flags=tuple(warnings) + tuple(result.flags))
+    checks = _check_setup(result, data["positions"]) if check else None
+    result = replace(result, flags=tuple(warnings) + tuple(result.flags) + (checks.flags if checks else ()))
+    if result.data is not None:
+        data["notes"].append(describe_dropped(result.data.mesh.dropped))
     names = list(result.parameters)
     arrays = {
         "parameters": np.array([result.parameters[n] for n in names]),
@@ -176,6 +182,9 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
     attrs = {"model": model, "wall": wall, "cost": result.cost, "converged": result.converged,
              "flags": list(result.flags), "message": result.message, "n_evaluations": result.n_evaluations,
              "field_names": list(result.field_names), "invoked_by": invoked_by}
+    if checks is not None:
+        attrs.update({"check_taper": list(checks.taper), "check_gap": checks.gap,
+                      "check_gap_other_ends": checks.gap_other_ends, "check_gap_other_wall": checks.gap_other_wall})
     data["settings"] = settings
     try:
         group = write_result(path, "identification", arrays, settings, attrs=attrs,
@@ -183,6 +192,17 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
     except SessionError as exc:
         raise StageError(str(exc)) from None
     return group, result, data
+
+
+def _check_setup(result, positions):
+    """``identification.checks.check_setup``, or None if it cannot run on this result."""
+    from identification.checks import check_setup
+
+    try:
+        return check_setup(result, positions)
+    except (ValueError, ArithmeticError) as exc:
+        log.warning("setting checks skipped: %s", exc)
+        return None
 
 
 def identify_session(path: str | os.PathLike, **options: Any) -> str:
