@@ -336,6 +336,7 @@ def build_mesh(
     toward: np.ndarray | None = None,
     min_quality: float = 0.02,
     duplicate_tolerance: float | None = None,
+    duplicate_fraction: float = DUPLICATE_FRACTION,
     sliver_quality: float = SLIVER_QUALITY,
 ) -> SurfaceMesh:
     """Triangulate the reference marker cloud of a tubular specimen.
@@ -355,8 +356,10 @@ def build_mesh(
         Triangles with quality ``4 sqrt(3) A / sum(l^2)`` (1 = equilateral) below this left after the
         clean-up are removed (as small holes).
     duplicate_tolerance : float, optional
-        Markers closer than this (m) to an earlier marker are dropped (default ``DUPLICATE_FRACTION``
-        (0.35) of the median nearest-neighbour distance).
+        Markers closer than this (m) to an earlier marker are dropped (default ``duplicate_fraction``
+        of the median nearest-neighbour distance).
+    duplicate_fraction : float
+        ``DUPLICATE_FRACTION`` (0.35); 0.05 with ``sliver_quality=0`` is the pre-issue-10 mesh.
     sliver_quality : float
         Quality below which a triangle is a sliver (``SLIVER_QUALITY``, 0.3); 0 keeps every marker
         (only ``min_quality`` applies, the pre-issue-10 behaviour).
@@ -378,7 +381,7 @@ def build_mesh(
 
     d_nn, _ = cKDTree(ref[idx]).query(ref[idx], k=2)
     spacing = float(np.median(d_nn[:, 1]))
-    tol = DUPLICATE_FRACTION * spacing if duplicate_tolerance is None else float(duplicate_tolerance)
+    tol = duplicate_fraction * spacing if duplicate_tolerance is None else float(duplicate_tolerance)
     drop = _near_duplicates(ref[idx], tol)
     n_dup = int(drop.sum())
     idx = idx[~drop]
@@ -409,6 +412,7 @@ def build_mesh(
         "holes": int(n_holes),
         "spacing": spacing,
         "duplicate_tolerance": tol,
+        "duplicate_fraction": tol / spacing if spacing > 0 else float("nan"),
         "sliver_quality": float(sliver_quality),
     }
     log.info("mesh: %d triangles on %d markers; %s", len(tri), int(used.sum()), describe_dropped(dropped))
@@ -451,7 +455,7 @@ def describe_dropped(dropped: dict) -> str:
     if dropped.get("duplicate_markers"):
         parts.append(f"{dropped['duplicate_markers']} near-duplicate marker(s) (closer than "
                      f"{dropped.get('duplicate_tolerance', np.nan) * 1e3:.2g} mm to another, "
-                     f"{DUPLICATE_FRACTION:g} x the median spacing)")
+                     f"{dropped.get('duplicate_fraction', DUPLICATE_FRACTION):.2g} x the median spacing)")
     if dropped.get("sliver_markers"):
         parts.append(f"{dropped['sliver_markers']} marker(s) at the obtuse corner of sliver triangles "
                      f"(quality < {dropped.get('sliver_quality', SLIVER_QUALITY):g}), then re-meshed")

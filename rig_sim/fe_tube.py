@@ -30,9 +30,13 @@ Only tests and benchmarks use this module.
 from __future__ import annotations
 
 import functools
+import hashlib
+import json
 import logging
+import os
 import warnings
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -42,6 +46,11 @@ log = logging.getLogger(__name__)
 __all__ = ["FETube", "solve_fe_tube", "fe_markers", "FE_MATERIALS"]
 
 FE_MATERIALS = ("hgo", "delfino")
+#: Bumped when the model changes, so that cached solutions are recomputed.
+FE_VERSION = 1
+#: Width of the smoothed tension-only switch of the HGO fibres (in I4 - 1).
+FIBRE_SWITCH = 1e-3
+#: felupe's Newton progress printout (0 = quiet).
 VERBOSE = 0
 
 
@@ -107,7 +116,10 @@ class _Umat:
             for a in self.fibres:
                 Fa = np.einsum("ij...,j->i...", F, a)
                 e = np.einsum("i...,i...->...", Fa, Fa) - 1.0
-                w = np.where(e > 0, k1 * e * np.exp(k2 * e * e), 0.0)  # dW/dI4
+                # dW/dI4, tension only; the switch is smoothed over |I4 - 1| < FIBRE_SWITCH (stresses of
+                # ~k1 x 1e-3 there) so that Newton does not cycle on fibres at the edge of slackness
+                on = 0.5 * (1.0 + np.tanh(e / FIBRE_SWITCH))
+                w = on * k1 * e * np.exp(np.minimum(k2 * e * e, 50.0))
                 P = P + 2.0 * w * np.einsum("i...,j->ij...", Fa, a)
             return P
         beta, alpha = self.p["beta"], self.p["alpha"]
@@ -134,7 +146,7 @@ def _build(radius, thickness, length, n_axial, n_radial, clamped):
     half = 0.5 * length
     # grade the axial spacing towards the clamp, where a clamped tube bends
     s = np.linspace(0.0, 1.0, int(n_axial) + 1)
-    xs = half * (np.sin(0.5 * np.pi * s) if clamped else s)
+    xs = half * (1.0 - (1.0 - s) ** 1.5 if clamped else s)
     ys = np.linspace(radius - thickness, radius, int(n_radial) + 1)
     mesh = fem.mesh.Grid(xs, ys)
     region = fem.RegionQuad(mesh)
@@ -167,7 +179,7 @@ def _newton(fem, field, items, boundaries, move, p):
     try:
         with np.errstate(all="ignore"), warnings.catch_warnings():
             warnings.simplefilter("ignore")  # singular trial systems of a too-large increment: cut back
-            res = fem.newtonraphson(items=items, x0=field, dof1=dof1, dof0=dof0, ext0=ext0, tol=1e-7, maxiter=25,
+            res = fem.newtonraphson(items=items, x0=field, dof1=dof1, dof0=dof0, ext0=ext0, tol=1e-7, maxiter=40,
                                     verbose=VERBOSE)
     except (fem.tools.NewtonConvergenceError, np.linalg.LinAlgError, ValueError):
         res = None
@@ -208,6 +220,27 @@ def _run(fem, field, solid, pressure_item, boundaries, loads, max_cuts: int = 8)
     return out
 
 
+def _load_path(pressures, move, n_ramp, max_step=2e3):
+    """(axial displacement, pressure) loads to solve in order, and the indices of the requested states.
+
+    The material is hyperelastic, so the path does not change the states; it is chosen for Newton:
+    pressurise to the first level at L/L0 = 1 (the slack-fibre start of an HGO tube under axial
+    stretch is a near-mechanism), then stretch, then the pressure levels in increments <= max_step Pa.
+    """
+    first = float(pressures[0]) if len(pressures) else 0.0
+    ts = np.linspace(0.0, 1.0, int(n_ramp) + 1)[1:]
+    loads = [(0.0, first * t) for t in ts] if first > 0 else []
+    loads += [(move * t, first) for t in ts]
+    keep = [len(loads) - 1]
+    previous = first
+    for p in pressures[1:]:
+        n_sub = max(1, int(np.ceil(abs(float(p) - previous) / max_step)))
+        loads += [(move, previous + (float(p) - previous) * k / n_sub) for k in range(1, n_sub + 1)]
+        keep.append(len(loads) - 1)
+        previous = float(p)
+    return loads, keep
+
+
 @functools.lru_cache(maxsize=16)
 def _solve_cached(model, params, radius, thickness, length, stretch, pressures, clamped, n_axial, n_radial, bulk,
                   n_ramp):
@@ -215,16 +248,8 @@ def _solve_cached(model, params, radius, thickness, length, stretch, pressures, 
     solid = fem.SolidBodyNearlyIncompressible(_Umat(model, dict(params)), field, bulk=bulk)
     pressure_item = fem.SolidBodyPressure(lumen, pressure=0.0)
     half = 0.5 * length
-    ramp = [((stretch - 1.0) * half * t, 0.0) for t in np.linspace(0, 1, n_ramp + 1)[1:]]
-    # pressure substeps of at most ~15 mmHg for Newton; states kept at the requested levels only
-    levels, keep, previous = [], [], 0.0
-    for p in pressures:
-        n_sub = max(1, int(np.ceil(abs(float(p) - previous) / 2e3)))
-        levels += list(previous + (float(p) - previous) * np.arange(1, n_sub + 1) / n_sub)
-        keep.append(len(levels) - 1)
-        previous = float(p)
-    loads = ramp + [((stretch - 1.0) * half, p) for p in levels]
-    solved = _run(fem, field, solid, pressure_item, boundaries, loads)[len(ramp):]
+    loads, keep = _load_path(pressures, (stretch - 1.0) * half, n_ramp)
+    solved = _run(fem, field, solid, pressure_item, boundaries, loads)
     states = [solved[i] for i in keep]
     x = mesh.points
     r, z, force = [np.full(outer.size, radius)], [x[outer, 0].copy()], [0.0]
@@ -238,7 +263,7 @@ def _solve_cached(model, params, radius, thickness, length, stretch, pressures, 
 def solve_fe_tube(model: str, params: Mapping[str, float], *, radius: float = 10e-3, thickness: float = 1.3e-3,
                   length: float = 35e-3, stretch: float = 1.1, pressures: Sequence[float] = (),
                   clamped: bool = True, n_axial: int = 60, n_radial: int = 4, bulk: float | None = None,
-                  n_ramp: int = 4) -> FETube:
+                  n_ramp: int = 4, cache_dir: str | os.PathLike | None = None) -> FETube:
     """Solve the FE tube (cached per argument set in this process).
 
     Parameters
@@ -262,6 +287,9 @@ def solve_fe_tube(model: str, params: Mapping[str, float], *, radius: float = 10
         stiffness-like parameter: the exponential laws stiffen by ~100x at 150 mmHg).
     n_ramp : int
         Substeps of the axial stretch.
+    cache_dir : path, optional
+        Keep the solution in ``cache_dir/fe-tube-<hash>.npz`` and reuse it (the hash covers every
+        argument and ``FE_VERSION``).
 
     Returns
     -------
@@ -269,6 +297,10 @@ def solve_fe_tube(model: str, params: Mapping[str, float], *, radius: float = 10
         Step 0 is the reference; then one step per pressure.
     """
     params = {k: float(v) for k, v in params.items()}
+    if cache_dir is not None:
+        return _disk_cached(cache_dir, model, params, radius=radius, thickness=thickness, length=length,
+                            stretch=stretch, pressures=pressures, clamped=clamped, n_axial=n_axial, n_radial=n_radial,
+                            bulk=bulk, n_ramp=n_ramp)
     if bulk is None:
         bulk = 1e5 * max(v for k, v in params.items() if k in ("c", "k1", "beta", "mu"))
     key = tuple(sorted(params.items()))
@@ -279,6 +311,26 @@ def solve_fe_tube(model: str, params: Mapping[str, float], *, radius: float = 10
     return FETube(Z=Z, r=r, z=z, pressure=np.concatenate([[0.0], np.asarray(pressures, float)]), wall_force=force,
                   stretch=np.concatenate([[1.0], np.full(n, float(stretch))]), radius=float(radius),
                   thickness=float(thickness), length=float(length), model=model, params=params, clamped=bool(clamped))
+
+
+def _disk_cached(cache_dir, model, params, **kwargs) -> FETube:
+    """``solve_fe_tube`` through an .npz file per argument set."""
+    key = json.dumps({"version": FE_VERSION, "model": model, "params": params,
+                      **{k: (list(map(float, v)) if k == "pressures" else v) for k, v in kwargs.items()}},
+                     sort_keys=True)
+    path = Path(cache_dir) / f"fe-tube-{hashlib.sha256(key.encode()).hexdigest()[:16]}.npz"
+    if path.exists():
+        d = np.load(path, allow_pickle=False)
+        return FETube(Z=d["Z"], r=d["r"], z=d["z"], pressure=d["pressure"], wall_force=d["wall_force"],
+                      stretch=d["stretch"], radius=float(d["radius"]), thickness=float(d["thickness"]),
+                      length=float(d["length"]), model=model, params=params, clamped=bool(d["clamped"]))
+    tube = solve_fe_tube(model, params, **kwargs)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez(path, Z=tube.Z, r=tube.r, z=tube.z, pressure=tube.pressure, wall_force=tube.wall_force,
+             stretch=tube.stretch, radius=tube.radius, thickness=tube.thickness, length=tube.length,
+             clamped=tube.clamped, key=key)
+    log.info("FE tube cached in %s", path)
+    return tube
 
 
 def fe_markers(tube: FETube, n_markers: int = 300, *, margin: float = 4e-3, seed: int = 0) -> np.ndarray:
