@@ -415,7 +415,7 @@ def build_mesh(
         "duplicate_fraction": tol / spacing if spacing > 0 else float("nan"),
         "sliver_quality": float(sliver_quality),
     }
-    log.info("mesh: %d triangles on %d markers; %s", len(tri), int(used.sum()), describe_dropped(dropped))
+    log.info("surface mesh: %d triangles on %d markers; %s", len(tri), int(used.sum()), describe_dropped(dropped))
     return SurfaceMesh(axis=axis, triangles=tri, r=np.where(finite, r, np.nan), theta=np.where(finite, theta, np.nan),
                        z=np.where(finite, z, np.nan), used=used, bottom_edges=bottom_edges, top_edges=top_edges,
                        z_bottom=z_bottom, z_top=z_top, dropped=dropped)
