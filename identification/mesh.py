@@ -403,18 +403,11 @@ def build_mesh(
         raise MeshError(f"the two ends overlap axially (bottom boundary up to z={z_bottom}, top from z={z_top})")
     used = np.zeros(n, bool)
     used[tri.ravel()] = True
-    dropped = {
-        "nan_markers": int(n - finite.sum()),
-        "duplicate_markers": n_dup,
-        "sliver_markers": int(n_corner),
-        "boundary_slivers": n_boundary,
-        "interior_slivers": int(interior.sum()),
-        "holes": int(n_holes),
-        "spacing": spacing,
-        "duplicate_tolerance": tol,
-        "duplicate_fraction": tol / spacing if spacing > 0 else float("nan"),
-        "sliver_quality": float(sliver_quality),
-    }
+    dropped = {"nan_markers": int(n - finite.sum()), "duplicate_markers": n_dup, "sliver_markers": int(n_corner),
+               "boundary_slivers": n_boundary, "interior_slivers": int(interior.sum()), "holes": int(n_holes),
+               "spacing": spacing, "duplicate_tolerance": tol,
+               "duplicate_fraction": tol / spacing if spacing > 0 else float("nan"),
+               "sliver_quality": float(sliver_quality)}
     log.info("surface mesh: %d triangles on %d markers; %s", len(tri), int(used.sum()), describe_dropped(dropped))
     return SurfaceMesh(axis=axis, triangles=tri, r=np.where(finite, r, np.nan), theta=np.where(finite, theta, np.nan),
                        z=np.where(finite, z, np.nan), used=used, bottom_edges=bottom_edges, top_edges=top_edges,

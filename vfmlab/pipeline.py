@@ -23,9 +23,9 @@ from acquisition.session import SessionError, open_session, write_result
 
 log = logging.getLogger(__name__)
 
-__all__ = ["STAGES", "StageError", "StageUnavailable", "identify_session", "identify_stored", "load_identification_inputs",
-           "reconstruct_session", "reconstruct_stored", "resolve_ends", "session_calibrated_cameras",
-           "session_step_rows"]
+__all__ = ["STAGES", "StageError", "StageUnavailable", "identify_session", "identify_stored",
+           "load_identification_inputs", "reconstruct_session", "reconstruct_stored", "resolve_ends",
+           "session_calibrated_cameras", "session_step_rows"]
 
 
 class StageError(Exception):
@@ -154,7 +154,8 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
     except SessionError as exc:
         raise StageError(str(exc)) from None
     ends, ends_source, ends_notes, warnings = resolve_ends(data["session_ends"], ends)
-    data["notes"] = data["notes"] + ends_notes
+    force_notes = list(data["notes"])
+    data["notes"] = force_notes + ends_notes
     try:
         result = identify(data["positions"], data["pressure"], data["force"], thickness=data["thickness"],
                           model=model, wall=wall, ends=ends, optimizer=optimizer, smoothing=smoothing)
@@ -164,6 +165,22 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
     result = replace(result, flags=tuple(warnings) + tuple(result.flags) + (checks.flags if checks else ()))
     if result.data is not None:
         data["notes"].append(describe_dropped(result.data.mesh.dropped))
+    settings = {"model": model, "wall": wall, "ends": ends, "ends_source": ends_source, "optimizer": optimizer,
+                "smoothing": smoothing, "markers_result": data["markers_result"], "thickness": data["thickness"],
+                "force_correction": force_notes}
+    arrays, attrs = _result_record(result, data["rows"], checks)
+    attrs.update({"model": model, "wall": wall, "invoked_by": invoked_by, "notes": data["notes"]})
+    data["settings"] = settings
+    try:
+        group = write_result(path, "identification", arrays, settings, attrs=attrs,
+                             units={"ivw": "J", "evw": "J", "residuals": "1"})
+    except SessionError as exc:
+        raise StageError(str(exc)) from None
+    return group, result, data
+
+
+def _result_record(result, rows, checks) -> tuple[dict, dict]:
+    """Arrays and attributes of an "identification" result (plus what the setting checks measured)."""
     names = list(result.parameters)
     arrays = {
         "parameters": np.array([result.parameters[n] for n in names]),
@@ -173,25 +190,15 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
         "ivw": result.ivw,
         "evw": result.evw,
         "residuals": result.residuals,
-        "step_index": data["rows"],
+        "step_index": rows,
     }
-    settings = {"model": model, "wall": wall, "ends": ends, "ends_source": ends_source, "optimizer": optimizer,
-                "smoothing": smoothing,
-                "markers_result": data["markers_result"], "thickness": data["thickness"],
-                "force_correction": data["notes"]}
-    attrs = {"model": model, "wall": wall, "cost": result.cost, "converged": result.converged,
-             "flags": list(result.flags), "message": result.message, "n_evaluations": result.n_evaluations,
-             "field_names": list(result.field_names), "invoked_by": invoked_by}
+    attrs = {"cost": result.cost, "converged": result.converged, "flags": list(result.flags),
+             "message": result.message, "n_evaluations": result.n_evaluations,
+             "field_names": list(result.field_names)}
     if checks is not None:
         attrs.update({"check_taper": list(checks.taper), "check_gap": checks.gap,
                       "check_gap_other_ends": checks.gap_other_ends, "check_gap_other_wall": checks.gap_other_wall})
-    data["settings"] = settings
-    try:
-        group = write_result(path, "identification", arrays, settings, attrs=attrs,
-                             units={"ivw": "J", "evw": "J", "residuals": "1"})
-    except SessionError as exc:
-        raise StageError(str(exc)) from None
-    return group, result, data
+    return arrays, attrs
 
 
 def _check_setup(result, positions):
