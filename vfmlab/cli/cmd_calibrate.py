@@ -170,7 +170,7 @@ def command(session, images_dir, board, squares, square_size_mm, marker_size_mm,
     if out is not None and out.suffix.lower() not in (".toml", ".yaml", ".yml"):
         raise CliError(f"--out must end in .toml, .yaml or .yml; got {out.name!r}")
     if out is not None:
-        check_output_path(out, force, inputs=[p for p in (session, import_file) if p is not None])
+        check_output_path(out, force=force, inputs=[session, import_file])
     if import_file is not None:
         if images_dir is not None:
             raise CliError("--import and --images exclude each other: calibrate from images or import a calibration")
