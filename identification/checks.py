@@ -184,10 +184,11 @@ def check_setup(result, positions: np.ndarray, *, check_ends: bool = True, check
         raise ValueError("result.data is None: check_setup needs a result of identification.identify")
     gap = _rms(result.residuals)
     taper = end_taper(data, positions)
-    g_ends = ends_gap(data, result.model, result.parameters) if check_ends else float("nan")
+    open_gap = gap > CHECK_LIMITS["gap_min"]  # below it no refit could flag anything: skip them
+    g_ends = ends_gap(data, result.model, result.parameters) if check_ends and open_gap else float("nan")
     g_wall = float("nan")
     flags = _ends_flags(data, taper, gap, g_ends)
-    if check_wall and not flags:  # a wrong end condition also opens the gap: judge the wall only without one
+    if check_wall and open_gap and not flags:  # a wrong end condition opens the gap too: judge the wall alone
         try:
             g_wall = wall_gap(positions, data, result.model, result.parameters, **prepare_options)
         except Exception as exc:  # noqa: BLE001 - a failing check must not fail the identification
