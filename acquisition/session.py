@@ -7,7 +7,8 @@ Layout (NeXus-like, documented in ``docs/session-format.md``)::
         status              "running" | "complete" | "aborted"   (readers report "interrupted"
                             when the writer that said "running" is gone)
         end_time
-        sample/             NXsample: name, radius, length, thickness (m), notes
+        sample/             NXsample: name, radius, length, thickness (m), notes, ends ("clamped" |
+                            "free", absent when unknown; @source says who said so)
         instrument/         NXinstrument: pressure/, load_cell/ (identity, settings JSON,
                             load_cell@measures), cameras/<name>/ (model, width, height),
                             rig_settings (JSON)
@@ -99,8 +100,14 @@ class SpecimenInfo:
     length: float
     thickness: float
     notes: str = ""
+    #: How the specimen is held: "clamped" (tied on cannulae), "free", or "" when nobody said.
+    ends: str = ""
+    #: Where ``ends`` comes from (e.g. "specimen file", "rig file", "simulated specimen", "import option").
+    ends_source: str = ""
 
     def __post_init__(self) -> None:
+        if self.ends not in ("", "clamped", "free"):
+            raise ValueError(f"SpecimenInfo.ends must be 'clamped', 'free' or '' (unknown); got {self.ends!r}")
         for name in ("radius", "length", "thickness"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
@@ -260,6 +267,9 @@ class SessionWriter:
             sample[key] = float(getattr(specimen, key))
             sample[key].attrs["units"] = "m"
         sample["notes"] = specimen.notes
+        if specimen.ends:
+            sample["ends"] = specimen.ends
+            sample["ends"].attrs["source"] = specimen.ends_source
 
         inst = entry.create_group("instrument")
         inst.attrs["NX_class"] = "NXinstrument"
@@ -674,12 +684,15 @@ class Session:
     @property
     def specimen(self) -> SpecimenInfo:
         s = self._entry["sample"]
+        ends = str(_read(s["ends"])) if "ends" in s else ""
         return SpecimenInfo(
             specimen_id=str(_read(s["name"])),
             radius=float(s["radius"][()]),
             length=float(s["length"][()]),
             thickness=float(s["thickness"][()]),
             notes=str(_read(s["notes"])),
+            ends=ends if ends in ("clamped", "free") else "",  # an unreadable value counts as unknown
+            ends_source=str(_decode(s["ends"].attrs.get("source", ""))) if ends in ("clamped", "free") else "",
         )
 
     @property

@@ -43,8 +43,9 @@ def test_identify_json_and_stored_result(tmp_path, capsys, measures):
     out = capsys.readouterr().out
     assert rc == 0, out
     doc = json.loads(out)
-    assert set(doc) == {"model", "wall", "parameters", "stderr", "interval_95", "units", "cost", "converged", "flags",
-                        "result_group"}
+    assert set(doc) == {"model", "wall", "ends", "ends_source", "parameters", "stderr", "interval_95", "units", "cost",
+                        "converged", "flags", "result_group"}
+    assert doc["ends"] == "free" and doc["ends_source"] == "--ends option"
     assert doc["units"] == {"beta": "Pa", "alpha": "1"}  # SI, the unit of every parameter said
     # membrane form on membrane data; 'total' readings are corrected with the reference lumen radius
     assert doc["parameters"]["beta"] == pytest.approx(1.5e3, rel=5e-3)

@@ -15,6 +15,7 @@ import json
 import logging
 import os
 from collections.abc import Callable
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -29,8 +30,9 @@ PRESSURE_NOISE = 3.0
 #: Standard deviation of a load-cell reading used for the parameter uncertainty (N).
 FORCE_NOISE = 0.002
 
-__all__ = ["STAGES", "StageError", "StageUnavailable", "identify_session", "identify_stored", "load_identification_inputs",
-           "reconstruct_session", "reconstruct_stored", "session_calibrated_cameras", "session_step_rows"]
+__all__ = ["STAGES", "StageError", "StageUnavailable", "identify_session", "identify_stored",
+           "load_identification_inputs", "reconstruct_session", "reconstruct_stored", "resolve_ends",
+           "session_calibrated_cameras", "session_step_rows"]
 
 
 class StageError(Exception):
@@ -72,6 +74,7 @@ def load_identification_inputs(session, markers: str | None = None) -> dict[str,
     force = np.asarray(steps["force"], float)[rows]
     specimen = session.specimen
     notes = []
+    ends = {"ends": specimen.ends, "source": specimen.ends_source}
     if session.load_cell_measures == "total":
         r_i = specimen.radius - specimen.thickness
         force = force + pressure * np.pi * r_i**2
@@ -80,12 +83,47 @@ def load_identification_inputs(session, markers: str | None = None) -> dict[str,
     if uncertainty is not None and uncertainty.shape != positions.shape[:2]:
         uncertainty = None
     return {"positions": positions, "pressure": pressure, "force": force, "thickness": float(specimen.thickness),
+            "radius": float(specimen.radius), "length": float(specimen.length), "session_ends": ends,
             "markers_result": result["name"], "rows": rows, "notes": notes, "uncertainty": uncertainty}
 
 
-def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str = "membrane", ends: str = "clamped",
+#: End condition assumed when neither the session nor the user says: real specimens are tied on cannulae.
+ASSUMED_ENDS = "clamped"
+
+
+def resolve_ends(session_ends: dict[str, str], requested: str | None) -> tuple[str, str, list[str], list[str]]:
+    """The end condition to identify with, where it comes from, notes and warnings.
+
+    Parameters
+    ----------
+    session_ends : ``{"ends": "clamped" | "free" | "", "source": str}`` as recorded in the session.
+    requested : the user's ``--ends`` or None (use the session's).
+
+    Returns
+    -------
+    (ends, source, notes, warnings): ``source`` says who decided ("session (simulated specimen ...)",
+    "--ends option", "assumed"); a ``requested`` value against the session's record gives a warning.
+    """
+    recorded, where = session_ends.get("ends", ""), session_ends.get("source", "") or "session"
+    if requested is not None and requested not in ("clamped", "free"):
+        raise StageError(f"ends must be 'clamped', 'free' or None (the session's); got {requested!r}")
+    if requested is None:
+        if recorded:
+            return recorded, f"session ({where})", [f"end conditions {recorded}, as the session records ({where})"], []
+        note = (f"the session does not record the end conditions: assumed {ASSUMED_ENDS} (tube tied on cannulae); "
+                "give --ends free if the marked tube is uniform up to the load cell")
+        return ASSUMED_ENDS, "assumed", [], [note]
+    if recorded and recorded != requested:
+        return requested, "--ends option", [], [
+            f"--ends {requested} contradicts the session, which records {recorded} ends ({where}); the result uses "
+            f"{requested} as asked: check that this is what the specimen had"]
+    return requested, "--ends option", [], []
+
+
+def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str = "membrane", ends: str | None = None,
                     optimizer: str = "lsq", smoothing: str | tuple[int, int] | None = "auto", markers: str | None = None,
-                    uncertainty: str = "bootstrap", invoked_by: str = "pipeline") -> tuple[str, Any, dict[str, Any]]:
+                    uncertainty: str = "bootstrap", check: bool = True,
+                    invoked_by: str = "pipeline") -> tuple[str, Any, dict[str, Any]]:
     """Identify ``model`` from the session's marker tracks with the VFM and store an "identification" result.
 
     Parameters
@@ -93,7 +131,9 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
     path : session file.
     model : "fung" | "delfino" | "hgo" | "neohookean".
     wall : "membrane" | "thick".
-    ends : "clamped" | "free".
+    ends : "clamped" | "free", or None (default) for what the session records (assumed clamped,
+        with a warning, when it records nothing). A value against the session's record is used,
+        with a warning in the result's flags.
     optimizer : "lsq" | "nelder-mead".
     smoothing : (axial Legendre degree, circumferential harmonics) to smooth the measured
         displacements first, "auto" (the basis chosen from the data; none when the markers look
@@ -102,6 +142,8 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
     markers : markers result to use (default: the latest).
     uncertainty : "bootstrap" (default, intervals that cover the truth; ~16 re-identifications) or
         "gauss-newton" (fast, too small on noisy data).
+    check : run the setting checks (``identification.checks``: end conditions and wall form
+        against the data's own evidence) and add their warnings to the flags.
     invoked_by : recorded in the result's attributes (e.g. "identify", "reprocess").
 
     Returns
@@ -111,6 +153,7 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
     """
     try:
         from identification import IdentificationError, identify
+        from identification.mesh import describe_dropped
     except ImportError as exc:  # pragma: no cover - the identification package ships with vfmlab
         raise StageUnavailable(f"the identification package is not available: {exc}") from None
     if smoothing is not None and smoothing != "auto":
@@ -126,6 +169,9 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
             data = load_identification_inputs(session, markers)
     except SessionError as exc:
         raise StageError(str(exc)) from None
+    ends, ends_source, ends_notes, warnings = resolve_ends(data["session_ends"], ends)
+    force_notes = list(data["notes"])
+    data["notes"] = force_notes + ends_notes
     try:
         result = identify(data["positions"], data["pressure"], data["force"], thickness=data["thickness"],
                           model=model, wall=wall, ends=ends, optimizer=optimizer, smoothing=smoothing,
@@ -134,6 +180,27 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
                               "force_noise": FORCE_NOISE} if uncertainty == "bootstrap" else None)
     except (IdentificationError, ValueError) as exc:
         raise StageError(f"{path}: cannot identify {model}: {exc}") from None
+    used = data["positions"] if result.steps is None else data["positions"][list(result.steps)]
+    checks = _check_setup(result, used) if check else None
+    result = replace(result, flags=tuple(warnings) + tuple(result.flags) + (checks.flags if checks else ()))
+    if result.data is not None:
+        data["notes"].append(describe_dropped(result.data.mesh.dropped))
+    settings = {"model": model, "wall": wall, "ends": ends, "ends_source": ends_source, "optimizer": optimizer,
+                "smoothing": smoothing, "markers_result": data["markers_result"], "thickness": data["thickness"],
+                "force_correction": force_notes}
+    arrays, attrs = _result_record(result, data["rows"], checks)
+    attrs.update({"model": model, "wall": wall, "invoked_by": invoked_by, "notes": data["notes"]})
+    data["settings"] = settings
+    try:
+        group = write_result(path, "identification", arrays, settings, attrs=attrs,
+                             units={"ivw": "J", "evw": "J", "residuals": "1"})
+    except SessionError as exc:
+        raise StageError(str(exc)) from None
+    return group, result, data
+
+
+def _result_record(result, rows, checks) -> tuple[dict, dict]:
+    """Arrays and attributes of an "identification" result (plus what the setting checks measured)."""
     names = list(result.parameters)
     arrays = {
         "parameters": np.array([result.parameters[n] for n in names]),
@@ -143,26 +210,31 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
         "ivw": result.ivw,
         "evw": result.evw,
         "residuals": result.residuals,
-        "step_index": data["rows"] if result.steps is None else data["rows"][list(result.steps)],
+        "step_index": rows if result.steps is None else rows[list(result.steps)],
     }
     if result.uncertainty is not None:
         arrays["interval_low"] = np.array([result.uncertainty.interval[n][0] for n in names])
         arrays["interval_high"] = np.array([result.uncertainty.interval[n][1] for n in names])
         arrays["bootstrap_bias"] = np.array([result.uncertainty.bias[n] for n in names])
-    settings = {"model": model, "wall": wall, "ends": ends, "optimizer": optimizer, "smoothing": smoothing,
-                "markers_result": data["markers_result"], "thickness": data["thickness"],
-                "force_correction": data["notes"]}
-    attrs = {"model": model, "wall": wall, "cost": result.cost, "converged": result.converged,
-             "flags": list(result.flags), "message": result.message, "n_evaluations": result.n_evaluations,
-             "field_names": list(result.field_names), "invoked_by": invoked_by,
-             "smoothing_used": json.dumps(data_smoothing(result)),
+    attrs = {"cost": result.cost, "converged": result.converged, "flags": list(result.flags),
+             "message": result.message, "n_evaluations": result.n_evaluations,
+             "field_names": list(result.field_names), "smoothing_used": json.dumps(data_smoothing(result)),
              "uncertainty": "parametric bootstrap, 95 % intervals" if result.uncertainty is not None else "gauss-newton"}
+    if checks is not None:
+        attrs.update({"check_taper": list(checks.taper), "check_gap": checks.gap,
+                      "check_gap_other_ends": checks.gap_other_ends, "check_gap_other_wall": checks.gap_other_wall})
+    return arrays, attrs
+
+
+def _check_setup(result, positions):
+    """``identification.checks.check_setup``, or None if it cannot run on this result."""
+    from identification.checks import check_setup
+
     try:
-        group = write_result(path, "identification", arrays, settings, attrs=attrs,
-                             units={"ivw": "J", "evw": "J", "residuals": "1"})
-    except SessionError as exc:
-        raise StageError(str(exc)) from None
-    return group, result, data
+        return check_setup(result, positions)
+    except (ValueError, ArithmeticError) as exc:
+        log.warning("setting checks skipped: %s", exc)
+        return None
 
 
 def data_smoothing(result) -> list | None:

@@ -27,8 +27,11 @@ Examples:
               show_default=True, help="Constitutive model.")
 @click.option("--wall", type=click.Choice(["membrane", "thick"]), default="membrane", show_default=True,
               help="membrane: the paper's plain form; thick: markers on the outer surface, pressure on the lumen.")
-@click.option("--ends", type=click.Choice(["clamped", "free"]), default="clamped", show_default=True,
-              help="clamped: tube tied on cannulae beyond the markers (pressure on the unmeasured strip counted).")
+@click.option("--ends", type=click.Choice(["clamped", "free"]), default=None,
+              help="clamped: tube tied on cannulae beyond the markers (pressure on the unmeasured strip counted); "
+                   "free: uniform tube up to the load cell. Default: what the session records (assumed clamped, "
+                   "with a warning, if it records nothing); a value against the session's record is used with a "
+                   "warning.")
 @click.option("--optimizer", type=click.Choice(["lsq", "nelder-mead"]), default="lsq", show_default=True,
               help="lsq: fast least squares with several starts; nelder-mead: the paper's simplex.")
 @click.option("--smooth", default="auto", show_default=True, metavar="auto|none|AXIAL,HARMONICS",
@@ -56,7 +59,9 @@ def command(session_path, model, wall, ends, optimizer, smooth, uncertainty, as_
         raise CliError(str(exc)) from None
     names = list(result.parameters)
     if as_json:
-        print_json({"model": model, "wall": wall, "parameters": result.parameters, "stderr": result.stderr,
+        settings = data.get("settings", {})
+        print_json({"model": model, "wall": wall, "ends": settings.get("ends"),
+                    "ends_source": settings.get("ends_source"), "parameters": result.parameters, "stderr": result.stderr,
                     "interval_95": (None if result.uncertainty is None else
                                     {k: list(v) for k, v in result.uncertainty.interval.items()}),
                     "units": {n: get_unit(model, n) for n in names},

@@ -106,10 +106,14 @@ Then: vfmlab reconstruct a1.h5
 @click.option("--notes", default="", help="Free-text notes about the specimen.")
 @click.option("--force-is", type=click.Choice(["wall", "total"]), default="wall", show_default=True,
               help="What axial_force_N is: force carried by the wall, or a total reading behind a pressurised cannula.")
+@click.option("--ends", type=click.Choice(["clamped", "free"]), default=None,
+              help="How the specimen was held: clamped (tied on cannulae) or free (uniform up to the load cell); "
+                   "recorded in the session for 'vfmlab identify' [default: not recorded; identify then assumes "
+                   "clamped and says so].")
 @click.option("--force", "overwrite", is_flag=True, help="Overwrite OUT if it exists.")
 @click.option("--json", "as_json", is_flag=True, help="Print what was imported as JSON (SI: m).")
-def command(images_dir, calibration, polarity, calibration_units, loads_csv, out, marker_diameter_mm, thickness_mm, radius_mm,
-            length_mm, specimen_id, notes, force_is, overwrite, as_json):
+def command(images_dir, calibration, polarity, calibration_units, loads_csv, out, marker_diameter_mm, thickness_mm,
+            radius_mm, length_mm, specimen_id, notes, force_is, ends, overwrite, as_json):
     """Build a session from IMAGES_DIR/<camera>/<step>.png (camera names as in the calibration file,
     step 0 = reference), the camera calibration and a loads CSV. Then run 'vfmlab reconstruct OUT'."""
     from acquisition.markers_csv import CsvFormatError, read_loads_csv
@@ -169,7 +173,8 @@ def command(images_dir, calibration, polarity, calibration_units, loads_csv, out
         notes_extra.append("thickness not given: 10 % of the radius assumed")
     try:
         specimen = SpecimenInfo(specimen_id or images_dir.name, radius_mm * 1e-3, length_mm * 1e-3,
-                                thickness_mm * 1e-3, "; ".join([notes] * bool(notes) + notes_extra))
+                                thickness_mm * 1e-3, "; ".join([notes] * bool(notes) + notes_extra),
+                                ends or "", "import option --ends" if ends else "")
     except ValueError as exc:
         raise CliError(str(exc)) from None
     specs = [CameraSpec(c.name, "imported", c.image_size[0], c.image_size[1], dtype) for c in cams]

@@ -62,10 +62,14 @@ Then: vfmlab identify a1.h5
 @click.option("--notes", default="", help="Free-text notes about the specimen.")
 @click.option("--force-is", type=click.Choice(["wall", "total"]), default="wall", show_default=True,
               help="What axial_force_N is: force carried by the wall, or a total reading behind a pressurised cannula.")
+@click.option("--ends", type=click.Choice(["clamped", "free"]), default=None,
+              help="How the specimen was held: clamped (tied on cannulae) or free (uniform up to the load cell); "
+                   "recorded in the session for 'vfmlab identify' [default: not recorded; identify then assumes "
+                   "clamped and says so].")
 @click.option("--force", "overwrite", is_flag=True, help="Overwrite OUT if it exists.")
 @click.option("--json", "as_json", is_flag=True, help="Print what was imported as JSON (SI: m).")
-def command(markers_csv, loads_csv, out, thickness_mm, radius_mm, length_mm, specimen_id, notes, force_is, overwrite,
-            as_json):
+def command(markers_csv, loads_csv, out, thickness_mm, radius_mm, length_mm, specimen_id, notes, force_is, ends,
+            overwrite, as_json):
     """Build a session from MARKERS_CSV (marker_id,step,x_m,y_m,z_m or x_mm,y_mm,z_mm) and LOADS_CSV
     (step,pressure_Pa|pressure_kPa|pressure_mmHg,axial_force_N,stretch). Step 0 is the reference."""
     check_output_path(out, force=overwrite, inputs=[markers_csv, loads_csv])
@@ -84,7 +88,8 @@ def command(markers_csv, loads_csv, out, thickness_mm, radius_mm, length_mm, spe
     radius = radius_mm * 1e-3 if radius_mm else fitted_radius
     length = length_mm * 1e-3 if length_mm else fitted_length
     try:
-        specimen = SpecimenInfo(specimen_id or Path(markers_csv).stem, radius, length, thickness_mm * 1e-3, notes)
+        specimen = SpecimenInfo(specimen_id or Path(markers_csv).stem, radius, length, thickness_mm * 1e-3, notes,
+                                ends or "", "import option --ends" if ends else "")
     except ValueError as exc:
         raise CliError(str(exc)) from None
     rig = {"source": "import-markers", "markers_csv": str(markers_csv), "loads_csv": str(loads_csv)}
@@ -111,10 +116,11 @@ def command(markers_csv, loads_csv, out, thickness_mm, radius_mm, length_mm, spe
     if as_json:
         print_json({"out": str(out), "result": name, "n_markers": len(table.labels), "n_steps": len(table.steps),
                     "radius_m": radius, "length_m": length, "thickness_m": thickness_mm * 1e-3,
-                    "load_cell_measures": force_is})
+                    "load_cell_measures": force_is, "ends": ends})
         return
     console.print(
         f"Imported {len(table.labels)} markers × {len(table.steps)} steps into [bold]{esc(out)}[/] "
         f"(result {esc(name)}; radius {radius * 1e3:.3f} mm, length {length * 1e3:.3f} mm, "
-        f"wall thickness {thickness_mm:.3f} mm, load cell measures {force_is} force)."
+        f"wall thickness {thickness_mm:.3f} mm, load cell measures {force_is} force, "
+        + (f"ends {ends})." if ends else "ends not recorded: identify will assume clamped unless --ends says).")
     )
