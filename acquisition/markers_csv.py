@@ -28,6 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
+from acquisition.errors import InputError
+
 __all__ = [
     "CsvFormatError",
     "MarkerTable",
@@ -45,7 +47,7 @@ _LOAD_COLUMNS = ("step", "axial_force_N", "stretch")
 COORDINATE_FORMAT = "{:.6f}"  # 1 nm in mm: far below any marker accuracy
 
 
-class CsvFormatError(ValueError):
+class CsvFormatError(InputError):
     """A CSV file does not follow the documented format; the message names line and column."""
 
 

@@ -42,11 +42,14 @@ from typing import Any
 import h5py
 import numpy as np
 
+from acquisition.errors import DamagedFileError, InputError, OperationError
 from acquisition.h5recover import clear_consistency_flags
 
 __all__ = [
     "SCHEMA_VERSION",
     "SessionError",
+    "DamagedSessionError",
+    "SessionWriteError",
     "SpecimenInfo",
     "CameraSpec",
     "StepRecord",
@@ -80,8 +83,16 @@ _LOG_CHUNK = 4096
 _STATUSES = ("running", "complete", "aborted", "interrupted")
 
 
-class SessionError(Exception):
-    """A session file is missing, unreadable, of another schema, or lacks something required."""
+class SessionError(InputError):
+    """A session file is missing, unreadable, of another schema, or lacks something required (exit code 2)."""
+
+
+class DamagedSessionError(SessionError, DamagedFileError):
+    """The session file opens but a group, dataset or attribute cannot be read (bit flips, truncation)."""
+
+
+class SessionWriteError(SessionError, OperationError):
+    """A session file could not be written (read-only medium, disk full, locked): a failed operation, exit code 1."""
 
 
 @dataclass(frozen=True)

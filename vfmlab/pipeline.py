@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from acquisition.errors import InputError
 from acquisition.session import SessionError, open_session, write_result
 
 log = logging.getLogger(__name__)
@@ -26,8 +27,8 @@ __all__ = ["STAGES", "StageError", "StageUnavailable", "identify_session", "iden
            "reconstruct_session", "reconstruct_stored", "session_calibrated_cameras", "session_step_rows"]
 
 
-class StageError(Exception):
-    """A stage could not run on a session (missing input, failed computation)."""
+class StageError(InputError):
+    """A stage could not run on a session's contents (missing or unusable input): exit code 2 (decision 0007)."""
 
 
 class StageUnavailable(StageError):

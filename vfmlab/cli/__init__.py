@@ -11,10 +11,15 @@ import importlib
 import importlib.util
 import logging
 import sys
+import warnings
 
 import click
 
 from vfmlab import __version__
+
+# Exit codes (decision 0007); the same numbers as acquisition.errors.EXIT_*, which this module
+# does not import up front so that ``vfmlab --help`` stays fast.
+EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 
 # name -> (module, one-line help). Order is the order shown in --help.
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -77,25 +82,84 @@ def cli(verbose: int) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the console script; returns the process exit code.
+    """Entry point of the console script; returns the process exit code (decision 0007).
 
-    Exit codes: 0 success, 1 a failure the command explains (bad input, device fault),
-    2 usage error, 130 interrupted by the user.
+    Exit codes: 0 success, 1 a failed operation (device fault, unwritable file, computation that
+    failed), 2 bad input (usage, malformed/damaged/implausible file or value), 130 interrupted by
+    the user (Ctrl-C). Every error is one line on stderr, never a traceback (``-vv`` logs it).
+    Warnings from NumPy and other libraries never reach the user: they are logged at debug level.
     """
-    try:
-        cli.main(args=argv, prog_name="vfmlab", standalone_mode=False)
-    except click.exceptions.Exit as exc:
+    with warnings.catch_warnings():
+        warnings.simplefilter("default")
+        warnings.showwarning = _log_library_warning
+        try:
+            cli.main(args=argv, prog_name="vfmlab", standalone_mode=False)
+        except BaseException as exc:  # noqa: BLE001 - the one place exceptions become exit codes
+            return _report_exception(exc)
+    return EXIT_OK
+
+
+def exit_code_for(exc: BaseException) -> int:
+    """The exit code for an exception that ended a command: the one mapping (decision 0007)."""
+    if isinstance(exc, click.exceptions.Exit):
         return exc.exit_code
-    except click.ClickException as exc:
-        exc.show()
-        return exc.exit_code
-    except click.Abort:
-        click.echo("Aborted.", err=True)
-        return 130
-    except KeyboardInterrupt:
+    if isinstance(exc, SystemExit):
+        return exc.code if isinstance(exc.code, int) else EXIT_FAILED
+    for kind, code in _exit_codes():
+        if isinstance(exc, kind):
+            return exc.exit_code if isinstance(exc, click.ClickException) else code
+    return EXIT_FAILED
+
+
+def _exit_codes() -> tuple[tuple[type[BaseException], int], ...]:
+    """Exception type -> exit code. Order matters: first match wins (a SessionWriteError is both a
+    SessionError, i.e. an InputError, and an OperationError: a failed write)."""
+    from acquisition.errors import InputError, OperationError
+
+    return (
+        (KeyboardInterrupt, EXIT_INTERRUPTED),
+        (click.Abort, EXIT_INTERRUPTED),
+        (click.ClickException, EXIT_FAILED),  # its own exit_code: UsageError 2, CliError 1, CliInputError 2
+        (OperationError, EXIT_FAILED),
+        (InputError, EXIT_BAD_INPUT),
+        (OSError, EXIT_FAILED),
+    )
+
+
+def _report_exception(exc: BaseException) -> int:
+    """Print the one-line message for ``exc`` (none for a clean exit) and return its exit code."""
+    from acquisition.errors import InputError, OperationError
+    from vfmlab.cli._common import show_error
+
+    code = exit_code_for(exc)
+    if isinstance(exc, (click.exceptions.Exit, SystemExit)):
+        return code
+    if isinstance(exc, (KeyboardInterrupt, click.Abort)):
         click.echo("Interrupted.", err=True)
-        return 130
-    return 0
+    elif isinstance(exc, click.ClickException):
+        exc.show()
+    elif isinstance(exc, (InputError, OperationError)):
+        show_error(str(exc))
+    elif isinstance(exc, OSError):
+        show_error(describe_os_error(exc))
+    else:
+        logging.getLogger("vfmlab").debug("unexpected error", exc_info=exc)
+        show_error(f"internal error ({type(exc).__name__}: {exc}); this is a bug in vfmlab, please report it "
+                   "with the command that caused it (run with -vv for the details)")
+    return code
+
+
+def describe_os_error(exc: OSError) -> str:
+    """One sentence for a file-system error: the file first, then what the system said."""
+    reason = exc.strerror or str(exc)
+    if exc.filename is not None:
+        return f"{exc.filename}: {reason}"
+    return reason
+
+
+def _log_library_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """``warnings.showwarning`` for the CLI: library warnings go to the debug log, never to the user."""
+    logging.getLogger("vfmlab").debug("%s: %s (%s:%s)", category.__name__, message, filename, lineno)
 
 
 if __name__ == "__main__":  # pragma: no cover

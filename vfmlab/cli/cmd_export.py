@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from vfmlab.cli._common import CliError, console
+from vfmlab.cli._common import CliError, CliInputError, console
 from vfmlab.cli._sessions import cli_session, latest_markers
 
 
@@ -29,7 +29,7 @@ def command(session, out, fmt, markers_name):
     with cli_session(path) as s:
         if markers_name:
             if markers_name not in s.results("markers"):
-                raise CliError(f"{path}: no markers result {markers_name!r}; markers results are {s.results('markers')}")
+                raise CliInputError(f"{path}: no markers result {markers_name!r}; markers results are {s.results('markers')}")
             markers = s.result(markers_name)
         else:
             markers = latest_markers(s)
@@ -40,7 +40,7 @@ def command(session, out, fmt, markers_name):
         try:
             fields = compute_fields(markers, s.steps, list(latest.values()))
         except FieldsError as exc:
-            raise CliError(f"{path}: cannot build the surface fields from {markers['name']}: {exc}") from None
+            raise CliInputError(f"{path}: cannot build the surface fields from {markers['name']}: {exc}") from None
         specimen = s.specimen.specimen_id
     try:
         files = export_fields(fields, out_dir, fmt=fmt, specimen=specimen)

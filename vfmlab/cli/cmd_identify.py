@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 import numpy as np
 
-from vfmlab.cli._common import CliError, console, print_json
+from vfmlab.cli._common import CliInputError, console, print_json
 
 WALL_NOTE = {
     "membrane": "paper's plain membrane form (pressure on the marker surface)",
@@ -33,7 +33,7 @@ def command(session_path, model, wall, ends, optimizer, smooth, as_json):
 
     Units: parameters in SI (Pa, rad); the table shows kPa and degrees.
     """
-    from vfmlab.pipeline import StageError, identify_stored
+    from vfmlab.pipeline import identify_stored
 
     smoothing = None
     if smooth == "auto":
@@ -44,12 +44,9 @@ def command(session_path, model, wall, ends, optimizer, smooth, as_json):
             if len(smoothing) != 2 or min(smoothing) < 0:
                 raise ValueError
         except ValueError:
-            raise CliError(f"--smooth must be two non-negative integers AXIAL,HARMONICS like 4,2; got {smooth!r}")
-    try:
-        group, result, data = identify_stored(session_path, model=model, wall=wall, ends=ends, optimizer=optimizer,
-                                              smoothing=smoothing, invoked_by="identify")
-    except StageError as exc:
-        raise CliError(str(exc)) from None
+            raise CliInputError(f"--smooth must be two non-negative integers AXIAL,HARMONICS like 4,2; got {smooth!r}")
+    group, result, data = identify_stored(session_path, model=model, wall=wall, ends=ends, optimizer=optimizer,
+                                          smoothing=smoothing, invoked_by="identify")
     names = list(result.parameters)
     if as_json:
         print_json({"model": model, "wall": wall, "parameters": result.parameters, "stderr": result.stderr,

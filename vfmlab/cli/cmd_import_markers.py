@@ -8,9 +8,9 @@ import click
 import numpy as np
 from scipy.optimize import least_squares
 
-from acquisition.markers_csv import CsvFormatError, read_loads_csv, read_markers_csv
+from acquisition.markers_csv import read_loads_csv, read_markers_csv
 from acquisition.session import SessionError, SessionWriter, SpecimenInfo, StepRecord, write_result
-from vfmlab.cli._common import CliError, console
+from vfmlab.cli._common import CliError, CliInputError, console
 
 
 def estimate_geometry(reference: np.ndarray) -> tuple[float, float]:
@@ -56,17 +56,14 @@ def estimate_geometry(reference: np.ndarray) -> tuple[float, float]:
 def command(markers_csv, loads_csv, out, thickness_mm, radius_mm, length_mm, specimen_id, notes, force_is, overwrite):
     """Build a session from MARKERS_CSV (marker_id,step,x_mm,y_mm,z_mm) and LOADS_CSV
     (step,pressure_Pa|pressure_kPa|pressure_mmHg,axial_force_N,stretch). Step 0 is the reference."""
-    try:
-        table = read_markers_csv(markers_csv)
-        loads = read_loads_csv(loads_csv)
-    except CsvFormatError as exc:
-        raise CliError(str(exc)) from None
+    table = read_markers_csv(markers_csv)
+    loads = read_loads_csv(loads_csv)
     missing = sorted(set(table.steps.tolist()) - set(loads["step"].tolist()))
     if missing:
-        raise CliError(f"{loads_csv}: no loads for step(s) {missing} that appear in {markers_csv}")
+        raise CliInputError(f"{loads_csv}: no loads for step(s) {missing} that appear in {markers_csv}")
     rows = np.searchsorted(loads["step"], table.steps)
     if thickness_mm <= 0:
-        raise CliError(f"--thickness-mm must be positive; got {thickness_mm}")
+        raise CliInputError(f"--thickness-mm must be positive; got {thickness_mm}")
     fitted_radius, fitted_length = estimate_geometry(table.positions[0])
     radius = radius_mm * 1e-3 if radius_mm else fitted_radius
     length = length_mm * 1e-3 if length_mm else fitted_length

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from vfmlab.cli._common import CliError, console
+from vfmlab.cli._common import console
 
 
 @click.command("report")
@@ -16,14 +16,11 @@ from vfmlab.cli._common import CliError, console
               help="Output directory [default: <SESSION stem>_report next to the session].")
 def command(session, out):
     """Write a self-contained HTML report of SESSION (figures embedded) and the figures as PNG files."""
-    from vfmlab.report import ReportError, build_report
+    from vfmlab.report import build_report
 
     t0 = time.perf_counter()
-    try:
-        with console.status("Building the report..."):
-            path = build_report(session, out)
-    except ReportError as exc:
-        raise CliError(str(exc)) from None
+    with console.status("Building the report..."):
+        path = build_report(session, out)
     n_fig = len(list(Path(path).parent.glob("fig*.png")))
     console.print(f"Report written to [bold]{path}[/] ({n_fig} figures in {path.parent}, "
                   f"{time.perf_counter() - t0:.1f} s). Open it in a browser: file://{path.resolve()}")

@@ -8,7 +8,7 @@ import click
 from rich.markup import escape
 from rich.table import Table
 
-from acquisition.session import SessionError
+
 from vfmlab.cli._common import CliError, console, print_json
 from vfmlab.cli._sessions import cli_session
 
@@ -44,13 +44,7 @@ def command(session, kind, compare, as_json):
     from vfmlab.results import compare_results, list_results
 
     with cli_session(session) as s:
-        try:
-            if compare:
-                data = compare_results(s, *compare)
-            else:
-                data = list_results(s, kind)
-        except SessionError as exc:
-            raise CliError(str(exc)) from None
+        data = compare_results(s, *compare) if compare else list_results(s, kind)
     if as_json:
         print_json(data)
         return

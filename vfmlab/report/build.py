@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from acquisition.errors import InputError
 from acquisition.session import Session, open_session
 from vfmlab import __version__
 from vfmlab.fields import FieldsError, SurfaceFields, compute_fields, stress_strain_curves
@@ -40,8 +41,8 @@ nav ul{columns:2;font-size:.92em}
 """
 
 
-class ReportError(Exception):
-    """The report cannot be written (the session cannot be read or the output directory is unusable)."""
+class ReportError(InputError):
+    """The report cannot be written: the session cannot be read (exit code 2, decision 0007)."""
 
 
 @dataclass
@@ -474,7 +475,7 @@ def build_report(session_path: str | Path, out_dir: str | Path | None = None) ->
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise ReportError(f"cannot create the report directory {out}: {exc}") from None
+        raise OSError(exc.errno, f"cannot create the report directory: {exc.strerror}", str(out)) from None
     try:
         session = open_session(session_path)
     except SessionError as exc:
