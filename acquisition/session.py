@@ -29,12 +29,13 @@ flushes + fsyncs after every step, so a process killed at any point leaves a fil
 from __future__ import annotations
 
 import datetime as _dt
+import functools
 import hashlib
 import json
 import logging
 import os
 import socket
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -536,8 +537,44 @@ def _writer_alive(pid: int, host: str) -> bool:
         return True
 
 
+# What h5py raises when a dataset or attribute of a file that opened cannot be read (bit flips,
+# a truncated copy, a foreign writer): metadata checksum errors surface as KeyError or RuntimeError,
+# undecodable data as OSError, malformed content as ValueError/TypeError/IndexError.
+_READ_FAULTS = (OSError, KeyError, RuntimeError, ValueError, TypeError, IndexError, AttributeError)
+
+
+def _reads(what: str) -> Callable:
+    """Decorate a :class:`Session` reader: a read fault becomes a :class:`DamagedSessionError` naming ``what``.
+
+    ``what`` names the part of the file read, e.g. ``"the step table (/entry/steps)"``; it may use the
+    reader's positional arguments as ``{0}``, ``{1}``.
+    """
+    def decorate(method: Callable) -> Callable:
+        @functools.wraps(method)
+        def guarded(self: Session, *args: Any, **kwargs: Any) -> Any:
+            try:
+                return method(self, *args, **kwargs)
+            except SessionError:
+                raise
+            except _READ_FAULTS as exc:
+                raise damaged_error(self.path, what.format(*args), exc) from None
+        return guarded
+    return decorate
+
+
+def damaged_error(path: Path, what: str, exc: BaseException) -> DamagedSessionError:
+    """The one-line error for a part of a session file that cannot be read, with the way to see the rest."""
+    reason = str(exc).strip().strip("'\"") or type(exc).__name__
+    return DamagedSessionError(f"{path}: {what} is damaged and cannot be read ({reason}); "
+                               f"'vfmlab info {path}' lists what is still readable")
+
+
 class Session:
-    """A validated, read-only view of a session file. Obtain with :func:`open_session`."""
+    """A validated, read-only view of a session file. Obtain with :func:`open_session`.
+
+    Every reader raises :class:`DamagedSessionError` (naming the part of the file) when the file
+    opened but that part cannot be read; the other parts stay readable.
+    """
 
     def __init__(self, h5file: h5py.File, path: Path):
         self._f = h5file
@@ -551,15 +588,18 @@ class Session:
         return self._f
 
     @property
+    @_reads("the schema version (/@vfmlab_schema_version)")
     def schema_version(self) -> str:
         return str(_decode(self._f.attrs["vfmlab_schema_version"]))
 
     @property
+    @_reads("the session status (/entry/status)")
     def recorded_status(self) -> str:
         """The status the writer last recorded: running | complete | aborted | interrupted."""
         return str(_read(self._entry["status"]))
 
     @property
+    @_reads("the session status (/entry/status)")
     def status(self) -> str:
         """complete | aborted | interrupted (recorded, or the writer died while running) | running."""
         status = self.recorded_status
@@ -571,14 +611,17 @@ class Session:
         return status
 
     @property
+    @_reads("the start time (/entry@start_time)")
     def start_time(self) -> str:
         return str(_decode(self._entry.attrs.get("start_time", "")))
 
     @property
+    @_reads("the software version (/entry@software_version)")
     def software_version(self) -> str:
         return str(_decode(self._entry.attrs.get("software_version", "")))
 
     @property
+    @_reads("the specimen geometry (/entry/sample)")
     def specimen(self) -> SpecimenInfo:
         s = self._entry["sample"]
         return SpecimenInfo(
@@ -590,18 +633,22 @@ class Session:
         )
 
     @property
+    @_reads("the protocol (/entry/protocol/data)")
     def protocol_text(self) -> str:
         return str(_read(self._entry["protocol/data"]))
 
     @property
+    @_reads("the protocol checksum (/entry/protocol@sha256)")
     def protocol_sha256(self) -> str:
         return str(_decode(self._entry["protocol"].attrs.get("sha256", "")))
 
     @property
+    @_reads("the load-cell setting (/entry/instrument/load_cell@measures)")
     def load_cell_measures(self) -> str:
         return str(_decode(self._entry["instrument/load_cell"].attrs.get("measures", "wall")))
 
     @property
+    @_reads("the instrument records (/entry/instrument)")
     def instruments(self) -> dict[str, dict[str, Any]]:
         out = {}
         for role in ("pressure", "load_cell"):
@@ -613,10 +660,12 @@ class Session:
         return out
 
     @property
+    @_reads("the rig settings (/entry/instrument/rig_settings)")
     def rig_settings(self) -> dict[str, Any]:
         return json.loads(str(_read(self._entry["instrument/rig_settings"])) or "{}")
 
     @property
+    @_reads("the camera records (/entry/instrument/cameras)")
     def cameras(self) -> list[CameraSpec]:
         out = []
         for name, g in self._entry["instrument/cameras"].items():
@@ -626,17 +675,20 @@ class Session:
         return out
 
     @property
+    @_reads("the camera records (/entry/instrument/cameras)")
     def camera_names(self) -> list[str]:
         return list(self._entry["instrument/cameras"].keys())
 
     # -- steps, images, logs ---------------------------------------------------------------
     @property
+    @_reads("the step table (/entry/steps)")
     def n_steps(self) -> int:
         """Complete step rows (a writer killed mid-append may have left a longer column)."""
         steps = self._entry["steps"]
         return int(min(steps[name].shape[0] for name in _STEP_COLUMNS))
 
     @property
+    @_reads("the step table (/entry/steps)")
     def steps(self) -> dict[str, np.ndarray]:
         """The step table: ``(n_steps,)`` arrays per column, plus ``active`` (not superseded)."""
         g = self._entry["steps"]
@@ -648,6 +700,7 @@ class Session:
         table["active"] = active
         return table
 
+    @_reads("the image of camera {0!r} at step row {1} (/entry/steps/images/{0})")
     def image(self, camera: str, step: int) -> np.ndarray:
         """Frame of ``camera`` at step row ``step``, shape (H, W)."""
         images = self._entry["steps/images"]
@@ -657,6 +710,7 @@ class Session:
             raise SessionError(f"{self.path}: step {step} out of range 0..{self.n_steps - 1}")
         return images[camera][step]
 
+    @_reads("the calibration images of camera {0!r} (/entry/calibration/images/{0})")
     def calibration_images(self, camera: str) -> np.ndarray:
         """Calibration-board frames of ``camera``, shape (n_views, H, W)."""
         return self._entry["calibration/images"][camera][()]
@@ -665,6 +719,10 @@ class Session:
         """The continuous log of "pressure" (Pa) or "force" (N): time, t_monotonic, value, raw, seq."""
         if channel not in _LOG_CHANNELS:
             raise ValueError(f"channel must be one of {sorted(_LOG_CHANNELS)}; got {channel!r}")
+        return self._log(channel)
+
+    @_reads("the {0} log (/entry/log/{0})")
+    def _log(self, channel: str) -> dict[str, np.ndarray]:
         g = self._entry["log"][channel]
         n = min(g[k].shape[0] for k in ("time", "monotonic_time", "value", "raw", "seq"))
         return {
@@ -675,6 +733,7 @@ class Session:
             "seq": g["seq"][:n],
         }
 
+    @_reads("the event log (/entry/events)")
     def events(self) -> list[dict[str, Any]]:
         g = self._entry["events"]
         n = min(g[k].shape[0] for k in ("time", "kind", "message"))
@@ -682,6 +741,7 @@ class Session:
         return [{"time": float(t), "kind": str(k), "message": str(m)} for t, k, m in zip(times, kinds, messages)]
 
     # -- derived results ---------------------------------------------------------------------
+    @_reads("the list of derived results (/entry/results)")
     def results(self, kind: str | None = None) -> list[str]:
         """Names of derived result groups (e.g. "markers_001"), oldest first, optionally of one kind."""
         res = self._entry.get("results")
@@ -694,10 +754,13 @@ class Session:
 
     def result(self, name: str) -> dict[str, Any]:
         """One result: ``{"name", "kind", "arrays": {...}, "parameters": {...}, "attrs": {...}, "units": {...}}``."""
-        res = self._entry["results"]
-        if name not in res:
+        if name not in self.results():
             raise SessionError(f"{self.path}: no result {name!r}; results are {self.results()}")
-        g = res[name]
+        return self._result(name)
+
+    @_reads("the result {0!r} (/entry/results/{0})")
+    def _result(self, name: str) -> dict[str, Any]:
+        g = self._entry["results"][name]
         arrays, units = {}, {}
         for key, ds in g.items():
             if isinstance(ds, h5py.Dataset):
@@ -774,9 +837,10 @@ def open_session(path: str | os.PathLike) -> Session:
     except SessionError:
         f.close()
         raise
-    except (OSError, KeyError, ValueError) as exc:
+    except _READ_FAULTS as exc:
         f.close()
-        raise SessionError(f"{path}: damaged session file ({exc})") from None
+        raise DamagedSessionError(f"{path}: damaged session file: its required structure cannot be read ({exc})") \
+            from None
     return Session(f, path)
 
 
@@ -784,11 +848,15 @@ def _validate(f: h5py.File, path: Path) -> None:
     version = f.attrs.get("vfmlab_schema_version")
     if version is None:
         raise SessionError(f"{path}: not a vfmlab session (no 'vfmlab_schema_version' attribute on the root group)")
-    version = str(_decode(version))
+    version = _decode(version)
+    if not isinstance(version, str):
+        raise SessionError(f"{path}: the schema version (/@vfmlab_schema_version) must be a string like "
+                           f"{SCHEMA_VERSION!r}; found {type(version).__name__} {version!r} (not written by vfmlab?)")
     try:
-        major = int(version.split(".")[0])
+        major, _minor = (int(part) for part in version.split("."))
     except ValueError:
-        raise SessionError(f"{path}: unreadable schema version {version!r}") from None
+        raise SessionError(f"{path}: the schema version (/@vfmlab_schema_version) must look like "
+                           f"{SCHEMA_VERSION!r}; found {version!r}") from None
     supported = int(SCHEMA_VERSION.split(".")[0])
     if major > supported:
         raise SessionError(

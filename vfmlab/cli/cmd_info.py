@@ -1,82 +1,150 @@
-"""``vfmlab info``: a human (or JSON) summary of a session file."""
+"""``vfmlab info``: a human (or JSON) summary of a session file.
+
+On a damaged file, every part that can still be read is shown, the parts that cannot are listed
+under "damaged", and the command exits with code 2 (decision 0007).
+"""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 import click
 import numpy as np
+from rich.markup import escape
 from rich.table import Table
 
 from acquisition.markers_csv import MMHG
-from vfmlab.cli._common import console, print_json
+from acquisition.session import DamagedSessionError
+from vfmlab.cli._common import CliInputError, console, err_console, print_json
 from vfmlab.cli._sessions import cli_session
 
 
-def summarise(s) -> dict:
-    """Everything ``info`` shows, as plain data."""
+def _part(damaged: list[str], read: Callable[[], Any], default: Any = None) -> Any:
+    """``read()``, or ``default`` with the reason appended to ``damaged`` when that part of the file is damaged."""
+    try:
+        return read()
+    except DamagedSessionError as exc:
+        damaged.append(str(exc).split(": ", 1)[-1].split("; 'vfmlab info")[0])
+        return default
+
+
+def _specimen(s) -> dict:
+    sp = s.specimen
+    return {"id": sp.specimen_id, "radius_m": sp.radius, "length_m": sp.length, "thickness_m": sp.thickness,
+            "notes": sp.notes}
+
+
+def _steps(s) -> dict:
     steps = s.steps
-    markers = s.latest("markers")
-    n_markers = int(markers["arrays"]["positions"].shape[1]) if markers else 0
-    results = []
-    for name in s.results():
-        r = s.result(name)
+    return {"n_steps": s.n_steps, "n_active_steps": int(steps["active"].sum()),
+            "stretches": sorted(set(np.round(steps["stretch"][np.isfinite(steps["stretch"])], 6).tolist())),
+            "max_pressure_Pa": float(np.nanmax(steps["pressure"])) if np.isfinite(steps["pressure"]).any() else None}
+
+
+def _results(s, damaged: list[str]) -> tuple[list[dict], int]:
+    results, n_markers = [], 0
+    for name in _part(damaged, s.results, []):
+        r = _part(damaged, lambda n=name: s.result(n))
+        if r is None:
+            results.append({"name": name, "kind": "damaged", "date": "", "version": ""})
+            continue
         results.append({"name": name, "kind": r["kind"], "date": r["attrs"].get("date", ""),
-                         "version": r["attrs"].get("version", "")})
-    return {
+                        "version": r["attrs"].get("version", "")})
+        positions = r["arrays"].get("positions") if r["kind"] == "markers" else None
+        if positions is not None and np.ndim(positions) == 3:
+            n_markers = int(positions.shape[1])
+    return results, n_markers
+
+
+def summarise(s) -> dict:
+    """Everything ``info`` shows, as plain data; unreadable parts are None and listed under "damaged"."""
+    damaged: list[str] = []
+    part = lambda read, default=None: _part(damaged, read, default)  # noqa: E731
+    steps = part(lambda: _steps(s), {"n_steps": None, "n_active_steps": None, "stretches": [],
+                                     "max_pressure_Pa": None})
+    results, n_markers = _results(s, damaged)
+    info = {
         "path": str(s.path),
-        "schema_version": s.schema_version,
-        "status": s.status,
-        "start_time": s.start_time,
-        "software_version": s.software_version,
-        "specimen": {"id": s.specimen.specimen_id, "radius_m": s.specimen.radius, "length_m": s.specimen.length,
-                     "thickness_m": s.specimen.thickness, "notes": s.specimen.notes},
-        "n_steps": s.n_steps,
-        "n_active_steps": int(steps["active"].sum()),
+        "schema_version": part(lambda: s.schema_version),
+        "status": part(lambda: s.status),
+        "start_time": part(lambda: s.start_time),
+        "software_version": part(lambda: s.software_version),
+        "specimen": part(lambda: _specimen(s)),
+        **steps,
         "n_markers": n_markers,
-        "stretches": sorted(set(np.round(steps["stretch"], 6).tolist())),
-        "max_pressure_Pa": float(np.nanmax(steps["pressure"])) if s.n_steps else None,
-        "instruments": s.instruments,
-        "load_cell_measures": s.load_cell_measures,
-        "cameras": [{"name": c.name, "model": c.model, "width": c.width, "height": c.height} for c in s.cameras],
-        "n_log_samples": {ch: int(len(s.log(ch)["value"])) for ch in ("pressure", "force")},
+        "instruments": part(lambda: s.instruments, {}),
+        "load_cell_measures": part(lambda: s.load_cell_measures),
+        "cameras": part(lambda: [{"name": c.name, "model": c.model, "width": c.width, "height": c.height}
+                                 for c in s.cameras], []),
+        "n_log_samples": {ch: part(lambda ch=ch: int(len(s.log(ch)["value"]))) for ch in ("pressure", "force")},
         "results": results,
     }
+    info["warnings"] = part(lambda: stored_warnings(s), [])
+    info["damaged"] = damaged
+    return info
+
+
+def stored_warnings(s) -> list[str]:
+    """Plausibility warnings stored in the session (events of kind "warning"), oldest first."""
+    return [e["message"] for e in s.events() if e["kind"] == "warning"] if _has_events(s) else []
+
+
+def _has_events(s) -> bool:
+    return "events" in s.file["entry"]
 
 
 @click.command("info")
 @click.argument("session", type=click.Path(dir_okay=False))
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON for scripts.")
 def command(session, as_json):
-    """Summarise SESSION: specimen, steps, instruments, status and derived results."""
+    """Summarise SESSION: specimen, steps, instruments, status and derived results.
+
+    On a damaged file, lists what is still readable and what is not, and exits with code 2."""
     with cli_session(session) as s:
         info = summarise(s)
     if as_json:
         print_json(info)
-        return
+    else:
+        _print(info)
+    if info["damaged"]:
+        raise CliInputError(f"{session}: damaged file: {len(info['damaged'])} part(s) cannot be read "
+                            f"({'; '.join(info['damaged'])}); everything else shown is readable")
+
+
+def _print(info: dict) -> None:
+    console.print(f"[bold]{escape(info['path'])}[/]  schema {info['schema_version']}  status [bold]{info['status']}[/]")
     sp = info["specimen"]
-    console.print(f"[bold]{info['path']}[/]  schema {info['schema_version']}  status [bold]{info['status']}[/]")
-    console.print(
-        f"Specimen {sp['id']}: R = {sp['radius_m'] * 1e3:.3f} mm, L = {sp['length_m'] * 1e3:.3f} mm, "
-        f"e = {sp['thickness_m'] * 1e3:.3f} mm" + (f"  ({sp['notes']})" if sp["notes"] else "")
-    )
+    if sp is not None:
+        console.print(
+            f"Specimen {escape(sp['id'])}: R = {sp['radius_m'] * 1e3:.3f} mm, L = {sp['length_m'] * 1e3:.3f} mm, "
+            f"e = {sp['thickness_m'] * 1e3:.3f} mm" + (f"  ({escape(sp['notes'])})" if sp["notes"] else "")
+        )
     pmax = info["max_pressure_Pa"]
-    console.print(
-        f"Steps: {info['n_steps']} ({info['n_active_steps']} active), stretches {info['stretches']}, "
-        + (f"max pressure {pmax / MMHG:.1f} mmHg ({pmax / 1e3:.2f} kPa)" if pmax is not None else "no steps")
-    )
+    if info["n_steps"] is not None:
+        console.print(
+            f"Steps: {info['n_steps']} ({info['n_active_steps']} active), stretches {info['stretches']}, "
+            + (f"max pressure {pmax / MMHG:.1f} mmHg ({pmax / 1e3:.2f} kPa)" if pmax is not None else "no pressures")
+        )
     console.print(f"Markers: {info['n_markers']}   log samples: {info['n_log_samples']}")
     for role, inst in info["instruments"].items():
         if inst["identity"]:
-            console.print(f"{role}: {inst['identity']}")
-    console.print(f"Load cell measures: {info['load_cell_measures']} force")
+            console.print(f"{role}: {escape(inst['identity'])}")
+    if info["load_cell_measures"] is not None:
+        console.print(f"Load cell measures: {info['load_cell_measures']} force")
     if info["cameras"]:
-        console.print("Cameras: " + ", ".join(f"{c['name']} ({c['model']}, {c['width']}x{c['height']})"
+        console.print("Cameras: " + ", ".join(f"{escape(c['name'])} ({escape(c['model'])}, {c['width']}x{c['height']})"
                                               for c in info["cameras"]))
     if info["results"]:
         table = Table(title="Derived results")
         for col in ("name", "kind", "date", "version"):
             table.add_column(col)
         for r in info["results"]:
-            table.add_row(r["name"], r["kind"], str(r["date"]), str(r["version"]))
+            table.add_row(escape(r["name"]), r["kind"], escape(str(r["date"])), escape(str(r["version"])))
         console.print(table)
     else:
         console.print("No derived results yet.")
+    for message in info["warnings"]:
+        console.print(f"[yellow]Warning (stored at import):[/] {escape(message)}")
+    for what in info["damaged"]:
+        err_console.print(f"[red]Damaged:[/] {escape(what)}")
