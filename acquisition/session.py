@@ -772,6 +772,7 @@ class Session:
             if isinstance(value, str) and key.endswith("_json"):
                 attrs[key[:-5]] = json.loads(value)
                 del attrs[key]
+        _check_result_arrays(str(attrs.get("kind", "")), arrays)
         return {
             "name": name,
             "kind": str(attrs.get("kind", "")),
@@ -795,6 +796,26 @@ class Session:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def _check_result_arrays(kind: str, arrays: Mapping[str, Any]) -> None:
+    """Shapes the readers of a result rely on; ValueError (reported as damage) when they do not hold."""
+    if kind == "markers":
+        if "positions" not in arrays:
+            raise ValueError("a markers result must hold 'positions'; it has " + str(sorted(arrays)))
+        pos = np.asarray(arrays["positions"])
+        if pos.ndim != 3 or pos.shape[2] != 3 or pos.dtype.kind not in "fiu":
+            raise ValueError(f"positions must be numbers of shape (n_steps, n_markers, 3); found {pos.dtype.name} "
+                             f"of shape {pos.shape}")
+        for key, shape in (("visible", pos.shape[:2]), ("step_index", pos.shape[:1]), ("step_number", pos.shape[:1])):
+            if key in arrays and np.shape(arrays[key]) != shape:
+                raise ValueError(f"{key} must have shape {shape} to match positions; found {np.shape(arrays[key])}")
+    elif kind == "identification" and "parameters" in arrays:
+        values, names = np.asarray(arrays["parameters"]), np.asarray(arrays.get("parameter_names", []))
+        if values.ndim != 1 or values.dtype.kind not in "fiu" or ("parameter_names" in arrays
+                                                                  and names.shape != values.shape):
+            raise ValueError(f"parameters must be numbers of shape (n_parameters,) matching parameter_names; found "
+                             f"{values.dtype.name} of shape {values.shape} for {names.size} names")
 
 
 def _h5_open_read(path: Path) -> h5py.File:

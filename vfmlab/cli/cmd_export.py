@@ -39,7 +39,7 @@ def command(session, out, fmt, markers_name):
             latest[(r["attrs"].get("model"), r["attrs"].get("wall"))] = r
         try:
             fields = compute_fields(markers, s.steps, list(latest.values()))
-        except FieldsError as exc:
+        except (FieldsError, ValueError) as exc:  # MeshError is a ValueError
             raise CliInputError(f"{path}: cannot build the surface fields from {markers['name']}: {exc}") from None
         specimen = s.specimen.specimen_id
     try:

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from acquisition.errors import InputError
-from acquisition.session import Session, open_session
+from acquisition.session import DamagedSessionError, Session, open_session
 from vfmlab import __version__
 from vfmlab.fields import FieldsError, SurfaceFields, compute_fields, stress_strain_curves
 from vfmlab.report import figures
@@ -94,9 +94,11 @@ class _Context:
     def __init__(self, session: Session):
         self.session = session
         self.steps = session.steps
-        self.markers = session.latest("markers")
-        self.calibration = session.latest("calibration")
-        self.idents = [session.result(n) for n in session.results("identification")]
+        self.damaged: list[str] = []
+        self.markers = self._read(lambda: session.latest("markers"))
+        self.calibration = self._read(lambda: session.latest("calibration"))
+        self.idents = [r for r in (self._read(lambda n=n: session.result(n)) for n in session.results("identification"))
+                       if r is not None]
         latest: dict[str, dict] = {}
         for r in self.idents:  # newest result per (model, wall)
             latest[(str(r["attrs"].get("model", "?")), str(r["attrs"].get("wall", "")))] = r
@@ -109,6 +111,15 @@ class _Context:
             except (FieldsError, ValueError, np.linalg.LinAlgError) as exc:
                 self.fields_error = str(exc)
                 log.warning("surface fields unavailable: %s", exc)
+
+    def _read(self, read: Callable[[], Any]) -> Any:
+        """A result, or None (and the reason logged and kept in ``damaged``) when it is damaged."""
+        try:
+            return read()
+        except DamagedSessionError as exc:
+            log.warning("%s", exc)
+            self.damaged.append(str(exc))
+            return None
 
     def no_fields(self) -> str:
         if self.markers is None:
@@ -493,7 +504,8 @@ def build_report(session_path: str | Path, out_dir: str | Path | None = None) ->
                 try:
                     body = fn(ctx, rep)
                 except Exception as exc:  # one broken section must not cost the whole report
-                    log.exception("report section %r failed", title)
+                    log.warning("report section %r failed: %s: %s", title, type(exc).__name__, exc)
+                    log.debug("report section %r failed", title, exc_info=exc)
                     body = f'<p class="failed">{SECTION_FAILED}: {html.escape(type(exc).__name__)}: ' \
                            f"{html.escape(str(exc))}</p>"
                 rep.sections.append((anchor, title, body))
