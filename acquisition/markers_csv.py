@@ -120,11 +120,24 @@ def _number(path: Path, line: int, column: str, text: str, *, allow_empty: bool 
     return value
 
 
+MAX_STEP = 2**31 - 1  # step numbers are stored as 32-bit integers
+MAX_COORDINATE_MM = 1e5  # 100 m: beyond any rig; larger values are unit or format mistakes
+
+
 def _step(path: Path, line: int, text: str) -> int:
     value = _number(path, line, "step", text)
-    if value != int(value) or value < 0:
-        raise CsvFormatError(f"{path}, line {line}, column step: {text!r} is not a step number (0, 1, 2, ...)")
+    if value != int(value) or value < 0 or value > MAX_STEP:
+        raise CsvFormatError(f"{path}, line {line}, column step: {text!r} is not a step number "
+                             f"(0, 1, 2, ... up to {MAX_STEP})")
     return int(value)
+
+
+def _coordinate(path: Path, line: int, column: str, text: str) -> float:
+    value = _number(path, line, column, text, allow_empty=True)
+    if abs(value) > MAX_COORDINATE_MM:
+        raise CsvFormatError(f"{path}, line {line}, column {column}: {text!r} mm is not a marker coordinate "
+                             f"(expected |{column}| <= {MAX_COORDINATE_MM:g} mm; µm or nm given?)")
+    return value
 
 
 def read_markers_csv(path: str | os.PathLike) -> MarkerTable:
@@ -143,7 +156,7 @@ def read_markers_csv(path: str | os.PathLike) -> MarkerTable:
                 f"{path}, line {line}: duplicate marker {label!r} at step {step} (first on line {seen_at[label, step]})"
             )
         seen_at[label, step] = line
-        xyz = tuple(_number(path, line, c, row[c], allow_empty=True) for c in ("x_mm", "y_mm", "z_mm"))
+        xyz = tuple(_coordinate(path, line, c, row[c]) for c in ("x_mm", "y_mm", "z_mm"))
         if any(math.isnan(v) for v in xyz) and not all(math.isnan(v) for v in xyz):
             raise CsvFormatError(f"{path}, line {line}: marker {label!r} has some coordinates missing; give all or none")
         index = labels.setdefault(label, len(labels))
