@@ -675,6 +675,13 @@ class Session:
         return out
 
     @property
+    @_reads("the step images (/entry/steps/images)")
+    def image_cameras(self) -> dict[str, tuple[int, int]]:
+        """Cameras with step images and their frame size ``(height, width)`` px."""
+        images = self._entry["steps"].get("images")
+        return {} if images is None else {name: tuple(int(n) for n in ds.shape[1:3]) for name, ds in images.items()}
+
+    @property
     @_reads("the camera records (/entry/instrument/cameras)")
     def camera_names(self) -> list[str]:
         return list(self._entry["instrument/cameras"].keys())
@@ -828,6 +835,51 @@ def _h5_open_read(path: Path) -> h5py.File:
         raise
 
 
+PREFLIGHT_TIMEOUT = 20.0  # s; walking the structure of a sound session takes well under a second
+
+
+def _walk_structure(path: Path) -> None:
+    """Read every object header and attribute of the file (not the data)."""
+    with _h5_open_read(path) as f:
+        def visit(_name: str, obj: Any) -> None:
+            for key in obj.attrs:
+                obj.attrs[key]
+        for key in f.attrs:
+            f.attrs[key]
+        f.visititems(visit)
+
+
+def _preflight(path: Path, timeout: float = PREFLIGHT_TIMEOUT) -> None:
+    """Walk the file's structure in a child process first: HDF5 can loop without end (holding the
+    interpreter) on some corrupted headers, which no exception or signal can interrupt.
+
+    A child that does not finish within ``timeout`` s is killed and the file reported as damaged;
+    every other outcome (including errors, which the parent reports with context) passes.
+    """
+    if not hasattr(os, "fork"):  # pragma: no cover - Windows: no preflight
+        return
+    import time
+
+    pid = os.fork()
+    if pid == 0:  # the child: never returns into the caller's code
+        code = 0
+        try:
+            _walk_structure(path)
+        except BaseException:  # noqa: BLE001 - the parent reports errors itself
+            code = 3
+        os._exit(code)
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        done, _ = os.waitpid(pid, os.WNOHANG)
+        if done:
+            return
+        time.sleep(0.005)
+    os.kill(pid, 9)
+    os.waitpid(pid, 0)
+    raise DamagedSessionError(f"{path}: damaged session file: HDF5 does not finish reading its structure "
+                              f"(gave up after {timeout:g} s)")
+
+
 def open_session(path: str | os.PathLike) -> Session:
     """Open and validate a session file for reading.
 
@@ -846,6 +898,7 @@ def open_session(path: str | os.PathLike) -> Session:
         head = fh.read(8)
     if head != b"\x89HDF\r\n\x1a\n":
         raise SessionError(f"{path}: not a session file (not HDF5: the file does not start with the HDF5 signature)")
+    _preflight(path)
     try:
         f = _h5_open_read(path)
     except OSError as exc:

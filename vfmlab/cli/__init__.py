@@ -150,8 +150,19 @@ def _report_exception(exc: BaseException) -> int:
 
 
 def describe_os_error(exc: OSError) -> str:
-    """One sentence for a file-system error: the file first, then what the system said."""
+    """One sentence for a file-system error: the file first, then what the system said.
+
+    HDF5 reports as ``Unable to synchronously create file (unable to open file: name = 'x.h5',
+    errno = 30, error message = 'Read-only file system', ...)``: the name and errno are taken from it.
+    """
+    import os
+    import re
+
     reason = exc.strerror or str(exc)
+    found = re.search(r"name = '([^']*)', errno = (\d+)", str(exc))
+    if exc.filename is None and found:
+        action = "cannot create" if "create" in str(exc) else "cannot open"
+        return f"{found.group(1)}: {action} the file: {os.strerror(int(found.group(2)))}"
     if exc.filename is not None:
         return f"{exc.filename}: {reason}"
     return reason
