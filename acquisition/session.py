@@ -858,26 +858,49 @@ def _preflight(path: Path, timeout: float = PREFLIGHT_TIMEOUT) -> None:
     """
     if not hasattr(os, "fork"):  # pragma: no cover - Windows: no preflight
         return
-    import time
+    import signal
+    import threading
 
-    pid = os.fork()
-    if pid == 0:  # the child: never returns into the caller's code
-        code = 0
-        try:
-            _walk_structure(path)
-        except BaseException:  # noqa: BLE001 - the parent reports errors itself
-            code = 3
-        os._exit(code)
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        done, _ = os.waitpid(pid, os.WNOHANG)
-        if done:
-            return
-        time.sleep(0.005)
-    os.kill(pid, 9)
-    os.waitpid(pid, 0)
+    # Ctrl-C during fork() would be raised inside logging's at-fork hook and lost: hold it until after.
+    main_thread = threading.current_thread() is threading.main_thread()
+    if main_thread:
+        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        pid = os.fork()
+        if pid == 0:  # the child: never returns into the caller's code
+            code = 0
+            try:
+                _walk_structure(path)
+            except BaseException:  # noqa: BLE001 - the parent reports errors itself
+                code = 3
+            os._exit(code)
+    finally:
+        if main_thread:
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    if _wait_child(pid, timeout):
+        return
     raise DamagedSessionError(f"{path}: damaged session file: HDF5 does not finish reading its structure "
                               f"(gave up after {timeout:g} s)")
+
+
+def _wait_child(pid: int, timeout: float) -> bool:
+    """Wait up to ``timeout`` s for child ``pid``; True if it ended, else it is killed. Killed on any exception too."""
+    import time
+
+    deadline = time.monotonic() + timeout
+    try:
+        while time.monotonic() < deadline:
+            done, _ = os.waitpid(pid, os.WNOHANG)
+            if done:
+                return True
+            time.sleep(0.005)
+    except BaseException:
+        os.kill(pid, 9)
+        os.waitpid(pid, 0)
+        raise
+    os.kill(pid, 9)
+    os.waitpid(pid, 0)
+    return False
 
 
 def open_session(path: str | os.PathLike) -> Session:
@@ -925,7 +948,7 @@ def _validate(f: h5py.File, path: Path) -> None:
     version = _decode(version)
     if not isinstance(version, str):
         raise SessionError(f"{path}: the schema version (/@vfmlab_schema_version) must be a string like "
-                           f"{SCHEMA_VERSION!r}; found {type(version).__name__} {version!r} (not written by vfmlab?)")
+                           f"{SCHEMA_VERSION!r}; found {type(version).__name__} {version} (not written by vfmlab?)")
     try:
         major, _minor = (int(part) for part in version.split("."))
     except ValueError:

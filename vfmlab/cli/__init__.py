@@ -89,14 +89,51 @@ def main(argv: list[str] | None = None) -> int:
     the user (Ctrl-C). Every error is one line on stderr, never a traceback (``-vv`` logs it).
     Warnings from NumPy and other libraries never reach the user: they are logged at debug level.
     """
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(), _InterruptGuard() as interrupt:
         warnings.simplefilter("default")
         warnings.showwarning = _log_library_warning
         try:
             cli.main(args=argv, prog_name="vfmlab", standalone_mode=False)
         except BaseException as exc:  # noqa: BLE001 - the one place exceptions become exit codes
             return _report_exception(exc)
+        if interrupt.seen:  # a Ctrl-C whose KeyboardInterrupt a library swallowed: still an interruption
+            return _report_exception(KeyboardInterrupt())
     return EXIT_OK
+
+
+class _InterruptGuard:
+    """Remember Ctrl-C while a command runs, and keep Python's "Exception ignored" reports of a
+    KeyboardInterrupt raised where it cannot propagate (e.g. in an at-fork hook) off the screen."""
+
+    def __enter__(self) -> _InterruptGuard:
+        import signal
+        import threading
+
+        self.seen = False
+        self._previous_hook = sys.unraisablehook
+        sys.unraisablehook = self._unraisable
+        self._previous_handler = None
+        if threading.current_thread() is threading.main_thread() and \
+                signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+            self._previous_handler = signal.signal(signal.SIGINT, self._on_sigint)
+        return self
+
+    def _on_sigint(self, signum, frame) -> None:
+        self.seen = True
+        raise KeyboardInterrupt
+
+    def _unraisable(self, unraisable) -> None:
+        if isinstance(unraisable.exc_value, KeyboardInterrupt):
+            self.seen = True
+            return
+        self._previous_hook(unraisable)
+
+    def __exit__(self, *exc: object) -> None:
+        import signal
+
+        sys.unraisablehook = self._previous_hook
+        if self._previous_handler is not None:
+            signal.signal(signal.SIGINT, self._previous_handler)
 
 
 def exit_code_for(exc: BaseException) -> int:
