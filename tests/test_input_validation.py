@@ -322,7 +322,7 @@ def test_huge_coordinates_are_refused_by_the_reader(tmp_path, capsys):
     text[2] = "M001,0,1e300,1,1"
     markers.write_text("\n".join(text) + "\n")
     rc, err = _import(capsys, tmp_path, markers, loads)
-    assert rc == 2 and "line 3, column x_mm: '1e300' mm is not a marker coordinate" in err
+    assert rc == 2 and "line 3, column x_mm: '1e300' mm is not a marker coordinate (expected within 100 m" in err
 
 
 # -- warnings and Ctrl-C --------------------------------------------------------------------------

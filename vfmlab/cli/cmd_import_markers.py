@@ -13,7 +13,8 @@ from acquisition.session import SessionError, SessionWriter, SpecimenInfo, StepR
 from acquisition.errors import ImplausibleInputError
 from acquisition.plausibility import (check_cloud_scale, check_geometry, check_identifiable, check_loads,
                                       check_marker_cloud)
-from vfmlab.cli._common import CliError, CliInputError, console, show_warning
+from vfmlab.cli._common import CliError, CliInputError, console, esc, print_json, show_warning
+from vfmlab.cli._outputs import check_parent
 
 
 def estimate_geometry(reference: np.ndarray) -> tuple[float, float]:
@@ -44,35 +45,16 @@ def estimate_geometry(reference: np.ndarray) -> tuple[float, float]:
     return float(abs(best.x[5])), float(axial.max() - axial.min())
 
 
-def check_inputs(table, loads, rows, markers_csv, loads_csv, thickness_mm, radius_mm, length_mm
-                 ) -> tuple[float, float, list[str]]:
-    """Plausibility of the imported data (decision 0007): the reference radius and length (m) to record and
-    the warnings to store in the session (also shown now); ImplausibleInputError for refused values."""
-    for name, value in (("--thickness-mm", thickness_mm), ("--radius-mm", radius_mm), ("--length-mm", length_mm)):
-        if value is not None and not (np.isfinite(value) and value > 0):
-            raise CliInputError(f"{name} must be a positive length in mm; got {value}")
-    warnings = check_loads(loads["pressure"][rows], loads["axial_force"][rows], loads["stretch"][rows],
-                           source=str(loads_csv), steps=table.steps)
-    reference = table.positions[0]
-    check_marker_cloud(reference, source=str(markers_csv))
-    fitted_radius, fitted_length = estimate_geometry(reference)
-    if radius_mm:
-        check_marker_cloud(reference, source=str(markers_csv), radius=radius_mm * 1e-3, fitted_radius=fitted_radius)
-    else:
-        check_cloud_scale(fitted_radius, source=str(markers_csv))
-    radius = radius_mm * 1e-3 if radius_mm else fitted_radius
-    length = length_mm * 1e-3 if length_mm else fitted_length
-    warnings += check_geometry(radius, thickness_mm * 1e-3, length, source=str(markers_csv))
-    try:
-        warnings += check_identifiable(table.positions, source=str(markers_csv), steps=table.steps)
-    except ImplausibleInputError as exc:  # importing is fine; identifying will refuse
-        warnings.append(f"{exc}; 'vfmlab identify' will refuse this session")
-    for message in warnings:
-        show_warning(message)
-    return radius, length, warnings
+EPILOG = """
+\b
+Examples:
+  vfmlab import-markers markers.csv loads.csv --thickness-mm 1.3 -o a1.h5
+  vfmlab import-markers markers.csv loads.csv --thickness-mm 1.3 --radius-mm 10 --force-is total -o a1.h5
+Then: vfmlab identify a1.h5
+"""
 
 
-@click.command("import-markers")
+@click.command("import-markers", epilog=EPILOG)
 @click.argument("markers_csv", type=click.Path(dir_okay=False))
 @click.argument("loads_csv", type=click.Path(dir_okay=False))
 @click.option("-o", "--out", "out", required=True, type=click.Path(dir_okay=False), help="Session file to create.")
@@ -84,9 +66,12 @@ def check_inputs(table, loads, rows, markers_csv, loads_csv, thickness_mm, radiu
 @click.option("--force-is", type=click.Choice(["wall", "total"]), default="wall", show_default=True,
               help="What axial_force_N is: force carried by the wall, or a total reading behind a pressurised cannula.")
 @click.option("--force", "overwrite", is_flag=True, help="Overwrite OUT if it exists.")
-def command(markers_csv, loads_csv, out, thickness_mm, radius_mm, length_mm, specimen_id, notes, force_is, overwrite):
-    """Build a session from MARKERS_CSV (marker_id,step,x_mm,y_mm,z_mm) and LOADS_CSV
+@click.option("--json", "as_json", is_flag=True, help="Print what was imported as JSON (SI: m).")
+def command(markers_csv, loads_csv, out, thickness_mm, radius_mm, length_mm, specimen_id, notes, force_is, overwrite,
+            as_json):
+    """Build a session from MARKERS_CSV (marker_id,step,x_m,y_m,z_m or x_mm,y_mm,z_mm) and LOADS_CSV
     (step,pressure_Pa|pressure_kPa|pressure_mmHg,axial_force_N,stretch). Step 0 is the reference."""
+    check_parent(out)
     table = read_markers_csv(markers_csv)
     loads = read_loads_csv(loads_csv)
     missing = sorted(set(table.steps.tolist()) - set(loads["step"].tolist()))
@@ -122,8 +107,13 @@ def command(markers_csv, loads_csv, out, thickness_mm, radius_mm, length_mm, spe
         )
     except SessionError as exc:
         raise CliError(str(exc)) from None
+    if as_json:
+        print_json({"out": str(out), "result": name, "n_markers": len(table.labels), "n_steps": len(table.steps),
+                    "radius_m": radius, "length_m": length, "thickness_m": thickness_mm * 1e-3,
+                    "load_cell_measures": force_is})
+        return
     console.print(
-        f"Imported {len(table.labels)} markers x {len(table.steps)} steps into [bold]{out}[/] "
-        f"(result {name}; radius {radius * 1e3:.3f} mm, length {length * 1e3:.3f} mm, "
-        f"thickness {thickness_mm:.3f} mm, load cell measures {force_is})."
+        f"Imported {len(table.labels)} markers × {len(table.steps)} steps into [bold]{esc(out)}[/] "
+        f"(result {esc(name)}; radius {radius * 1e3:.3f} mm, length {length * 1e3:.3f} mm, "
+        f"wall thickness {thickness_mm:.3f} mm, load cell measures {force_is} force)."
     )

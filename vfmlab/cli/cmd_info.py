@@ -11,12 +11,11 @@ from typing import Any
 
 import click
 import numpy as np
-from rich.markup import escape
 from rich.table import Table
 
 from acquisition.markers_csv import MMHG
 from acquisition.session import DamagedSessionError
-from vfmlab.cli._common import CliInputError, console, err_console, print_json
+from vfmlab.cli._common import CliInputError, console, err_console, esc, fixed, num, print_json
 from vfmlab.cli._sessions import cli_session
 
 
@@ -94,9 +93,17 @@ def _has_events(s) -> bool:
     return "events" in s.file["entry"]
 
 
-@click.command("info")
+EPILOG = """
+\b
+Examples:
+  vfmlab info a1.h5
+  vfmlab info a1.h5 --json | jq .specimen
+"""
+
+
+@click.command("info", epilog=EPILOG)
 @click.argument("session", type=click.Path(dir_okay=False))
-@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON for scripts.")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON (SI units, unit in each key).")
 def command(session, as_json):
     """Summarise SESSION: specimen, steps, instruments, status and derived results.
 
@@ -106,45 +113,57 @@ def command(session, as_json):
     if as_json:
         print_json(info)
     else:
-        _print(info)
+        _print_summary(info)
     if info["damaged"]:
         raise CliInputError(f"{session}: damaged file: {len(info['damaged'])} part(s) cannot be read "
                             f"({'; '.join(info['damaged'])}); everything else shown is readable")
 
 
-def _print(info: dict) -> None:
-    console.print(f"[bold]{escape(info['path'])}[/]  schema {info['schema_version']}  status [bold]{info['status']}[/]")
+def _print_summary(info: dict) -> None:
+    console.print(f"[bold]{esc(info['path'])}[/]  schema {esc(info['schema_version'])}  "
+                  f"status [bold]{esc(info['status'])}[/]  started {esc(_date(info['start_time']))}")
     sp = info["specimen"]
     if sp is not None:
         console.print(
-            f"Specimen {escape(sp['id'])}: R = {sp['radius_m'] * 1e3:.3f} mm, L = {sp['length_m'] * 1e3:.3f} mm, "
-            f"e = {sp['thickness_m'] * 1e3:.3f} mm" + (f"  ({escape(sp['notes'])})" if sp["notes"] else "")
-        )
+            f"Specimen {esc(sp['id'])}: radius {fixed(sp['radius_m'] * 1e3, 3)} mm, length "
+            f"{fixed(sp['length_m'] * 1e3, 3)} mm, wall thickness {fixed(sp['thickness_m'] * 1e3, 3)} mm"
+            + (f"  ({esc(sp['notes'])})" if sp["notes"] else ""))
     pmax = info["max_pressure_Pa"]
+    stretches = ", ".join(num(v, 4) for v in info["stretches"]) or "none"
     if info["n_steps"] is not None:
         console.print(
-            f"Steps: {info['n_steps']} ({info['n_active_steps']} active), stretches {info['stretches']}, "
-            + (f"max pressure {pmax / MMHG:.1f} mmHg ({pmax / 1e3:.2f} kPa)" if pmax is not None else "no pressures")
-        )
-    console.print(f"Markers: {info['n_markers']}   log samples: {info['n_log_samples']}")
+            f"Steps: {info['n_steps']} ({info['n_active_steps']} active), axial stretches L/L0 {stretches}, "
+            + (f"max pressure {fixed(pmax / MMHG, 1)} mmHg ({fixed(pmax / 1e3, 2)} kPa)" if pmax is not None
+               else "no pressures"))
+    logs = ", ".join(f"{n if n is not None else 'unreadable'} {ch}" for ch, n in info["n_log_samples"].items())
+    console.print(f"Markers: {info['n_markers']}   instrument log: {logs} samples")
     for role, inst in info["instruments"].items():
-        if inst["identity"]:
-            console.print(f"{role}: {escape(inst['identity'])}")
+        if inst.get("identity"):
+            console.print(f"{role.replace('_', ' ').capitalize()}: {esc(inst['identity'])}")
     if info["load_cell_measures"] is not None:
-        console.print(f"Load cell measures: {info['load_cell_measures']} force")
+        console.print(f"Load cell measures: {esc(info['load_cell_measures'])} force")
     if info["cameras"]:
-        console.print("Cameras: " + ", ".join(f"{escape(c['name'])} ({escape(c['model'])}, {c['width']}x{c['height']})"
+        console.print("Cameras: " + ", ".join(f"{esc(c['name'])} ({esc(c['model'])}, {c['width']} × {c['height']} px)"
                                               for c in info["cameras"]))
-    if info["results"]:
-        table = Table(title="Derived results")
-        for col in ("name", "kind", "date", "version"):
-            table.add_column(col)
-        for r in info["results"]:
-            table.add_row(escape(r["name"]), r["kind"], escape(str(r["date"])), escape(str(r["version"])))
-        console.print(table)
-    else:
-        console.print("No derived results yet.")
+    _print_results(info["results"])
     for message in info["warnings"]:
-        console.print(f"[yellow]Warning (stored at import):[/] {escape(message)}")
+        console.print(f"[yellow]Warning (stored in the session):[/] {esc(message)}")
     for what in info["damaged"]:
-        err_console.print(f"[red]Damaged:[/] {escape(what)}")
+        err_console.print(f"[red]Damaged:[/] {esc(what)}")
+
+
+def _print_results(results: list[dict]) -> None:
+    if not results:
+        console.print("No derived results yet.")
+        return
+    table = Table(title="Derived results")
+    for col in ("name", "kind", "date (UTC)", "vfmlab version"):
+        table.add_column(col)
+    for r in results:
+        table.add_row(esc(r["name"]), esc(r["kind"]), esc(_date(r["date"])), esc(r["version"]))
+    console.print(table)
+
+
+def _date(iso: str) -> str:
+    """``2026-11-23T16:18:19.909+00:00`` -> ``2026-11-23 16:18:19`` (ISO 8601, seconds)."""
+    return str(iso)[:19].replace("T", " ") if iso else "–"
