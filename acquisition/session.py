@@ -742,7 +742,10 @@ class Session:
 
     @_reads("the event log (/entry/events)")
     def events(self) -> list[dict[str, Any]]:
-        g = self._entry["events"]
+        """Events (time s, kind, message), oldest first; kind "warning" holds plausibility warnings (decision 0007)."""
+        g = self._entry.get("events")
+        if g is None:
+            return []
         n = min(g[k].shape[0] for k in ("time", "kind", "message"))
         times, kinds, messages = g["time"][:n], _decode(g["kind"][:n]), _decode(g["message"][:n])
         return [{"time": float(t), "kind": str(k), "message": str(m)} for t, k, m in zip(times, kinds, messages)]

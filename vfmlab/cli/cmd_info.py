@@ -86,11 +86,7 @@ def summarise(s) -> dict:
 
 def stored_warnings(s) -> list[str]:
     """Plausibility warnings stored in the session (events of kind "warning"), oldest first."""
-    return [e["message"] for e in s.events() if e["kind"] == "warning"] if _has_events(s) else []
-
-
-def _has_events(s) -> bool:
-    return "events" in s.file["entry"]
+    return [e["message"] for e in s.events() if e["kind"] == "warning"]
 
 
 EPILOG = """

@@ -143,6 +143,8 @@ def _sec_specimen(ctx: _Context, rep: _Report) -> str:
             ["notes", sp.notes or "–"], ["session status", s.status], ["started", s.start_time or "–"],
             ["recorded with", f"vfmlab {s.software_version or '?'} (schema {s.schema_version})"],
             ["steps captured", f"{s.n_steps} ({int(ctx.steps['active'].sum())} active)"]]
+    warnings = [e["message"] for e in s.events() if e["kind"] == "warning"]  # plausibility, decision 0007
+    rows += [["input warnings", w] for w in warnings] + [["damaged (left out)", d] for d in ctx.damaged]
     return _table(["property", "value"], rows)
 
 
