@@ -244,6 +244,10 @@ def test_unusual_values_are_accepted_stored_and_shown(tmp_path, capsys):
     rc = main(["info", str(tmp_path / "s.h5")])
     out = " ".join(capsys.readouterr().out.split())
     assert rc == 0 and "axial stretch 0.97 is below 1" in out and "(300 mmHg)" in out
+    from vfmlab.report import build_report
+
+    page = build_report(tmp_path / "s.h5", tmp_path / "report").read_text(encoding="utf-8")
+    assert "<td>input warnings</td>" in page and "axial stretch 0.97 is below 1" in page
 
 
 @pytest.mark.parametrize("scale,extra,message", [

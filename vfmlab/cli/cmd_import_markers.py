@@ -45,6 +45,34 @@ def estimate_geometry(reference: np.ndarray) -> tuple[float, float]:
     return float(abs(best.x[5])), float(axial.max() - axial.min())
 
 
+def check_inputs(table, loads, rows, markers_csv, loads_csv, thickness_mm, radius_mm, length_mm
+                 ) -> tuple[float, float, list[str]]:
+    """Plausibility of the imported data (decision 0007): the reference radius and length (m) to record and
+    the warnings to store in the session (also shown now); ImplausibleInputError for refused values."""
+    for name, value in (("--thickness-mm", thickness_mm), ("--radius-mm", radius_mm), ("--length-mm", length_mm)):
+        if value is not None and not (np.isfinite(value) and value > 0):
+            raise CliInputError(f"{name} must be a positive length in mm; got {value}")
+    warnings = check_loads(loads["pressure"][rows], loads["axial_force"][rows], loads["stretch"][rows],
+                           source=str(loads_csv), steps=table.steps)
+    reference = table.positions[0]
+    check_marker_cloud(reference, source=str(markers_csv))
+    fitted_radius, fitted_length = estimate_geometry(reference)
+    if radius_mm:
+        check_marker_cloud(reference, source=str(markers_csv), radius=radius_mm * 1e-3, fitted_radius=fitted_radius)
+    else:
+        check_cloud_scale(fitted_radius, source=str(markers_csv))
+    radius = radius_mm * 1e-3 if radius_mm else fitted_radius
+    length = length_mm * 1e-3 if length_mm else fitted_length
+    warnings += check_geometry(radius, thickness_mm * 1e-3, length, source=str(markers_csv))
+    try:
+        warnings += check_identifiable(table.positions, source=str(markers_csv), steps=table.steps)
+    except ImplausibleInputError as exc:  # importing is fine; identifying will refuse
+        warnings.append(f"{exc}; 'vfmlab identify' will refuse this session")
+    for message in warnings:
+        show_warning(message)
+    return radius, length, warnings
+
+
 EPILOG = """
 \b
 Examples:
