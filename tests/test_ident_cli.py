@@ -78,5 +78,5 @@ def test_identify_degenerate_sessions_exit_nonzero(tmp_path, capsys, kwargs, mat
     path = _session(tmp_path, **kwargs)
     rc = main(["identify", str(path), "--model", "delfino"])
     err = capsys.readouterr().err
-    assert rc == 1
+    assert rc == 2  # bad input (decision 0007)
     assert match in " ".join(err.split())

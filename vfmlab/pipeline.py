@@ -20,6 +20,8 @@ from typing import Any
 
 import numpy as np
 
+from acquisition.errors import ImplausibleInputError, InputError
+from acquisition.plausibility import check_identifiable
 from acquisition.session import SessionError, open_session, write_result
 
 log = logging.getLogger(__name__)
@@ -35,8 +37,8 @@ __all__ = ["STAGES", "StageError", "StageUnavailable", "identify_session", "iden
            "session_calibrated_cameras", "session_step_rows"]
 
 
-class StageError(Exception):
-    """A stage could not run on a session (missing input, failed computation)."""
+class StageError(InputError):
+    """A stage could not run on a session's contents (missing or unusable input): exit code 2 (decision 0007)."""
 
 
 class StageUnavailable(StageError):
@@ -69,11 +71,14 @@ def load_identification_inputs(session, markers: str | None = None) -> dict[str,
     if rows.size != positions.shape[0] or (rows.size and (rows.max() >= session.n_steps or rows.min() < 0)):
         raise StageError(f"{session.path}: markers result {result['name']} refers to steps {rows.tolist()} but the "
                          f"session has {session.n_steps} steps")
+    try:
+        notes = check_identifiable(positions, source=f"{session.path}: {result['name']}")
+    except ImplausibleInputError as exc:
+        raise StageError(str(exc)) from None
     steps = session.steps
     pressure = np.asarray(steps["pressure"], float)[rows]
     force = np.asarray(steps["force"], float)[rows]
     specimen = session.specimen
-    notes = []
     ends = {"ends": specimen.ends, "source": specimen.ends_source}
     if session.load_cell_measures == "total":
         r_i = specimen.radius - specimen.thickness
@@ -280,6 +285,21 @@ def session_calibrated_cameras(session) -> tuple[list, str]:
     return cams, f"session result {calib['name']}"
 
 
+def check_camera_images(session, cameras: list) -> None:
+    """Every calibrated camera has step images in the session, of the size it was calibrated at."""
+    frames = session.image_cameras
+    missing = [c.name for c in cameras if c.name not in frames]
+    if missing:
+        raise StageError(f"{session.path}: calibrated camera(s) {missing} have no images in the session "
+                         f"(cameras with images: {sorted(frames)}); calibrate the cameras that took the images")
+    for cam in cameras:
+        size = getattr(cam, "image_size", None)
+        if size is not None and tuple(int(v) for v in size) != frames[cam.name][::-1]:
+            height, width = frames[cam.name]
+            raise StageError(f"{session.path}: camera {cam.name!r} was calibrated at {int(size[0])}x{int(size[1])} px "
+                             f"but its images are {width}x{height} px; calibrate at the images' size")
+
+
 def reconstruct_stored(path: str | os.PathLike, *, cameras: list | None = None, calibration_source: str = "",
                        marker_diameter_mm: float | None = None, normals: str = "local", epipolar_px: float = 2.0,
                        max_reprojection_px: float = 1.5, include_superseded: bool = False, frame: str = "specimen",
@@ -312,6 +332,7 @@ def reconstruct_stored(path: str | os.PathLike, *, cameras: list | None = None, 
     with session as s:
         if cameras is None:
             cameras, calibration_source = session_calibrated_cameras(s)
+        check_camera_images(s, cameras)
         rows = session_step_rows(s, include_superseded)
         if rows.size == 0:
             raise StageError(f"{path}: no steps to reconstruct")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from vfmlab.cli._common import CliError, console, display_quantity, esc, num, print_json
+from vfmlab.cli._common import CliInputError, console, display_quantity, esc, num, print_json
 
 WALL_NOTE = {
     "membrane": "paper's plain membrane form (pressure on the marker surface)",
@@ -49,14 +49,11 @@ def command(session_path, model, wall, ends, optimizer, smooth, uncertainty, as_
 
     Units: parameters in SI (Pa, rad); the table shows kPa and degrees.
     """
-    from vfmlab.pipeline import StageError, identify_stored
+    from vfmlab.pipeline import identify_stored
 
     smoothing = parse_smooth_option(smooth)
-    try:
-        group, result, data = identify_stored(session_path, model=model, wall=wall, ends=ends, optimizer=optimizer,
-                                              smoothing=smoothing, uncertainty=uncertainty, invoked_by="identify")
-    except StageError as exc:
-        raise CliError(str(exc)) from None
+    group, result, data = identify_stored(session_path, model=model, wall=wall, ends=ends, optimizer=optimizer,
+                                          smoothing=smoothing, uncertainty=uncertainty, invoked_by="identify")
     names = list(result.parameters)
     if as_json:
         settings = data.get("settings", {})
@@ -99,7 +96,7 @@ def command(session_path, model, wall, ends, optimizer, smooth, uncertainty, as_
 
 
 def parse_smooth_option(text: str | None):
-    """``--smooth`` text -> "auto", None ("none") or (axial degree, harmonics); CliError otherwise."""
+    """``--smooth`` text -> "auto", None ("none") or (axial degree, harmonics); CliInputError otherwise."""
     if text is None or text.strip().lower() == "auto":
         return "auto"
     if text.strip().lower() == "none":
@@ -109,7 +106,7 @@ def parse_smooth_option(text: str | None):
         if len(smoothing) != 2 or min(smoothing) < 0:
             raise ValueError
     except ValueError:
-        raise CliError(f"--smooth must be 'auto', 'none' or two non-negative integers AXIAL,HARMONICS like 4,2; "
+        raise CliInputError(f"--smooth must be 'auto', 'none' or two non-negative integers AXIAL,HARMONICS like 4,2; "
                        f"got {text!r}") from None
     return smoothing
 
