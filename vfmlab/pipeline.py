@@ -22,7 +22,7 @@ import numpy as np
 
 from acquisition.errors import ImplausibleInputError, InputError
 from acquisition.plausibility import check_identifiable
-from acquisition.session import SessionError, open_session, write_result
+from acquisition.session import SessionError, SessionWriteError, open_session, write_result
 
 log = logging.getLogger(__name__)
 
@@ -199,6 +199,8 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
     try:
         group = write_result(path, "identification", arrays, settings, attrs=attrs,
                              units={"ivw": "J", "evw": "J", "residuals": "1"})
+    except SessionWriteError:  # a failed write (disk full, locked): exit 1, not bad input
+        raise
     except SessionError as exc:
         raise StageError(str(exc)) from None
     return group, result, data
@@ -371,6 +373,8 @@ def reconstruct_stored(path: str | os.PathLike, *, cameras: list | None = None, 
         name = write_result(path, "markers", arrays, params, attrs,
                             units={"positions": "m", "centres": "m", "uncertainty": "m", "reprojection_rms": "px",
                                    "world_to_rig": "m"})
+    except SessionWriteError:  # a failed write (disk full, locked): exit 1, not bad input
+        raise
     except SessionError as exc:
         raise StageError(str(exc)) from None
     return name, res, rows, names, calibration_source
