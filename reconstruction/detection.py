@@ -28,7 +28,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.special import erfc
 
-__all__ = ["Detections", "REJECT_DTYPE", "REJECT_REASONS", "detect_markers"]
+__all__ = ["Detections", "REJECT_DTYPE", "REJECT_REASONS", "detect_markers", "detect_markers_near"]
 
 log = logging.getLogger(__name__)
 
@@ -59,6 +59,9 @@ class Detections:
         Rejected candidates with ``reason`` in ``REJECT_REASONS``.
     noise : float
         Robust estimate of the image noise, grey levels.
+    threshold : float
+        Candidate threshold on the black top-hat, grey levels (with ``noise``: the image's
+        ``levels`` for :func:`detect_markers_near`).
     """
 
     centres: np.ndarray
@@ -68,6 +71,7 @@ class Detections:
     precision: np.ndarray
     rejects: np.ndarray
     noise: float
+    threshold: float = float("nan")
 
     def __len__(self) -> int:
         return int(self.centres.shape[0])
@@ -77,11 +81,11 @@ class Detections:
         return {r: int(np.count_nonzero(self.rejects["reason"] == r)) for r in REJECT_REASONS}
 
 
-def _empty(noise: float, rejects: np.ndarray | None = None) -> Detections:
+def _empty(noise: float, rejects: np.ndarray | None = None, threshold: float = float("nan")) -> Detections:
     z = np.zeros(0)
     return Detections(
         np.zeros((0, 2)), z, z.copy(), z.copy(), z.copy(),
-        np.zeros(0, REJECT_DTYPE) if rejects is None else rejects, float(noise),
+        np.zeros(0, REJECT_DTYPE) if rejects is None else rejects, float(noise), float(threshold),
     )
 
 
@@ -112,6 +116,7 @@ def detect_markers(
     centroid_threshold: float = 0.2,
     background_order: int = 3,
     split_merged: bool = True,
+    _levels: tuple[float, float] | None = None,
 ) -> Detections:
     """Detect dark circular markers with sub-pixel centres.
 
@@ -153,6 +158,9 @@ def detect_markers(
         Fraction of each blob's peak darkness subtracted before the centroid (weights
         ``max(w - t * peak, 0)``), so that background texture inside the window does not pull
         the centre; 0 gives the plain background-subtracted grey-value centroid.
+    _levels : (float, float), optional
+        Internal (:func:`detect_markers_near`): candidate threshold and noise (grey levels) of the
+        whole image, used for a crop instead of the crop's own statistics.
 
     Returns
     -------
@@ -166,10 +174,10 @@ def detect_markers(
         raise ValueError(f"diameter_range must be (min, max) with 0 < min < max px; got {diameter_range}")
     sat = _saturation_level(image, saturation)
     rejects: list[np.ndarray] = [] if sat is None else [_glare_blobs(image, sat)]
-    mask, noise = _candidate_mask(image, dmax, threshold_sigma, min_darkness)
+    mask, noise, thr = _candidate_mask(image, dmax, threshold_sigma, min_darkness, _levels)
     blobs, dmax = _components(mask, dmin, dmax, estimate_size=diameter_range is None, rejects=rejects)
     if blobs is None:
-        return _empty(noise, _concat(rejects))
+        return _empty(noise, _concat(rejects), thr)
     m = _measure_blobs(image, blobs, dmax, window_margin, background_order, edge_margin, sat)
     reason, lo, hi, dref = _classify(m, diameter_range, dmin, dmax, max_elongation, min_relative_contrast)
     split = _split_merged(m, reason, dref, lo, hi) if split_merged else _NO_SPLIT
@@ -180,9 +188,125 @@ def detect_markers(
         rejects.append(rec)
     good = np.flatnonzero(reason == "")
     if good.size == 0 and split.centres.shape[0] == 0:
-        return _empty(noise, _concat(rejects))
+        return _empty(noise, _concat(rejects), thr)
     found = _centroids(m, good, noise, window_margin, iterations, centroid_threshold, rejects)
-    return _assemble(found, split, noise, rejects)
+    return _assemble(found, split, noise, thr, rejects)
+
+
+
+def detect_markers_near(
+    image: np.ndarray,
+    points: np.ndarray,
+    radius: float,
+    *,
+    levels: tuple[float, float] | None = None,
+    tile: int = 64,
+    max_fraction: float = 0.7,
+    **kwargs,
+) -> Detections:
+    """:func:`detect_markers` restricted to the neighbourhood of expected marker positions.
+
+    The image is cut into ``tile`` x ``tile`` px tiles; the tiles within ``radius`` of a point are
+    searched, each group of touching tiles as one crop with a margin wide enough for the
+    morphology and the patch measurements to see what they see on the whole image. The candidate
+    threshold and the noise are the whole image's statistics: give them as ``levels`` (from a
+    whole-image detection of the same camera, :attr:`Detections.threshold` and ``noise``), else
+    each crop's own are used (they differ: a crop holds less bath and more tissue). Markers whose
+    centre lies outside the searched tiles are not reported. When the searched crops would cover
+    more than ``max_fraction`` of the image, the whole image is searched.
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W)
+    points : ndarray, shape (m, 2)
+        Expected centres, px (OpenCV convention); non-finite rows are ignored.
+    radius : float
+        Search radius around each point, px.
+    levels : (float, float), optional
+        Candidate threshold and noise, grey levels.
+    **kwargs
+        Keywords of :func:`detect_markers`; ``diameter_range`` is required (it sizes the margin).
+
+    Returns
+    -------
+    Detections
+        As :func:`detect_markers` (``noise`` is the median over the crops).
+    """
+    image = np.asarray(image)
+    if kwargs.get("diameter_range") is None:
+        raise ValueError("detect_markers_near needs diameter_range=(min, max) px to size its search margin; got None")
+    if not radius > 0:
+        raise ValueError(f"radius must be > 0 px; got {radius}")
+    points = np.asarray(points, dtype=float).reshape(-1, 2)
+    points = points[np.all(np.isfinite(points), axis=1)]
+    H, W = image.shape[:2]
+    dmax = float(kwargs["diameter_range"][1])
+    margin = int(np.ceil(1.3 * dmax)) + int(np.ceil(1.1 * dmax + kwargs.get("window_margin", 2.0) + 6))
+    groups, crops = _search_tiles(points, radius, (H, W), tile, margin)
+    if sum((y1 - y0) * (x1 - x0) for x0, y0, x1, y1 in crops) > max_fraction * H * W:
+        return detect_markers(image, **kwargs)
+    if levels is not None and not np.all(np.isfinite(levels)):
+        levels = None
+    parts = [_crop_detections(image, crop, groups == g + 1, tile, levels, kwargs) for g, crop in enumerate(crops)]
+    if not parts:
+        return _empty(0.0)
+    centres = np.concatenate([d.centres for d in parts])
+    order = np.lexsort((centres[:, 0], centres[:, 1]))
+    return Detections(
+        centres=centres[order],
+        diameter=np.concatenate([d.diameter for d in parts])[order],
+        contrast=np.concatenate([d.contrast for d in parts])[order],
+        quality=np.concatenate([d.quality for d in parts])[order],
+        precision=np.concatenate([d.precision for d in parts])[order],
+        rejects=_concat([d.rejects for d in parts]),
+        noise=float(np.median([d.noise for d in parts])),
+        threshold=float(np.median([d.threshold for d in parts])),
+    )
+
+
+def _search_tiles(points: np.ndarray, radius: float, shape: tuple[int, int], tile: int, margin: int):
+    """Tiles within ``radius`` of the points, labelled by group of touching tiles, and each
+    group's crop (x0, y0, x1, y1) px with ``margin`` (clipped to the image).
+
+    Returns (labels (n_tile_rows, n_tile_cols) int, 0 = not searched; list of crops)."""
+    H, W = shape
+    grid = np.zeros((-(-H // tile), -(-W // tile)), np.uint8)
+    lo = np.floor((points - radius) / tile).astype(int)
+    hi = np.floor((points + radius) / tile).astype(int)
+    span = int(np.max(hi - lo)) + 1 if points.size else 0
+    for dy in range(span):  # a few tile offsets, vectorised over the points
+        for dx in range(span):
+            ty, tx = lo[:, 1] + dy, lo[:, 0] + dx
+            ok = (ty <= hi[:, 1]) & (tx <= hi[:, 0]) & (ty >= 0) & (tx >= 0) & (ty < grid.shape[0]) & (tx < grid.shape[1])
+            grid[ty[ok], tx[ok]] = 1
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(grid, connectivity=8)
+    crops = []
+    for x, y, w, h, _ in stats[1:]:
+        crops.append((max(x * tile - margin, 0), max(y * tile - margin, 0),
+                      min((x + w) * tile + margin, W), min((y + h) * tile + margin, H)))
+    return labels, crops
+
+
+def _crop_detections(image: np.ndarray, crop, searched: np.ndarray, tile: int, levels, kwargs: dict) -> Detections:
+    """Detections in one crop, moved to image coordinates, keeping those in the ``searched`` tiles."""
+    x0, y0, x1, y1 = crop
+    det = detect_markers(image[y0:y1, x0:x1], _levels=levels, **kwargs)
+    shift = np.array([x0, y0], dtype=float)
+    centres = det.centres + shift
+    rejects = det.rejects.copy()
+    rejects["x"] += x0
+    rejects["y"] += y0
+
+    def inside(xy):
+        t = np.floor(xy / tile).astype(int)
+        t[:, 0] = np.clip(t[:, 0], 0, searched.shape[1] - 1)
+        t[:, 1] = np.clip(t[:, 1], 0, searched.shape[0] - 1)
+        return searched[t[:, 1], t[:, 0]]
+
+    keep = inside(centres)
+    rkeep = inside(np.stack([rejects["x"], rejects["y"]], axis=1))
+    return Detections(centres[keep], det.diameter[keep], det.contrast[keep], det.quality[keep], det.precision[keep],
+                      rejects[rkeep], det.noise, det.threshold)
 
 
 @dataclass(frozen=True)
@@ -228,7 +352,8 @@ class _Split(NamedTuple):
 _NO_SPLIT = _Split(np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros(0))
 
 
-def _candidate_mask(image: np.ndarray, dmax: float, threshold_sigma: float, min_darkness: float):
+def _candidate_mask(image: np.ndarray, dmax: float, threshold_sigma: float, min_darkness: float,
+                    levels: tuple[float, float] | None):
     """Step 1: pixels darker than their local upper envelope (morphological closing) by a robust
     threshold and by at least ``min_darkness`` of the envelope.
 
@@ -241,11 +366,15 @@ def _candidate_mask(image: np.ndarray, dmax: float, threshold_sigma: float, min_
     closed = cv2.morphologyEx(work, cv2.MORPH_CLOSE, cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)))
     tophat = cv2.subtract(closed, work)
     sub = (slice(None, None, max(1, H // 256)), slice(None, None, max(1, W // 256)))
-    sample = tophat[sub].ravel().astype(np.float32)
-    med = float(np.median(sample))
-    mad = float(np.median(np.abs(sample - med))) * 1.4826
-    floor = 0.03 * float(np.median(closed[sub]))
-    thr = med + max(threshold_sigma * mad, floor)
+    if levels is None:
+        sample = tophat[sub].ravel().astype(np.float32)
+        med = float(np.median(sample))
+        mad = float(np.median(np.abs(sample - med))) * 1.4826
+        floor = 0.03 * float(np.median(closed[sub]))
+        thr = med + max(threshold_sigma * mad, floor)
+        noise = _image_noise(work[sub].astype(np.float32))
+    else:
+        thr, noise = levels
     # relative darkness against the local upper envelope: markers are nearly black, texture and
     # shading are not; the absolute threshold keeps noise in dark regions (bath) out
     if work.dtype != np.float32:
@@ -253,7 +382,7 @@ def _candidate_mask(image: np.ndarray, dmax: float, threshold_sigma: float, min_
     else:
         relative = tophat > min_darkness * np.maximum(closed, 1e-6 * max(1.0, float(closed.max())))
     mask = ((tophat > thr) & relative).view(np.uint8)
-    return mask, _image_noise(work[sub].astype(np.float32))
+    return mask, noise, thr
 
 
 def _image_noise(img: np.ndarray) -> float:
@@ -440,7 +569,7 @@ def _centroids(m: _Measures, g, noise, window_margin, iterations, centroid_thres
     return _Split(centres[ok], m.diam[g][ok], m.peak[g][ok], prec[ok]), q[ok]
 
 
-def _assemble(found, split: _Split, noise: float, rejects: list) -> Detections:
+def _assemble(found, split: _Split, noise: float, threshold: float, rejects: list) -> Detections:
     """Step 4: single and split centres together, sorted by (y, x)."""
     single, q = found
     centres = np.concatenate([single.centres, split.centres])
@@ -453,6 +582,7 @@ def _assemble(found, split: _Split, noise: float, rejects: list) -> Detections:
         precision=np.concatenate([single.precision, split.precision])[order],
         rejects=_concat(rejects),
         noise=noise,
+        threshold=threshold,
     )
 
 
