@@ -31,6 +31,7 @@ from rich.console import Console
 from rich.table import Table
 
 from acquisition.session import open_session
+from vfmlab.live_results import display_unit
 
 __all__ = ["DemoError", "DemoOutcome", "DemoSettings", "run_demo", "truth_table"]
 
@@ -178,7 +179,7 @@ def truth_table(session: Path, material: str) -> tuple[Table, list[dict]]:
                 err = None if true is None else (values[i] - true) / true
                 rows.append({"model": model, "parameter": pname, "value": float(values[i]),
                              "stderr": float(errors[i]), "true": true, "relative_error": err})
-                scale, unit = _display_unit(pname)
+                scale, unit = display_unit(pname)
                 table.add_row(
                     model if i == 0 else "", f"{pname} [{unit}]" if unit else pname,
                     f"{values[i] / scale:.4g}", f"{errors[i] / scale:.2g}",
@@ -188,14 +189,6 @@ def truth_table(session: Path, material: str) -> tuple[Table, list[dict]]:
                 )
             table.add_section()
     return table, rows
-
-
-def _display_unit(name: str) -> tuple[float, str]:
-    if name in ("beta", "c", "k1", "mu"):
-        return 1e3, "kPa"
-    if name == "phi":
-        return np.pi / 180, "deg"
-    return 1.0, ""
 
 
 def summarize(console: Console, outcome: DemoOutcome, settings: DemoSettings) -> None:

@@ -22,7 +22,7 @@ from acquisition.session import SessionError, open_session, write_result
 
 log = logging.getLogger(__name__)
 
-__all__ = ["STAGES", "StageError", "StageUnavailable", "identify_session", "identify_stored", "load_identification_inputs",
+__all__ = ["STAGES", "StageError", "StageUnavailable", "identification_arrays", "identify_session", "identify_stored", "load_identification_inputs",
            "reconstruct_session", "reconstruct_stored", "session_calibrated_cameras", "session_step_rows"]
 
 
@@ -116,6 +116,22 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
                           model=model, wall=wall, ends=ends, optimizer=optimizer, smoothing=smoothing)
     except (IdentificationError, ValueError) as exc:
         raise StageError(f"{path}: cannot identify {model}: {exc}") from None
+    arrays, settings, attrs = identification_arrays(result, data["rows"])
+    settings.update({"model": model, "wall": wall, "ends": ends, "optimizer": optimizer, "smoothing": smoothing,
+                     "markers_result": data["markers_result"], "thickness": data["thickness"],
+                     "force_correction": data["notes"]})
+    attrs.update({"model": model, "wall": wall, "invoked_by": invoked_by})
+    try:
+        group = write_result(path, "identification", arrays, settings, attrs=attrs,
+                             units={"ivw": "J", "evw": "J", "residuals": "1"})
+    except SessionError as exc:
+        raise StageError(str(exc)) from None
+    return group, result, data
+
+
+def identification_arrays(result: Any, rows: np.ndarray) -> tuple[dict, dict, dict]:
+    """The arrays, settings (empty: the caller's) and attributes of an "identification" result
+    for an identification result object and the step-table rows it used."""
     names = list(result.parameters)
     arrays = {
         "parameters": np.array([result.parameters[n] for n in names]),
@@ -125,20 +141,12 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
         "ivw": result.ivw,
         "evw": result.evw,
         "residuals": result.residuals,
-        "step_index": data["rows"],
+        "step_index": np.asarray(rows),
     }
-    settings = {"model": model, "wall": wall, "ends": ends, "optimizer": optimizer, "smoothing": smoothing,
-                "markers_result": data["markers_result"], "thickness": data["thickness"],
-                "force_correction": data["notes"]}
-    attrs = {"model": model, "wall": wall, "cost": result.cost, "converged": result.converged,
-             "flags": list(result.flags), "message": result.message, "n_evaluations": result.n_evaluations,
-             "field_names": list(result.field_names), "invoked_by": invoked_by}
-    try:
-        group = write_result(path, "identification", arrays, settings, attrs=attrs,
-                             units={"ivw": "J", "evw": "J", "residuals": "1"})
-    except SessionError as exc:
-        raise StageError(str(exc)) from None
-    return group, result, data
+    attrs = {"cost": result.cost, "converged": result.converged, "flags": list(result.flags),
+             "message": result.message, "n_evaluations": result.n_evaluations,
+             "field_names": list(result.field_names)}
+    return arrays, {}, attrs
 
 
 def identify_session(path: str | os.PathLike, **options: Any) -> str:

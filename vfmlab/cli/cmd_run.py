@@ -32,14 +32,23 @@ Exit codes: 0 complete or quit (resumable), 1 aborted or a file/instrument error
               help="Unattended: no prompts (capture anyway when a level does not settle; Ctrl-C quits resumably).")
 @click.option("--detect/--no-detect", default=True, show_default=True,
               help="Count markers in each capture for the live view.")
+@click.option("--live-models", default="fung", show_default=True, metavar="MODELS",
+              help="Models identified while the test runs (comma-separated: fung, delfino, hgo, neohookean; "
+                   "'none' to switch off): each step is reconstructed in the background (cameras calibrated from "
+                   "the board views) and the final parameters are stored as identification results.")
 def command(protocol: str, specimen: str, out: str, rig: str | None, sim: bool, sim_speed: float, yes: bool,
-            detect: bool) -> None:
+            detect: bool, live_models: str) -> None:
     """Run PROTOCOL (TOML) on the rig, writing every step to the session file --out as it happens."""
     from vfmlab.operate import OperateError, detector_from_reconstruction, run_session
 
+    models = tuple(m.strip() for m in live_models.split(",") if m.strip() and m.strip() != "none")
+    unknown = [m for m in models if m not in ("fung", "delfino", "hgo", "neohookean")]
+    if unknown:
+        raise CliError(f"--live-models must be among fung, delfino, hgo, neohookean or 'none'; got {unknown}")
     try:
         outcome = run_session(protocol, specimen, out, rig_path=rig, sim=sim, yes=yes, sim_speed=sim_speed,
-                              console=console, detector=detector_from_reconstruction() if detect else None)
+                              console=console, detector=detector_from_reconstruction() if detect else None,
+                              live_models=models)
     except OperateError as exc:
         raise CliError(str(exc)) from None
     if outcome.status == "aborted":
