@@ -97,11 +97,11 @@ class ReconstructionSettings:
     workers : int or None
         Threads detecting the cameras of a step in parallel (None: one per CPU core; 1: serial).
     guided_detection : bool
-        After the reference step, search each image only near the tracked markers' predicted
-        projections (:func:`detect_step`).
+        From the second loaded step on, search each image only near the tracked markers'
+        predicted projections (:func:`detect_step`).
     guided_radius : float
         Search radius around each predicted projection, in expected marker diameters (plus 1.5x
-        the markers' median image motion in the previous step).
+        the 95th percentile of the markers' image motion in the previous step).
     guided_min_fraction : float
         A camera whose guided search finds fewer than this fraction of its previous step's
         detections is searched again over the whole image.
@@ -127,7 +127,7 @@ class ReconstructionSettings:
     workers: int | None = None
     guided_detection: bool = True
     guided_radius: float = 2.0
-    guided_min_fraction: float = 0.97
+    guided_min_fraction: float = 0.98
 
     def __post_init__(self) -> None:
         if not self.marker_diameter > 0:
@@ -585,7 +585,7 @@ class SeriesTracker:
     def search_regions(self, radius_px: float) -> list[tuple[np.ndarray, float, tuple[float, float] | None]] | None:
         """Where each camera should look for the markers of the next step: per camera the
         projections (m, 2) px of the markers' latest positions that face it, a search radius
-        (px): ``radius_px`` plus 1.5x the median image motion of the markers in the last step, and
+        (px): ``radius_px`` plus 1.5x the 95th percentile of the markers' image motion in the last step, and
         the camera's latest (threshold, noise) detection levels (grey levels) or None.
         None before the reference step."""
         if not self._carried:
@@ -600,7 +600,7 @@ class SeriesTracker:
             if len(self._carried) >= 2:
                 moved = np.linalg.norm(cam.project(latest) - cam.project(self._carried[-2]), axis=1)
                 moved = moved[np.isfinite(moved)]
-                motion = float(np.median(moved)) if moved.size else 0.0
+                motion = float(np.percentile(moved, 95)) if moved.size else 0.0
             out.append((px[np.all(np.isfinite(px), axis=1)], radius_px + 1.5 * motion, self._levels[len(out)]))
         return out
 
@@ -729,13 +729,14 @@ def detect_step(
 ) -> list[Detections | None]:
     """Detections of one step, guided by ``tracker`` when ``settings.guided_detection``.
 
-    After the reference step each camera is searched only near the predicted projections of the
-    tracked markers (:meth:`SeriesTracker.search_regions`); a camera where that finds fewer than
+    From the second loaded step on (the motion of the markers in the image is then known), each
+    camera is searched only near the predicted projections of the tracked markers
+    (:meth:`SeriesTracker.search_regions`); a camera where that finds fewer than
     ``settings.guided_min_fraction`` of its previous step's detections (a large jump, markers
     out of their regions) is searched again over the whole image.
     """
     regions = None
-    if tracker is not None and settings.guided_detection:
+    if tracker is not None and settings.guided_detection and tracker.n_steps >= 2:
         target = convergence_point(cameras)
         d = np.median([expected_diameter_px(c, settings.marker_diameter, target) for c in cameras])
         regions = tracker.search_regions(settings.guided_radius * d)

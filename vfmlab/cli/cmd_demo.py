@@ -22,7 +22,7 @@ from vfmlab.cli._common import CliError, console
               help="Markers glued on the simulated artery.")
 @click.option("--clamped/--homogeneous", default=False, show_default=True,
               help="Simulated tube clamped on cannulae (strain varies along the axis) or homogeneous.")
-@click.option("--speed", type=click.FloatRange(1.0, 50.0), default=5.0, show_default=True,
+@click.option("--speed", type=click.FloatRange(1.0, 50.0), default=10.0, show_default=True,
               help="Time scale of the simulated pressure plant.")
 def command(out_dir, material, models, n_cameras, resolution, n_markers, clamped, speed):
     """Run a complete simulated test: simulated instruments over pseudo-terminals and rendered
