@@ -168,34 +168,9 @@ def timing(size, repeats):
 def rendered(n_steps=8):
     """The end-to-end figures of tests/test_recon_rendered.py (estimated calibration, 1224 x 1024, glare,
     debris, a hidden marker, a missing camera), before (serial whole-image detection) and after."""
-    from _calib_sim import SPEC, board_corners_world, rigid_fit
-    from reconstruction.calibration import calibrate_from_detections
-    from reconstruction.cameras import rotation_matrix
-    from reconstruction.targets import detect_boards
-    from rig_sim.board import board_poses, render_board_views
+    from _recon_rendered import rendered_scene
 
-    cams = camera_ring(6, image_size=(1224, 1024), seed=3)
-    rv, tv = board_poses(cams, SPEC, 16, seed=0)
-    views = render_board_views(cams, SPEC, rv, tv, seed=0)
-    calib = calibrate_from_detections(detect_boards(views.images, SPEC), SPEC, {c.name: c.image_size for c in cams},
-                                      fix_k3=True)
-    est, ok = board_corners_world(calib.board_rvecs, calib.board_tvecs)
-    true = np.concatenate([SPEC.object_points() @ rotation_matrix(r).T + t for r, t in zip(views.rvecs[ok], views.tvecs[ok])])
-    R, t = rigid_fit(est, true)
-    pts, nrm, prof = deform_cylinder(random_marker_layout(300, seed=2), 1 + 0.05 * np.arange(n_steps),
-                                     1 + 0.02 * np.arange(n_steps), bulge=0.03)
-    frames, images = [], []
-    for k in range(n_steps):
-        p = pts[k].copy()
-        if k == 3:
-            p[17] = np.nan
-        fr = render_markers(cams, p, nrm[k], prof[k], marker_radius=0.2e-3, seed=10 + k)
-        imgs = {c.name: im for c, im in zip(cams, fr.images)}
-        if k == 5:
-            del imgs["cam4"]
-            fr.truth.visible[4] = False
-        frames.append(fr)
-        images.append(imgs)
+    cams, calib, frames, images, (R, t) = rendered_scene(n_steps)
     print("\n## Rendered end to end (tests/test_recon_rendered.py: estimated calibration, 6 cameras 1224x1024, "
           "300 markers, 8 steps, glare/debris, a hidden marker, camera 4 missing in step 5)\n")
     print("| detection | time, 8 steps [s] | 3-D RMS [um] | max [um] | completeness, worst step except 5 [%] | "
