@@ -2,8 +2,8 @@
 
 Markers, long format (one row per marker and step; step 0 = reference configuration)::
 
-    marker_id,step,x_mm,y_mm,z_mm
-    M001,0,10.0012,0.0000,-12.5000
+    marker_id,step,x_m,y_m,z_m                  (or x_mm,y_mm,z_mm)
+    M001,0,0.0100012,0.0000000,-0.0125000
 
 A marker missing from a step is either absent or has empty/NaN coordinates.
 
@@ -40,9 +40,12 @@ __all__ = [
 
 MMHG = 133.322387415  # Pa per mmHg (conventional millimetre of mercury)
 PRESSURE_UNITS = {"pressure_Pa": 1.0, "pressure_kPa": 1e3, "pressure_mmHg": MMHG}
-_MARKER_COLUMNS = ("marker_id", "step", "x_mm", "y_mm", "z_mm")
+_MARKER_COLUMNS = ("marker_id", "step")
+#: coordinate columns: metres (what export-markers writes) or millimetres, the unit in the header
+LENGTH_UNITS = {"m": 1.0, "mm": 1e-3}
+_XYZ_ALTERNATIVES = {axis: tuple(f"{axis}_{u}" for u in LENGTH_UNITS) for axis in "xyz"}
 _LOAD_COLUMNS = ("step", "axial_force_N", "stretch")
-COORDINATE_FORMAT = "{:.6f}"  # 1 nm in mm: far below any marker accuracy
+COORDINATE_FORMATS = {"m": "{:.9f}", "mm": "{:.6f}"}  # 1 nm: far below any marker accuracy
 
 
 class CsvFormatError(ValueError):
@@ -93,7 +96,7 @@ def _rows(path: Path, required: tuple[str, ...], alternatives: dict[str, tuple[s
             hint = f" (unknown unit column {unknown[0]!r})" if unknown else ""
             raise CsvFormatError(
                 f"{path}, line 1: expected exactly one of the columns {', '.join(options)}; "
-                f"found {present or 'none'}{hint}"
+                f"found {', '.join(present) or 'none'}{hint}; header is {','.join(header)!r}"
             )
     index = {name: i for i, name in enumerate(header)}
     for line_no, row in enumerate(reader, start=2):
@@ -126,12 +129,19 @@ def _step(path: Path, line: int, text: str) -> int:
 
 
 def read_markers_csv(path: str | os.PathLike) -> MarkerTable:
-    """Parse a long-format marker CSV (mm) into positions in metres."""
+    """Parse a long-format marker CSV (coordinates in m or mm, said by the header) into positions in metres."""
     path = Path(path)
     labels: dict[str, int] = {}
     records: dict[tuple[int, int], tuple[float, float, float]] = {}
     seen_at: dict[tuple[str, int], int] = {}
-    for line, row in _rows(path, _MARKER_COLUMNS):
+    columns, scale = None, 1.0
+    for line, row in _rows(path, _MARKER_COLUMNS, _XYZ_ALTERNATIVES):
+        if columns is None:
+            unit = next(u for u in LENGTH_UNITS if f"x_{u}" in row)
+            columns, scale = tuple(f"{axis}_{unit}" for axis in "xyz"), LENGTH_UNITS[unit]
+            if not all(c in row for c in columns):
+                raise CsvFormatError(f"{path}, line 1: x, y and z must be in the same unit; expected "
+                                     f"{','.join(columns)}")
         label = row["marker_id"]
         if not label:
             raise CsvFormatError(f"{path}, line {line}, column marker_id: missing value")
@@ -141,7 +151,7 @@ def read_markers_csv(path: str | os.PathLike) -> MarkerTable:
                 f"{path}, line {line}: duplicate marker {label!r} at step {step} (first on line {seen_at[label, step]})"
             )
         seen_at[label, step] = line
-        xyz = tuple(_number(path, line, c, row[c], allow_empty=True) for c in ("x_mm", "y_mm", "z_mm"))
+        xyz = tuple(_number(path, line, c, row[c], allow_empty=True) * scale for c in columns)
         if any(math.isnan(v) for v in xyz) and not all(math.isnan(v) for v in xyz):
             raise CsvFormatError(f"{path}, line {line}: marker {label!r} has some coordinates missing; give all or none")
         index = labels.setdefault(label, len(labels))
@@ -154,7 +164,7 @@ def read_markers_csv(path: str | os.PathLike) -> MarkerTable:
     step_index = {s: i for i, s in enumerate(steps)}
     positions = np.full((len(steps), len(labels), 3), np.nan)
     keys = np.array([(step_index[s], m) for m, s in records], dtype=int)
-    positions[keys[:, 0], keys[:, 1]] = np.array(list(records.values())) * 1e-3
+    positions[keys[:, 0], keys[:, 1]] = np.array(list(records.values()))
     return MarkerTable(np.array(list(labels), dtype=str), steps, positions)
 
 
@@ -184,9 +194,12 @@ def read_loads_csv(path: str | os.PathLike) -> dict[str, np.ndarray]:
 
 
 def write_markers_csv(
-    path: str | os.PathLike, labels: np.ndarray, steps: np.ndarray, positions: np.ndarray
+    path: str | os.PathLike, labels: np.ndarray, steps: np.ndarray, positions: np.ndarray, units: str = "m"
 ) -> None:
-    """Write positions ``(n_steps, n_markers, 3)`` (m) as long-format CSV in mm; NaN -> empty cells."""
+    """Write positions ``(n_steps, n_markers, 3)`` (m) as long-format CSV in ``units`` ("m" or "mm", named in
+    the header: x_m or x_mm); NaN -> empty cells."""
+    if units not in LENGTH_UNITS:
+        raise ValueError(f"write_markers_csv: units must be one of {', '.join(LENGTH_UNITS)}; got {units!r}")
     positions = np.asarray(positions, dtype=float)
     n_steps, n_markers, _ = positions.shape
     if len(labels) != n_markers or len(steps) != n_steps:
@@ -195,9 +208,10 @@ def write_markers_csv(
         )
     with open(path, "w", newline="", encoding="utf-8") as fh:
         writer = csv.writer(fh, lineterminator="\n")
-        writer.writerow(_MARKER_COLUMNS)
+        writer.writerow([*_MARKER_COLUMNS, *(f"{axis}_{units}" for axis in "xyz")])
+        fmt = COORDINATE_FORMATS[units]
         for i, step in enumerate(steps):
             for j, label in enumerate(labels):
-                xyz = positions[i, j] * 1e3
-                cells = ["" if np.isnan(v) else COORDINATE_FORMAT.format(v) for v in xyz]
+                xyz = positions[i, j] / LENGTH_UNITS[units]
+                cells = ["" if np.isnan(v) else fmt.format(v) for v in xyz]
                 writer.writerow([label, int(step), *cells])

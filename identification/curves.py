@@ -2,8 +2,13 @@
 
 Circumferential: E11 = ((R / R0)^2 - 1) / 2 with R the mean radius at mid-span (eq. 12), Laplace
 hoop stress p R / e (eq. 13), e the mid-span thickness from incompressibility. Axial:
-E22 = ((L / L0)^2 - 1) / 2 (eq. 14), stress F / (2 pi R e) (eq. 15). The model curves are the Cauchy
-stresses of the identified law under E22 = 0 (resp. E11 = 0), as in the paper.
+E22 = ((L / L0)^2 - 1) / 2 (eq. 14), stress F / (2 pi R e) (eq. 15).
+
+Two model predictions per step: ``sigma11_path`` / ``sigma22_path``, the identified law's Cauchy stresses at
+the measured strains of the step (E11 and E22 together: the loading path the specimen followed, which is what
+the Laplace points measure), and ``sigma11_model`` / ``sigma22_model``, the paper's uniaxial-strain
+definitions (E22 = 0, resp. E11 = 0), which on an inflation test at fixed stretch lie far below the axial
+Laplace points.
 """
 
 from __future__ import annotations
@@ -22,7 +27,8 @@ __all__ = ["StressStrainCurves", "laplace_curves"]
 
 @dataclass(frozen=True)
 class StressStrainCurves:
-    """Per-step mean curves, shapes (n_steps,), stresses in Pa (Cauchy)."""
+    """Per-step mean curves, shapes (n_steps,), stresses in Pa (Cauchy); ``*_path``: the model along the measured
+    path, ``*_model``: the paper's uniaxial-strain model curves (see the module docstring)."""
 
     E11: np.ndarray
     sigma11_laplace: np.ndarray
@@ -32,6 +38,8 @@ class StressStrainCurves:
     sigma22_model: np.ndarray
     radius: np.ndarray
     thickness: np.ndarray
+    sigma11_path: np.ndarray
+    sigma22_path: np.ndarray
 
 
 def laplace_curves(mesh: SurfaceMesh, positions: np.ndarray, pressure: np.ndarray, axial_force: np.ndarray, *,
@@ -74,7 +82,12 @@ def laplace_curves(mesh: SurfaceMesh, positions: np.ndarray, pressure: np.ndarra
     C2 = np.zeros((len(E22), 2, 2))
     C2[:, 0, 0] = 1.0
     C2[:, 1, 1] = 1.0 + 2.0 * E22
+    C = np.zeros((len(E11), 2, 2))  # the measured path: both strains of each step
+    C[:, 0, 0] = 1.0 + 2.0 * E11
+    C[:, 1, 1] = 1.0 + 2.0 * E22
     S1 = pk2_stress(model, C1, parameters)
     S2 = pk2_stress(model, C2, parameters)
+    S = pk2_stress(model, C, parameters)
     return StressStrainCurves(E11=E11, sigma11_laplace=sig11, sigma11_model=C1[:, 0, 0] * S1[:, 0, 0], E22=E22,
-                              sigma22_laplace=sig22, sigma22_model=C2[:, 1, 1] * S2[:, 1, 1], radius=R, thickness=e)
+                              sigma22_laplace=sig22, sigma22_model=C2[:, 1, 1] * S2[:, 1, 1], radius=R, thickness=e,
+                              sigma11_path=C[:, 0, 0] * S[:, 0, 0], sigma22_path=C[:, 1, 1] * S[:, 1, 1])

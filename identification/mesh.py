@@ -353,10 +353,14 @@ def build_mesh(
         "interior_slivers": int(interior.sum()),
         "holes": int(n_holes),
     }
+    words = {"nan_markers": "markers without a position", "duplicate_markers": "duplicate markers",
+             "boundary_slivers": "sliver triangles at the ends", "interior_slivers": "sliver triangles inside",
+             "holes": "holes"}
+    left_out = ", ".join(f"{v} {words[k]}" for k, v in dropped.items() if v) or "nothing"
     if n_dup or interior.any() or n_holes:
-        log.warning("mesh: dropped %s", dropped)
+        log.warning("surface mesh: %d triangles on %d markers; left out %s", len(tri), int(used.sum()), left_out)
     else:
-        log.info("mesh: %d triangles on %d markers; dropped %s", len(tri), int(used.sum()), dropped)
+        log.info("surface mesh: %d triangles on %d markers; left out %s", len(tri), int(used.sum()), left_out)
     return SurfaceMesh(axis=axis, triangles=tri, r=np.where(finite, r, np.nan), theta=np.where(finite, theta, np.nan),
                        z=np.where(finite, z, np.nan), used=used, bottom_edges=bottom_edges, top_edges=top_edges,
                        z_bottom=z_bottom, z_top=z_top, dropped=dropped)

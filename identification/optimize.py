@@ -295,8 +295,10 @@ def identify_prepared(
                          f"other parameters within a {GAP_FOR_FLAGS:.0%} virtual-work gap; do not trust its value"
                          + (" (load at two or more axial stretches to constrain it)" if nm == "alpha12" else ""))
     for nm, se in stderr.items():
-        if model.positive[model.parameter_names.index(nm)] and se > 0.3 * abs(params[nm]):
-            flags.append(f"{nm} is uncertain: standard error {se:.3g} is more than 30 % of its value")
+        i = model.parameter_names.index(nm)
+        if model.positive[i] and se > 0.3 * abs(params[nm]):
+            shown = f"{se / 1e3:.3g} kPa" if model.units[i] == "Pa" else f"{se:.3g}"  # people read kPa
+            flags.append(f"{nm} is uncertain: standard error {shown} is more than 30 % of its value")
     rms = float(np.sqrt(np.mean(res**2)))
     at_bound = [nm for nm, xi, lo, hi in zip(model.parameter_names, x, tr.lower, tr.upper)
                 if min(xi - lo, hi - xi) < 1e-6 * max(1.0, hi - lo if np.isfinite(hi - lo) else 1.0)]

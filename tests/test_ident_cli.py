@@ -43,7 +43,8 @@ def test_identify_json_and_stored_result(tmp_path, capsys, measures):
     out = capsys.readouterr().out
     assert rc == 0, out
     doc = json.loads(out)
-    assert set(doc) == {"model", "wall", "parameters", "stderr", "cost", "converged", "flags", "result_group"}
+    assert set(doc) == {"model", "wall", "parameters", "stderr", "units", "cost", "converged", "flags", "result_group"}
+    assert doc["units"] == {"beta": "Pa", "alpha": "1"}  # SI, the unit of every parameter said
     # membrane form on membrane data; 'total' readings are corrected with the reference lumen radius
     assert doc["parameters"]["beta"] == pytest.approx(1.5e3, rel=5e-3)
     with open_session(path) as s:

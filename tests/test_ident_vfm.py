@@ -199,6 +199,10 @@ def test_laplace_curves_match_the_model_on_homogeneous_data():
     # the paper's model curves are uniaxial-strain predictions (E22 = 0, resp. E11 = 0)
     s11_uni, _ = cauchy_hoop_axial("fung", PAPER["fung"], lt, 1.0)
     assert np.allclose(cur.sigma11_model, s11_uni, rtol=1e-9)
+    # along the measured path (both strains of each step) the model meets the Laplace points, both directions
+    assert np.allclose(cur.sigma11_path, cur.sigma11_laplace, rtol=1e-6)
+    assert np.allclose(cur.sigma22_path[1:], cur.sigma22_laplace[1:], rtol=1e-6)
+    assert cur.sigma22_model[-1] < 0.5 * cur.sigma22_laplace[-1]  # the uniaxial (E11 = 0) curve does not
 
 
 

@@ -33,8 +33,20 @@ def test_import_export_round_trip_is_exact(tmp_path, capsys):
     out = tmp_path / "s.h5"
     assert main(["import-markers", str(markers), str(loads), "--thickness-mm", "1.3", "-o", str(out)]) == 0
     back = tmp_path / "back.csv"
-    assert main(["export-markers", str(out), "-o", str(back)]) == 0
+    assert main(["export-markers", str(out), "-o", str(back), "--units", "mm"]) == 0
     assert back.read_text() == markers.read_text()
+    # default: SI, the unit in the header; it reads back to the same positions
+    si = tmp_path / "si.csv"
+    assert main(["export-markers", str(out), "-o", str(si)]) == 0
+    assert si.read_text().splitlines()[0] == "marker_id,step,x_m,y_m,z_m"
+    np.testing.assert_allclose(read_markers_csv(si).positions, read_markers_csv(markers).positions, atol=1e-12)
+    # an existing output is overwritten only with --force
+    assert main(["export-markers", str(out), "-o", str(si)]) == 1
+    assert "pass --force" in capsys.readouterr().err
+    assert main(["export-markers", str(out), "-o", str(si), "--force"]) == 0
+    # never the session itself, even with --force
+    assert main(["export-markers", str(out), "-o", str(out), "--force"]) == 1
+    assert "refusing to overwrite it" in capsys.readouterr().err
     capsys.readouterr()
     assert main(["info", str(out), "--json"]) == 0
     info = json.loads(capsys.readouterr().out)
@@ -66,7 +78,8 @@ def test_missing_markers_are_nan(tmp_path):
 @pytest.mark.parametrize(
     "content,match",
     [
-        ("marker_id,step,x_mm,y_mm\nA,0,1,2\n", r"line 1: missing column\(s\) z_mm"),
+        ("marker_id,step,x_mm,y_mm\nA,0,1,2\n", r"line 1: expected exactly one of the columns z_m, z_mm"),
+        ("marker_id,step,x_mm,y_mm,z_m\nA,0,1,2,3\n", r"line 1: x, y and z must be in the same unit"),
         ("marker_id,step,x_mm,y_mm,z_mm\nA,0,1,2,3\nA,0,1,2,3\n", r"line 3: duplicate marker 'A' at step 0 \(first on line 2\)"),
         ("marker_id,step,x_mm,y_mm,z_mm\nA,0,1,abc,3\n", r"line 2, column y_mm: 'abc' is not a number"),
         ("marker_id,step,x_mm,y_mm,z_mm\nA,1.5,1,2,3\n", r"line 2, column step"),

@@ -28,6 +28,7 @@ from typing import Sequence
 import numpy as np
 import tomli_w
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from acquisition.session import open_session
@@ -200,12 +201,12 @@ def summarize(console: Console, outcome: DemoOutcome, settings: DemoSettings) ->
     with open_session(outcome.session) as s:
         for model, name in outcome.results.items():
             for flag in s.result(name)["attrs"].get("flags") or []:
-                console.print(f"[yellow]{model}[/]: {flag}")
+                console.print(f"[yellow]{model}[/]: {escape(str(flag))}")
     times = ", ".join(f"{k} {v:.1f} s" for k, v in outcome.stage_seconds.items())
     console.print(f"[dim]Stage times: {times}; total {sum(outcome.stage_seconds.values()):.1f} s "
                   f"(CPU {sum(outcome.stage_cpu_seconds.values()):.1f} s)[/]")
-    console.print(f"Session: [bold]{outcome.session}[/]")
-    console.print(f"Report:  [bold]{outcome.report}[/]")
+    console.print(f"Session: [bold]{escape(str(outcome.session))}[/]")
+    console.print(f"Report:  [bold]{escape(str(outcome.report))}[/]")
 
 
 def parse_models(text: str) -> tuple[str, ...]:

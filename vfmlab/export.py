@@ -90,7 +90,7 @@ def export_fields(fields: SurfaceFields, out_dir: str | Path, *, fmt: str = "vtk
     if fmt not in FORMATS:
         raise ValueError(f"fmt must be one of {FORMATS}; got {fmt!r}")
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out.mkdir(exist_ok=True)  # the CLI checked that its parent exists
     written = []
     n_steps = len(fields.positions)
     for k in range(n_steps):

@@ -295,8 +295,8 @@ def stress_strain_curves(fields: SurfaceFields, force: np.ndarray, thickness: fl
     """Mean mid-span stress-strain curves and their Laplace-law estimates (paper appendices A, B).
 
     Uses ``identification.laplace_curves`` (the paper's definitions: mean mid-span radius, length
-    between the end rows, model curves at E22 = 0 resp. E11 = 0) when the identification package
-    built the mesh; otherwise the per-triangle means of :func:`triangle_kinematics` over the
+    between the end rows; each model evaluated along the measured path, at both measured strains of
+    every step) when the identification package built the mesh; otherwise the per-triangle means of :func:`triangle_kinematics` over the
     mid-span band and :func:`laplace_stress`, with each model's median stress on those triangles.
 
     ``force`` (n_steps,) N is the load-cell reading; a "total" reading is corrected to the wall force.
@@ -323,13 +323,14 @@ def stress_strain_curves(fields: SurfaceFields, force: np.ndarray, thickness: fl
                 log.warning("no model curve for %s: %s", ident.get("name"), exc)
                 continue
             base = base or c
-            models[f"{ident['name']} ({model})"] = {"s11": c.sigma11_model, "s22": c.sigma22_model}
+            models[f"{ident['name']} ({model})"] = {"s11": c.sigma11_path, "s22": c.sigma22_path}
         if base is None:  # the Laplace estimates do not depend on the model
             base = laplace_curves(mesh.raw, fields.positions, p, wall_force, thickness=thickness, model="neohookean",
                                   parameters={"mu": 1.0}, band=band)
         return {"E11": base.E11, "E22": base.E22, "s11": base.sigma11_laplace, "s22": base.sigma22_laplace,
                 "radius": base.radius, "models": models,
-                "source": "identification.laplace_curves (model curves at E22 = 0 resp. E11 = 0, as in the paper)"}
+                "source": "identification.laplace_curves (models evaluated at the measured E11 and E22 of each "
+                          "step)"}
     zc = np.nanmean(mesh.z[mesh.triangles], axis=1)
     lo, hi = np.nanmin(mesh.z), np.nanmax(mesh.z)
     sel = np.abs(zc - 0.5 * (lo + hi)) <= 0.5 * band * (hi - lo)

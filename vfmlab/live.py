@@ -43,7 +43,10 @@ def format_duration(seconds: float) -> str:
 
 
 def _num(value: float, fmt: str) -> str:
-    return "—" if value is None or not math.isfinite(value) else format(value, fmt)
+    if value is None or not math.isfinite(value):
+        return "—"
+    text = format(value, fmt)
+    return text.replace("-", " ", 1) if float(text) == 0 else text  # never "-0.00"
 
 
 def render_live_results(status) -> Group:
@@ -90,7 +93,7 @@ def render_state(state: RunnerState, title: str = "vfmlab run", results=None):
         phase.append(f"  {state.message}", style="")
     readings.add_row("Phase", phase)
     if state.markers:
-        readings.add_row("Markers", "   ".join(f"{name}: {n}" for name, n in state.markers.items()))
+        readings.add_row("Markers", Text("   ".join(f"{name}: {n}" for name, n in state.markers.items())))
 
     progress = Progress(TextColumn("Protocol"), BarColumn(bar_width=None), MofNCompleteColumn(),
                         TextColumn("elapsed {task.fields[elapsed]}  ·  remaining ~{task.fields[remaining]}"),
@@ -213,11 +216,11 @@ class TerminalOperator:
 
     def choose(self, reason: str, options: Sequence[str]) -> str:
         with self._suspended():
-            self.console.print(f"[bold yellow]{reason}[/]")
+            self.console.print(reason, style="bold yellow", markup=False)
             return click.prompt("Choose", type=click.Choice(list(options)), default=options[0])
 
     def notify(self, message: str) -> None:
-        self.console.log(message)
+        self.console.log(message, markup=False)
 
     def ask_text(self, prompt: str) -> str:
         with self._suspended():

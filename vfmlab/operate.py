@@ -19,6 +19,7 @@ from typing import Any, Callable
 
 import numpy as np
 from rich.console import Console
+from rich.markup import escape as esc
 
 from acquisition.cameras import CameraError
 from acquisition.protocol import (MMHG, ConfigError, Protocol, RigConfig, SpecimenFile, load_protocol, load_rig,
@@ -26,6 +27,7 @@ from acquisition.protocol import (MMHG, ConfigError, Protocol, RigConfig, Specim
 from acquisition.runner import AutoOperator, RunnerState, SessionRunner, completed_steps
 from acquisition.session import CameraSpec, SessionError, SessionWriter, SpecimenInfo, open_session
 from vfmlab.bench import Bench, BenchError, open_bench
+from vfmlab.display import fixed
 from vfmlab.live import LiveView, TerminalOperator, format_duration
 
 __all__ = ["OperateError", "Outcome", "run_session", "resume_session", "DEFAULT_SIM_RIG"]
@@ -125,7 +127,8 @@ def _execute(runner_kwargs: dict[str, Any], protocol: Protocol, writer: SessionW
         elif state.steps_done != last["steps"]:
             last["steps"] = state.steps_done
             console.print(f"step {state.steps_done}/{state.n_steps}: block {state.block + 1}, "
-                          f"L/L0 {state.stretch:.3f}, {state.pressure / MMHG:.1f} mmHg, {state.force:.4f} N, "
+                          f"L/L0 {state.stretch:.3f}, {fixed(state.pressure / MMHG, 1)} mmHg, "
+                          f"{fixed(state.force, 4)} N, "
                           f"remaining ~{format_duration(state.remaining_s)}")
 
     runner = SessionRunner(protocol, writer, pressure=bench.pressure, sampler=bench.sampler, cameras=bench.cameras,
@@ -162,12 +165,12 @@ def run_session(protocol_path: str, specimen_path: str, out: str, *, rig_path: s
                            f"or 'vfmlab resume {out_path}' to continue it)")
     pc = protocol.preconditioning
     test_blocks = protocol.blocks[int(protocol.has_reference):]
-    console.print(f"[bold]{protocol.name}[/]: {protocol.n_steps} steps: "
+    console.print(f"[bold]{esc(protocol.name)}[/]: {protocol.n_steps} steps: "
                   + ("stress-free reference, then " if protocol.has_reference else "")
                   + f"{len(test_blocks)} block(s) at L/L0 {', '.join(f'{b.stretch:g}' for b in test_blocks)}; "
                   f"{protocol.calibration.views} calibration views; preconditioning "
                   f"{pc.pressure_cycles} x 0-{pc.pressure_max / MMHG:.0f} mmHg, {pc.stretch_cycles} x L/L0 "
-                  f"1-{pc.stretch_max:g}; specimen {specimen.specimen_id}; rig {rig.name}")
+                  f"1-{pc.stretch_max:g}; specimen {esc(specimen.specimen_id)}; rig {esc(rig.name)}")
     with contextlib.ExitStack() as stack:
         simbench = stack.enter_context(_sim_bench(rig, specimen, protocol, sim_speed)) if sim else None
         try:
@@ -251,15 +254,14 @@ def resume_session(path: str, *, rig_path: str | None = None, sim: bool = False,
             if not text:
                 raise OperateError(f"{path}: the session does not hold its rig file; give --rig RIG.toml")
             rig = parse_rig(text, text=text, source=f"{Path(path).name}:rig")
-        if rig.simulated and not sim:
-            raise OperateError(f"{path} was recorded on the simulated rig; resume it with --sim")
+        sim = sim or rig.simulated  # the session knows it was recorded on the simulated rig
         protocol = parse_protocol(protocol_text, text=protocol_text, source=f"{Path(path).name}:protocol", rig=rig)
     except ConfigError as exc:
         raise OperateError(str(exc)) from None
     specimen = SpecimenFile(info.specimen_id, info.radius, info.length, info.thickness, info.notes)
     done_pre = "preconditioning_done" in kinds or start > 0
     done_cal = "calibration_done" in kinds or "preconditioning" in kinds or start > 0
-    console.print(f"Resuming {path}: {start}/{protocol.n_steps} steps done"
+    console.print(f"Resuming {esc(str(path))}: {start}/{protocol.n_steps} steps done"
                   + ("" if done_pre else "; preconditioning will be redone"))
     if start >= protocol.n_steps:
         console.print("every step is already captured; closing the session as complete")
@@ -295,10 +297,10 @@ def _report(runner: SessionRunner, path: Path, console: Console) -> Outcome:
         n = s.n_steps
     status = runner.status
     style = {"complete": "green", "aborted": "red", "interrupted": "yellow"}[status]
-    console.print(f"[bold {style}]Session {status}[/]: {path} ({n} step rows, "
+    console.print(f"[bold {style}]Session {status}[/]: {esc(str(path))} ({n} step rows, "
                   f"{format_duration(runner.state.elapsed_s)})")
     if status == "interrupted":
-        console.print(f"Continue with: vfmlab resume {path}" + (" --sim" if runner.stage is not None else ""))
+        console.print(f"Continue with: vfmlab resume {esc(str(path))}")
     return Outcome(status, path, n, runner.state.elapsed_s)
 
 

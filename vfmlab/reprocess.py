@@ -216,7 +216,11 @@ SUMMARY_FIXED = ["session", "specimen", "status", "result", "model", "wall", "op
 
 
 def summary_rows(outcomes: Sequence[SessionOutcome]) -> list[dict[str, Any]]:
-    """One row per identification produced (``<param>`` and ``<param>_stderr`` in SI) and one per error."""
+    """One row per identification produced and one per error.
+
+    Parameters in SI with the unit in the column name (``beta_Pa``, ``beta_stderr_Pa``, ``phi_rad``);
+    dimensionless ones without a suffix (``alpha11``, ``alpha11_stderr``).
+    """
     rows = []
     for o in outcomes:
         for ident in o.identifications:
@@ -225,8 +229,9 @@ def summary_rows(outcomes: Sequence[SessionOutcome]) -> list[dict[str, Any]]:
                    "ends": ident["settings"].get("ends", ""), "cost": ident["cost"], "converged": ident["converged"],
                    "n_flags": len(ident["flags"]), "version": ident["version"], "error": ""}
             for name, p in ident["parameters"].items():
-                row[name] = p["value"]
-                row[f"{name}_stderr"] = p["stderr"]
+                suffix = f"_{p['unit']}" if p.get("unit") not in (None, "", "1") else ""  # SI unit in the header
+                row[f"{name}{suffix}"] = p["value"]
+                row[f"{name}_stderr{suffix}"] = p["stderr"]
             rows.append(row)
         for err in o.errors:
             rows.append({"session": o.path, "specimen": o.specimen, "status": "failed", "error": err})
@@ -242,7 +247,6 @@ def write_summary(outcomes: Sequence[SessionOutcome], path: str | os.PathLike) -
             if key not in SUMMARY_FIXED and key not in params:
                 params.append(key)
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "w", newline="", encoding="utf-8") as fh:
         writer = csv.DictWriter(fh, fieldnames=SUMMARY_FIXED + params, restval="")
         writer.writeheader()

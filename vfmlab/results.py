@@ -11,8 +11,19 @@ from acquisition.session import Session, SessionError
 __all__ = ["summarize_result", "list_results", "compare_results", "identification_parameters"]
 
 
-def identification_parameters(result: dict[str, Any]) -> dict[str, dict[str, float]]:
-    """``{name: {"value", "stderr"}}`` of an "identification" result (SI)."""
+def parameter_units(model: str, names: list[str]) -> list[str]:
+    """SI unit of each parameter of ``model`` ("Pa", "rad" or "1"); "" when the model is unknown."""
+    try:
+        from identification import get_model
+
+        m = get_model(str(model))
+        return [m.units[m.parameter_names.index(n)] if n in m.parameter_names else "" for n in names]
+    except (ImportError, KeyError, ValueError):
+        return [""] * len(names)
+
+
+def identification_parameters(result: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """``{name: {"value", "stderr", "unit"}}`` of an "identification" result (SI; unit "Pa", "rad" or "1")."""
     a = result["arrays"]
     names = [str(n) for n in a.get("parameter_names", [])]
     values = np.asarray(a.get("parameters", []), float).ravel()
@@ -21,7 +32,8 @@ def identification_parameters(result: dict[str, Any]) -> dict[str, dict[str, flo
         names = [f"p{i}" for i in range(len(values))]
     if len(stderr) != len(values):
         stderr = np.full(len(values), np.nan)
-    return {n: {"value": float(v), "stderr": float(s)} for n, v, s in zip(names, values, stderr)}
+    units = parameter_units(result["attrs"].get("model", ""), names)
+    return {n: {"value": float(v), "stderr": float(s), "unit": u} for n, v, s, u in zip(names, values, stderr, units)}
 
 
 def _scalar(value: Any) -> Any:
@@ -93,7 +105,8 @@ def compare_results(session: Session, name_a: str, name_b: str) -> dict[str, Any
             sb = pb.get(n, {}).get("stderr", np.nan)
             diff = vb - va
             se = float(np.hypot(sa, sb))
-            rows[n] = {"a": va, "b": vb, "diff": diff, "rel_diff": diff / abs(va) if va else np.nan,
+            unit = pa.get(n, pb.get(n, {})).get("unit", "")
+            rows[n] = {"unit": unit, "a": va, "b": vb, "diff": diff, "rel_diff": diff / abs(va) if va else np.nan,
                        "diff_over_stderr": diff / se if se > 0 else np.nan}
         out["parameters"] = rows
     elif ra["kind"] == "markers":

@@ -67,13 +67,10 @@ def cli(verbose: int) -> None:
     """vfmlab: inflation/extension testing of arterial segments, from the instruments
     to the material parameters (Virtual Fields Method)."""
     level = logging.WARNING - 10 * min(verbose, 2)
-    from rich.logging import RichHandler
-
-    from vfmlab.cli._common import err_console
+    from vfmlab.cli._common import log_handler
 
     # Logs go to stderr: stdout carries results (tables, --json) that scripts parse.
-    logging.basicConfig(level=level, format="%(message)s", force=True,
-                        handlers=[RichHandler(console=err_console, show_path=False)])
+    logging.basicConfig(level=level, format="%(message)s", force=True, handlers=[log_handler()])
 
 
 def main(argv: list[str] | None = None) -> int:

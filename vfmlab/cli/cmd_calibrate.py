@@ -10,7 +10,8 @@ import numpy as np
 from rich.progress import Progress
 from rich.table import Table
 
-from vfmlab.cli._common import CliError, console, err_console, print_json
+from vfmlab.cli._common import CliError, console, err_console, esc, print_json
+from vfmlab.cli._outputs import check_output_path
 
 log = logging.getLogger(__name__)
 
@@ -49,7 +50,7 @@ def _table(result) -> Table:
     for col in ("camera", "views", "RMS (px)", "init RMS (px)", "fx (px)", "fy (px)", "cx (px)", "cy (px)", "k1", "k2"):
         t.add_column(col, justify="right" if col != "camera" else "left")
     for i, (row, cam) in enumerate(zip(result.summary(), result.cameras)):
-        t.add_row(row["camera"], str(row["views"]), f"{row['rms_px']:.3f}", f"{result.initial_rms[i]:.3f}",
+        t.add_row(esc(row["camera"]), str(row["views"]), f"{row['rms_px']:.3f}", f"{result.initial_rms[i]:.3f}",
                   f"{row['fx']:.1f}±{row['fx_std']:.1f}", f"{row['fy']:.1f}±{row['fy_std']:.1f}",
                   f"{row['cx']:.1f}±{row['cx_std']:.1f}", f"{row['cy']:.1f}±{row['cy_std']:.1f}",
                   f"{cam.dist[0]:+.4f}", f"{cam.dist[1]:+.4f}")
@@ -103,14 +104,23 @@ def _import(path: Path, file_units: str, session, store: bool, out, units: str, 
     if as_json:
         print_json(summary)
         return
-    console.print(f"imported {len(cams)} cameras from {path}: {', '.join(c.name for c in cams)}")
+    console.print(f"imported {len(cams)} cameras from {esc(path)}: {esc(', '.join(c.name for c in cams))}")
     if stored:
-        console.print(f"stored as {stored} in {session}")
+        console.print(f"stored as {stored} in {esc(session)}")
     if out is not None:
-        console.print(f"wrote {out}")
+        console.print(f"wrote {esc(out)}")
 
 
-@click.command()
+EPILOG = """
+\b
+Examples:
+  vfmlab calibrate a1.h5                                  # board views stored in the session
+  vfmlab calibrate --images boards/ --squares 8x6 --square-size-mm 4.5 -o calibration.toml
+  vfmlab calibrate a1.h5 --import calibration.toml --import-units mm
+"""
+
+
+@click.command(epilog=EPILOG)
 @click.argument("session", required=False, type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--images", "images_dir", type=click.Path(file_okay=False, path_type=Path),
               help="Board images as DIR/<camera>/<view>.png (views matched by file name across cameras). "
@@ -131,6 +141,7 @@ def _import(path: Path, file_units: str, session, store: bool, out, units: str, 
 @click.option("--fix-k3/--free-k3", default=False, show_default=True, help="Keep the 6th-order radial term at zero.")
 @click.option("-o", "--out", "out", type=click.Path(dir_okay=False, path_type=Path),
               help="Write the calibration to this file: .toml (aniposelib) or .yaml/.yml (OpenCV FileStorage).")
+@click.option("--force", is_flag=True, help="Overwrite --out if it exists.")
 @click.option("--units", type=click.Choice(["mm", "m"]), default="mm", show_default=True,
               help="Length unit of the translations in --out.")
 @click.option("--store/--no-store", default=True, show_default=True,
@@ -142,7 +153,7 @@ def _import(path: Path, file_units: str, session, store: bool, out, units: str, 
               help="Length unit of an imported file's translations when the file does not say (aniposelib does not).")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
 def command(session, images_dir, board, squares, square_size_mm, marker_size_mm, dictionary, subpix_window, reference,
-            world_view, fix_k3, out, units, store, import_file, import_units, as_json):
+            world_view, fix_k3, out, force, units, store, import_file, import_units, as_json):
     """Calibrate the cameras jointly from calibration-board images.
 
     Each camera is initialised alone (OpenCV), camera poses are chained through shared board
@@ -158,6 +169,8 @@ def command(session, images_dir, board, squares, square_size_mm, marker_size_mm,
 
     if out is not None and out.suffix.lower() not in (".toml", ".yaml", ".yml"):
         raise CliError(f"--out must end in .toml, .yaml or .yml; got {out.name!r}")
+    if out is not None:
+        check_output_path(out, force, inputs=[p for p in (session, import_file) if p is not None])
     if import_file is not None:
         if images_dir is not None:
             raise CliError("--import and --images exclude each other: calibrate from images or import a calibration")
@@ -215,11 +228,12 @@ def command(session, images_dir, board, squares, square_size_mm, marker_size_mm,
             raise CliError(f"--reference must be one of {names}; got {reference!r}")
         ref = names.index(reference)
     found = {c: sum(len(d) > 0 for d in detections[c]) for c in names}
-    log.info("board found per camera: %s", found)
+    log.info("board found per camera: %s", ", ".join(f"{c} in {n} views" for c, n in found.items()))
     try:
         result = calibrate_from_detections(detections, spec, sizes, reference=ref, world_view=world_view, fix_k3=fix_k3)
     except CalibrationError as exc:
-        raise CliError(f"calibration failed: {exc} (board views found per camera: {found})") from None
+        raise CliError(f"calibration failed: {exc} (board views found per camera: "
+                       f"{', '.join(f'{c} {n}' for c, n in found.items())})") from None
 
     stored = None
     if out is not None:
@@ -256,8 +270,8 @@ def command(session, images_dir, board, squares, square_size_mm, marker_size_mm,
     console.print(f"total RMS {result.rms_total:.3f} px over {result.n_observations} observations; "
                   f"{result.n_outliers} outliers rejected; converged: {result.converged}")
     if out is not None:
-        console.print(f"wrote {out}")
+        console.print(f"wrote {esc(out)}")
     if stored:
-        console.print(f"stored as {stored} in {session}")
+        console.print(f"stored as {stored} in {esc(session)}")
     if not np.all(np.isfinite(result.rms)):
         raise CliError("some cameras have no inlier observations")

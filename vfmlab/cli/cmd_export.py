@@ -6,11 +6,20 @@ from pathlib import Path
 
 import click
 
-from vfmlab.cli._common import CliError, console
+from vfmlab.cli._common import CliError, console, esc, print_json
+from vfmlab.cli._outputs import check_output_dir
 from vfmlab.cli._sessions import cli_session, latest_markers
 
 
-@click.command("export")
+EPILOG = """
+\b
+Examples:
+  vfmlab export a1.h5                          # into a1_export/ next to the session
+  vfmlab export a1.h5 -o paraview/ --format ply --markers markers_002 --force
+"""
+
+
+@click.command("export", epilog=EPILOG)
 @click.argument("session", type=click.Path(dir_okay=False))
 @click.option("-o", "--out", "out", type=click.Path(file_okay=False),
               help="Output directory [default: <SESSION stem>_export next to the session].")
@@ -18,7 +27,9 @@ from vfmlab.cli._sessions import cli_session, latest_markers
               help="vtk: legacy ASCII VTK polydata with strain/stress cell data (+ .vtk.series index); "
                    "ply: binary PLY with E11 face colours and the fields as face properties.")
 @click.option("--markers", "markers_name", help="Markers result to export [default: the latest].")
-def command(session, out, fmt, markers_name):
+@click.option("--force", is_flag=True, help="Overwrite the files of an earlier export in the output directory.")
+@click.option("--json", "as_json", is_flag=True, help="Print the files written as JSON.")
+def command(session, out, fmt, markers_name, force, as_json):
     """Export the marker mesh of SESSION at every step, with E11/E22/E12 strains and each identified
     model's stresses as cell data, in files ParaView opens. Lengths in m, stresses in Pa."""
     from vfmlab.export import export_fields
@@ -26,10 +37,13 @@ def command(session, out, fmt, markers_name):
 
     path = Path(session)
     out_dir = Path(out) if out else path.with_name(path.stem + "_export")
+    earlier = sorted(p.name for p in out_dir.glob(f"surface*.{fmt}*")) if out_dir.is_dir() else []
+    check_output_dir(out_dir, force, will_write=earlier)
     with cli_session(path) as s:
         if markers_name:
             if markers_name not in s.results("markers"):
-                raise CliError(f"{path}: no markers result {markers_name!r}; markers results are {s.results('markers')}")
+                raise CliError(f"{path}: no markers result {markers_name!r}; markers results are "
+                               f"{', '.join(s.results('markers')) or 'none'}")
             markers = s.result(markers_name)
         else:
             markers = latest_markers(s)
@@ -48,7 +62,12 @@ def command(session, out, fmt, markers_name):
         raise CliError(f"cannot write to {out_dir}: {exc}") from None
     n_steps = len(fields.positions)
     cell = ["E11", "E22", "E12"] + [f"{n}_s11/_s22 ({st['model']})" for n, st in fields.stress.items()]
-    console.print(f"Exported {n_steps} steps ({len(fields.mesh.triangles)} triangles, from {markers['name']}) as "
-                  f"{fmt.upper()} to [bold]{out_dir}[/]; cell data: {', '.join(cell)}.")
+    if as_json:
+        print_json({"out": str(out_dir), "format": fmt, "markers_result": markers["name"], "n_steps": n_steps,
+                    "files": [str(f) for f in files], "units": {"length": "m", "stress": "Pa", "strain": "1"}})
+        return
+    console.print(f"Exported {n_steps} steps ({len(fields.mesh.triangles)} triangles, from {esc(markers['name'])}) "
+                  f"as {fmt.upper()} to [bold]{esc(out_dir)}[/]; cell data: {esc(', '.join(cell))} "
+                  "(files in SI: lengths in m, stresses in Pa, strains dimensionless).")
     if fmt == "vtk":
-        console.print(f"Open {files[-1].name} (or the {files[0].stem[:-4]}_*.vtk group) in ParaView.")
+        console.print(f"Open {esc(files[-1].name)} (or the {esc(files[0].stem[:-4])}_*.vtk group) in ParaView.")

@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 import click
-import numpy as np
 
-from vfmlab.cli._common import CliError, console, print_json
+from vfmlab.cli._common import CliError, console, display_quantity, esc, num, print_json
 
 WALL_NOTE = {
     "membrane": "paper's plain membrane form (pressure on the marker surface)",
@@ -13,7 +12,16 @@ WALL_NOTE = {
 }
 
 
-@click.command(name="identify")
+EPILOG = """
+\b
+Examples:
+  vfmlab identify a1.h5                                   # Fung, membrane, clamped ends
+  vfmlab identify a1.h5 --model hgo --wall thick --smooth auto
+  vfmlab identify a1.h5 --model delfino --json > delfino.json
+"""
+
+
+@click.command(name="identify", epilog=EPILOG)
 @click.argument("session_path", metavar="SESSION", type=click.Path(exists=True, dir_okay=False))
 @click.option("--model", type=click.Choice(["fung", "delfino", "hgo", "neohookean"]), default="fung",
               show_default=True, help="Constitutive model.")
@@ -27,7 +35,8 @@ WALL_NOTE = {
               help="Smooth the measured displacements (Legendre degree along the axis, Fourier harmonics around) "
                    "before differentiating; e.g. 4,2 for noisy markers (>~0.02 mm); 'auto' smooths (4,2) only when "
                    "the estimated marker noise exceeds 0.02 mm.")
-@click.option("--json", "as_json", is_flag=True, help="Print the result as JSON (SI units) for scripts.")
+@click.option("--json", "as_json", is_flag=True,
+              help="Print the result as JSON for scripts (SI; the unit of each parameter under 'units').")
 def command(session_path, model, wall, ends, optimizer, smooth, as_json):
     """Identify MODEL parameters from the latest marker tracks of SESSION and store the result in it.
 
@@ -53,6 +62,7 @@ def command(session_path, model, wall, ends, optimizer, smooth, as_json):
     names = list(result.parameters)
     if as_json:
         print_json({"model": model, "wall": wall, "parameters": result.parameters, "stderr": result.stderr,
+                    "units": {n: get_unit(model, n) for n in names},
                     "cost": result.cost, "converged": result.converged, "flags": list(result.flags),
                     "result_group": group})
         return
@@ -64,22 +74,18 @@ def command(session_path, model, wall, ends, optimizer, smooth, as_json):
     table.add_column("std. error", justify="right")
     table.add_column("unit")
     for n in names:
-        v, s = result.parameters[n], result.stderr[n]
-        unit = get_unit(model, n)
-        if unit == "Pa":
-            v, s, unit = v / 1e3, s / 1e3, "kPa"
-        elif unit == "rad":
-            v, s, unit = np.degrees(v), np.degrees(s), "deg"
-        table.add_row(n, f"{v:.4g}", f"{s:.2g}", unit)
+        v, unit = display_quantity(result.parameters[n], get_unit(model, n))
+        s, _ = display_quantity(result.stderr[n], get_unit(model, n))
+        table.add_row(esc(n), num(v, 4), num(s, 2), unit or "–")
     console.print(table)
-    console.print(f"cost {result.cost:.3g}, RMS gap per field "
-                  + ", ".join(f"{f}: {g:.2%}" for f, g in zip(result.field_names, result.residual_per_field))
+    console.print(f"cost {num(result.cost, 3)}, RMS gap per field "
+                  + ", ".join(f"{esc(f)}: {g:.2%}" for f, g in zip(result.field_names, result.residual_per_field))
                   + f", {result.n_evaluations} evaluations, converged: {result.converged}")
     for note in data["notes"]:
-        console.print(f"[dim]{note}[/]")
+        console.print(f"[dim]{esc(note)}[/]")
     for flag in result.flags:
-        console.print(f"[yellow]warning:[/] {flag}")
-    console.print(f"stored as {group}")
+        console.print(f"[yellow]warning:[/] {esc(flag)}")
+    console.print(f"stored as {esc(group)}")
 
 
 def get_unit(model: str, name: str) -> str:

@@ -8,7 +8,8 @@ import click
 import numpy as np
 from rich.progress import Progress
 
-from vfmlab.cli._common import CliError, console, err_console
+from vfmlab.cli._common import CliError, console, err_console, esc, print_json
+from vfmlab.cli._outputs import check_parent
 from vfmlab.cli.cmd_reconstruct import load_calibration_file
 
 _IMAGE_SUFFIXES = {".png", ".tif", ".tiff", ".bmp", ".pgm", ".jpg", ".jpeg"}
@@ -59,7 +60,17 @@ def _read(path: Path) -> np.ndarray:
     return img
 
 
-@click.command("import-images")
+EPILOG = """
+\b
+Examples:
+  vfmlab import-images images/ --calibration calibration.toml --loads loads.csv --marker-diameter-mm 0.4 -o a1.h5
+  vfmlab import-images images/ --calibration cams.yaml --calibration-units m --loads loads.csv \\
+      --marker-diameter-mm 0.4 --thickness-mm 1.3 -o a1.h5
+Then: vfmlab reconstruct a1.h5
+"""
+
+
+@click.command("import-images", epilog=EPILOG)
 @click.argument("images_dir", type=click.Path(file_okay=False, path_type=Path))
 @click.option("--calibration", required=True, type=click.Path(dir_okay=False, path_type=Path),
               help="Calibration of the cameras: aniposelib calibration.toml or OpenCV .yaml.")
@@ -71,7 +82,7 @@ def _read(path: Path) -> np.ndarray:
               help="Session file to create.")
 @click.option("--marker-diameter-mm", type=float, required=True, help="Diameter of the spherical markers, mm.")
 @click.option("--thickness-mm", type=float, default=None,
-              help="Reference wall thickness, mm [default: 10 %% of the radius, flagged in the notes].")
+              help="Reference wall thickness, mm [default: 10 % of the radius, flagged in the notes].")
 @click.option("--radius-mm", type=float, default=None,
               help="Reference outer radius, mm [default: measured from the step-0 images].")
 @click.option("--length-mm", type=float, default=None,
@@ -81,8 +92,9 @@ def _read(path: Path) -> np.ndarray:
 @click.option("--force-is", type=click.Choice(["wall", "total"]), default="wall", show_default=True,
               help="What axial_force_N is: force carried by the wall, or a total reading behind a pressurised cannula.")
 @click.option("--force", "overwrite", is_flag=True, help="Overwrite OUT if it exists.")
+@click.option("--json", "as_json", is_flag=True, help="Print what was imported as JSON (SI: m).")
 def command(images_dir, calibration, calibration_units, loads_csv, out, marker_diameter_mm, thickness_mm, radius_mm,
-            length_mm, specimen_id, notes, force_is, overwrite):
+            length_mm, specimen_id, notes, force_is, overwrite, as_json):
     """Build a session from IMAGES_DIR/<camera>/<step>.png (camera names as in the calibration file,
     step 0 = reference), the camera calibration and a loads CSV. Then run 'vfmlab reconstruct OUT'."""
     from acquisition.markers_csv import CsvFormatError, read_loads_csv
@@ -90,6 +102,7 @@ def command(images_dir, calibration, calibration_units, loads_csv, out, marker_d
     from reconstruction.calibration_io import cameras_to_arrays
     from reconstruction.pipeline import ReconstructionSettings, reconstruct_step
 
+    check_parent(out)
     if not marker_diameter_mm > 0:
         raise CliError(f"--marker-diameter-mm must be positive; got {marker_diameter_mm}")
     for name, value in (("--thickness-mm", thickness_mm), ("--radius-mm", radius_mm), ("--length-mm", length_mm)):
@@ -155,7 +168,8 @@ def command(images_dir, calibration, calibration_units, loads_csv, out, marker_d
                     for c in cams:
                         path = files[c.name].get(int(s))
                         if path is None:
-                            err_console.print(f"[yellow]Warning:[/] no image of {c.name} for step {s}; stored blank.")
+                            err_console.print(f"[yellow]Warning:[/] no image of {esc(c.name)} for step {s}; "
+                                              "stored blank.")
                             img = np.zeros((c.image_size[1], c.image_size[0]), dtype)
                         else:
                             img = first[c.name] if s == 0 else _read(path)
@@ -170,8 +184,13 @@ def command(images_dir, calibration, calibration_units, loads_csv, out, marker_d
         name = write_result(out, "calibration", cameras_to_arrays(cams), {"source": str(calibration)})
     except (SessionError, ValueError) as exc:
         raise CliError(str(exc)) from None
+    if as_json:
+        print_json({"out": str(out), "n_steps": int(steps.size), "cameras": [c.name for c in cams],
+                    "calibration_result": name, "radius_m": radius_mm * 1e-3, "length_m": length_mm * 1e-3,
+                    "thickness_m": thickness_mm * 1e-3})
+        return
     console.print(
-        f"Imported {steps.size} steps x {len(cams)} cameras into [bold]{out}[/] (calibration stored as {name}; "
-        f"radius {radius_mm:.3f} mm, length {length_mm:.3f} mm, thickness {thickness_mm:.3f} mm). "
-        f"Next: vfmlab reconstruct {out}"
+        f"Imported {steps.size} steps × {len(cams)} cameras into [bold]{esc(out)}[/] (calibration stored as "
+        f"{esc(name)}; radius {radius_mm:.3f} mm, length {length_mm:.3f} mm, wall thickness {thickness_mm:.3f} mm). "
+        f"Next: vfmlab reconstruct {esc(out)}"
     )

@@ -10,7 +10,8 @@ from scipy.optimize import least_squares
 
 from acquisition.markers_csv import CsvFormatError, read_loads_csv, read_markers_csv
 from acquisition.session import SessionError, SessionWriter, SpecimenInfo, StepRecord, write_result
-from vfmlab.cli._common import CliError, console
+from vfmlab.cli._common import CliError, console, esc, print_json
+from vfmlab.cli._outputs import check_parent
 
 
 def estimate_geometry(reference: np.ndarray) -> tuple[float, float]:
@@ -41,7 +42,16 @@ def estimate_geometry(reference: np.ndarray) -> tuple[float, float]:
     return float(abs(best.x[5])), float(axial.max() - axial.min())
 
 
-@click.command("import-markers")
+EPILOG = """
+\b
+Examples:
+  vfmlab import-markers markers.csv loads.csv --thickness-mm 1.3 -o a1.h5
+  vfmlab import-markers markers.csv loads.csv --thickness-mm 1.3 --radius-mm 10 --force-is total -o a1.h5
+Then: vfmlab identify a1.h5
+"""
+
+
+@click.command("import-markers", epilog=EPILOG)
 @click.argument("markers_csv", type=click.Path(dir_okay=False))
 @click.argument("loads_csv", type=click.Path(dir_okay=False))
 @click.option("-o", "--out", "out", required=True, type=click.Path(dir_okay=False), help="Session file to create.")
@@ -53,9 +63,12 @@ def estimate_geometry(reference: np.ndarray) -> tuple[float, float]:
 @click.option("--force-is", type=click.Choice(["wall", "total"]), default="wall", show_default=True,
               help="What axial_force_N is: force carried by the wall, or a total reading behind a pressurised cannula.")
 @click.option("--force", "overwrite", is_flag=True, help="Overwrite OUT if it exists.")
-def command(markers_csv, loads_csv, out, thickness_mm, radius_mm, length_mm, specimen_id, notes, force_is, overwrite):
-    """Build a session from MARKERS_CSV (marker_id,step,x_mm,y_mm,z_mm) and LOADS_CSV
+@click.option("--json", "as_json", is_flag=True, help="Print what was imported as JSON (SI: m).")
+def command(markers_csv, loads_csv, out, thickness_mm, radius_mm, length_mm, specimen_id, notes, force_is, overwrite,
+            as_json):
+    """Build a session from MARKERS_CSV (marker_id,step,x_m,y_m,z_m or x_mm,y_mm,z_mm) and LOADS_CSV
     (step,pressure_Pa|pressure_kPa|pressure_mmHg,axial_force_N,stretch). Step 0 is the reference."""
+    check_parent(out)
     try:
         table = read_markers_csv(markers_csv)
         loads = read_loads_csv(loads_csv)
@@ -95,8 +108,13 @@ def command(markers_csv, loads_csv, out, thickness_mm, radius_mm, length_mm, spe
         )
     except SessionError as exc:
         raise CliError(str(exc)) from None
+    if as_json:
+        print_json({"out": str(out), "result": name, "n_markers": len(table.labels), "n_steps": len(table.steps),
+                    "radius_m": radius, "length_m": length, "thickness_m": thickness_mm * 1e-3,
+                    "load_cell_measures": force_is})
+        return
     console.print(
-        f"Imported {len(table.labels)} markers x {len(table.steps)} steps into [bold]{out}[/] "
-        f"(result {name}; radius {radius * 1e3:.3f} mm, length {length * 1e3:.3f} mm, "
-        f"thickness {thickness_mm:.3f} mm, load cell measures {force_is})."
+        f"Imported {len(table.labels)} markers × {len(table.steps)} steps into [bold]{esc(out)}[/] "
+        f"(result {esc(name)}; radius {radius * 1e3:.3f} mm, length {length * 1e3:.3f} mm, "
+        f"wall thickness {thickness_mm:.3f} mm, load cell measures {force_is} force)."
     )

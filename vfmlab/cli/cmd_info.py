@@ -7,7 +7,7 @@ import numpy as np
 from rich.table import Table
 
 from acquisition.markers_csv import MMHG
-from vfmlab.cli._common import console, print_json
+from vfmlab.cli._common import console, esc, fixed, num, print_json
 from vfmlab.cli._sessions import cli_session
 
 
@@ -42,9 +42,17 @@ def summarise(s) -> dict:
     }
 
 
-@click.command("info")
+EPILOG = """
+\b
+Examples:
+  vfmlab info a1.h5
+  vfmlab info a1.h5 --json | jq .specimen
+"""
+
+
+@click.command("info", epilog=EPILOG)
 @click.argument("session", type=click.Path(dir_okay=False))
-@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON for scripts.")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON (SI units, unit in each key).")
 def command(session, as_json):
     """Summarise SESSION: specimen, steps, instruments, status and derived results."""
     with cli_session(session) as s:
@@ -52,31 +60,43 @@ def command(session, as_json):
     if as_json:
         print_json(info)
         return
+    _print_summary(info)
+
+
+def _print_summary(info: dict) -> None:
     sp = info["specimen"]
-    console.print(f"[bold]{info['path']}[/]  schema {info['schema_version']}  status [bold]{info['status']}[/]")
+    console.print(f"[bold]{esc(info['path'])}[/]  schema {esc(info['schema_version'])}  "
+                  f"status [bold]{esc(info['status'])}[/]  started {esc(_date(info['start_time']))}")
     console.print(
-        f"Specimen {sp['id']}: R = {sp['radius_m'] * 1e3:.3f} mm, L = {sp['length_m'] * 1e3:.3f} mm, "
-        f"e = {sp['thickness_m'] * 1e3:.3f} mm" + (f"  ({sp['notes']})" if sp["notes"] else "")
+        f"Specimen {esc(sp['id'])}: radius {fixed(sp['radius_m'] * 1e3, 3)} mm, length {fixed(sp['length_m'] * 1e3, 3)} mm, "
+        f"wall thickness {fixed(sp['thickness_m'] * 1e3, 3)} mm" + (f"  ({esc(sp['notes'])})" if sp["notes"] else "")
     )
     pmax = info["max_pressure_Pa"]
+    stretches = ", ".join(num(v, 4) for v in info["stretches"]) or "none"
     console.print(
-        f"Steps: {info['n_steps']} ({info['n_active_steps']} active), stretches {info['stretches']}, "
-        + (f"max pressure {pmax / MMHG:.1f} mmHg ({pmax / 1e3:.2f} kPa)" if pmax is not None else "no steps")
+        f"Steps: {info['n_steps']} ({info['n_active_steps']} active), axial stretches L/L0 {stretches}, "
+        + (f"max pressure {fixed(pmax / MMHG, 1)} mmHg ({fixed(pmax / 1e3, 2)} kPa)" if pmax is not None else "no steps")
     )
-    console.print(f"Markers: {info['n_markers']}   log samples: {info['n_log_samples']}")
+    logs = ", ".join(f"{n} {ch}" for ch, n in info["n_log_samples"].items())
+    console.print(f"Markers: {info['n_markers']}   instrument log: {logs} samples")
     for role, inst in info["instruments"].items():
-        if inst["identity"]:
-            console.print(f"{role}: {inst['identity']}")
-    console.print(f"Load cell measures: {info['load_cell_measures']} force")
+        if inst.get("identity"):
+            console.print(f"{role.replace('_', ' ').capitalize()}: {esc(inst['identity'])}")
+    console.print(f"Load cell measures: {esc(info['load_cell_measures'])} force")
     if info["cameras"]:
-        console.print("Cameras: " + ", ".join(f"{c['name']} ({c['model']}, {c['width']}x{c['height']})"
+        console.print("Cameras: " + ", ".join(f"{esc(c['name'])} ({esc(c['model'])}, {c['width']} × {c['height']} px)"
                                               for c in info["cameras"]))
     if info["results"]:
         table = Table(title="Derived results")
-        for col in ("name", "kind", "date", "version"):
+        for col in ("name", "kind", "date (UTC)", "vfmlab version"):
             table.add_column(col)
         for r in info["results"]:
-            table.add_row(r["name"], r["kind"], str(r["date"]), str(r["version"]))
+            table.add_row(esc(r["name"]), esc(r["kind"]), esc(_date(r["date"])), esc(r["version"]))
         console.print(table)
     else:
         console.print("No derived results yet.")
+
+
+def _date(iso: str) -> str:
+    """``2026-11-23T16:18:19.909+00:00`` -> ``2026-11-23 16:18:19`` (ISO 8601, seconds)."""
+    return str(iso)[:19].replace("T", " ") if iso else "–"

@@ -8,7 +8,7 @@ import time
 
 import click
 
-from vfmlab.cli._common import CliError, console, err_console
+from vfmlab.cli._common import CliError, console, err_console, esc, fixed
 
 MMHG_PA = 133.322387415
 
@@ -50,22 +50,31 @@ def _table(sampler, devices, started: float):
         s = sampler.latest(channel)
         st = sampler.status(channel)
         colour = {"ok": "green", "fault": "yellow", "disconnected": "red"}.get(st.state, "white")
-        status = f"[{colour}]{st.state}[/]" + (f" {st.message[:60]}" if st.state != "ok" else "")
+        status = f"[{colour}]{esc(st.state)}[/]" + (f" {esc(st.message[:60])}" if st.state != "ok" else "")
         if channel == "pressure":
             name = "pressure"
-            reading = "-" if s is None else f"{s.value / MMHG_PA:9.2f} mmHg"
-            second = "" if s is None else f"{s.value / 1e3:8.3f} kPa"
+            reading = "-" if s is None else f"{fixed(s.value / MMHG_PA, 2):>9} mmHg"
+            second = "" if s is None else f"{fixed(s.value / 1e3, 3):>8} kPa"
         else:
             name = "force"
-            reading = "-" if s is None else f"{s.value:9.4f} N"
+            reading = "-" if s is None else f"{fixed(s.value, 4):>9} N"
             second = ""
         table.add_row(name, reading, second, status, str(st.n_ok), f"{st.n_ok / elapsed:6.1f} Hz")
     for channel, dev in devices.items():
-        table.caption = (table.caption or "") + f"{channel}: {dev.identity}  (device unit {dev.unit})\n"
+        table.caption = (table.caption or "") + f"{channel}: {esc(dev.identity)}  (device unit {esc(dev.unit)})\n"
     return table
 
 
-@click.command()
+EPILOG = """
+\b
+Examples:
+  vfmlab monitor --pressure /dev/ttyUSB0 --load-cell /dev/ttyUSB1
+  vfmlab monitor --pressure socket://127.0.0.1:5020 --count 10 --json   # 10 samples as JSON lines
+  vfmlab sim-rig          # in another terminal: simulated instruments to try it on
+"""
+
+
+@click.command(epilog=EPILOG)
 @click.option("--pressure", "pressure_port", metavar="PORT",
               help="Pressure transducer/controller (Mensor): /dev/ttyUSB0, COM3, socket://HOST:PORT or "
                    "usb-serial:<USB serial number>.")
@@ -134,7 +143,7 @@ def _monitor(sampler, devices, count, as_json) -> None:
                                float(rec.value[i]), rec.raw[i])
                     click.echo(json.dumps(_record(channel, s, devices[channel].unit)))
         for ev in sampler.drain_events():
-            err_console.print(f"[yellow]{ev.channel}: {ev.kind}[/] {ev.message}", markup=True)
+            err_console.print(f"[yellow]{esc(ev.channel)}: {esc(ev.kind)}[/] {esc(ev.message)}", markup=True)
 
     try:
         with sampler:

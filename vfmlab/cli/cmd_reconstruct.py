@@ -10,7 +10,7 @@ import numpy as np
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from vfmlab.cli._common import CliError, console, err_console, print_json
+from vfmlab.cli._common import CliError, console, err_console, esc, print_json
 
 log = logging.getLogger(__name__)
 
@@ -53,25 +53,34 @@ def session_cameras(session, calibration: Path | None, units: str | None) -> tup
             "at least two session cameras must be calibrated"
         )
     if missing:
-        err_console.print(f"[yellow]Warning:[/] no calibration for camera(s) {missing}; they are ignored.")
+        err_console.print(f"[yellow]Warning:[/] no calibration for camera(s) {esc(', '.join(missing))}; "
+                          "they are ignored.")
     return used, source
 
 
 def _summary_table(res, step_numbers, camera_names) -> Table:
     d = res.diagnostics
-    t = Table(title=f"Markers: {res.visible.shape[1]} tracked identities")
-    for col in ("step", "detected", "reconstructed", "tracked", "lost", "recovered", "reproj. median [px]",
-                "median uncertainty [um]"):
+    t = Table(title=f"Markers: {res.visible.shape[1]} tracked identities (counts of markers per step)")
+    for col in ("step", "detected (all cameras)", "reconstructed", "tracked", "lost", "recovered",
+                "reprojection median (px)", "median uncertainty (mm)"):
         t.add_column(col, justify="right")
     for k, s in enumerate(step_numbers):
         u = res.uncertainty[k][res.visible[k]]
         t.add_row(str(s), str(int(d["detected"][k].sum())), str(int(d["reconstructed"][k])), str(int(d["tracked"][k])),
                   str(int(d["lost"][k])), str(int(d["recovered"][k])), f"{d['reprojection_rms_median'][k]:.3f}",
-                  f"{np.median(u) * 1e6:.2f}" if u.size else "-")
+                  f"{np.median(u) * 1e3:.4f}" if u.size else "–")
     return t
 
 
-@click.command()
+EPILOG = """
+\b
+Examples:
+  vfmlab reconstruct a1.h5
+  vfmlab reconstruct a1.h5 --calibration calibration.toml --marker-diameter-mm 0.4 --json
+"""
+
+
+@click.command(epilog=EPILOG)
 @click.argument("session", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--marker-diameter-mm", type=float, default=None,
               help="Diameter of the spherical markers, mm [default: from the session (import-images), else 0.4].")
@@ -138,6 +147,6 @@ def command(session, marker_diameter_mm, calibration, calibration_units, frame, 
         return
     console.print(_summary_table(res, step_numbers, names))
     rej = ", ".join(f"{k} {v}" for k, v in summary["rejects"].items() if v)
-    console.print(f"Rejected blobs: {rej or 'none'}. Calibration: {source}.")
+    console.print(f"Rejected blobs: {esc(rej or 'none')}. Calibration: {esc(source)}.")
     if stored:
-        console.print(f"Stored as [bold]{stored}[/] in {session}.")
+        console.print(f"Stored as [bold]{esc(stored)}[/] in {esc(session)}.")

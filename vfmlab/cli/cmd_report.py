@@ -7,23 +7,44 @@ from pathlib import Path
 
 import click
 
-from vfmlab.cli._common import CliError, console
+from vfmlab.cli._common import CliError, console, err_console, esc, print_json
+from vfmlab.cli._outputs import check_output_dir
+
+EPILOG = """
+\b
+Examples:
+  vfmlab report a1.h5                          # into a1_report/ next to the session
+  vfmlab report a1.h5 -o reports/a1 --strain-scale per-step --force
+"""
 
 
-@click.command("report")
+@click.command("report", epilog=EPILOG)
 @click.argument("session", type=click.Path(dir_okay=False))
 @click.option("-o", "--out", "out", type=click.Path(file_okay=False),
-              help="Output directory [default: <SESSION stem>_report next to the session].")
-def command(session, out):
+              help="Output directory [default: <SESSION stem>_report next to the session]; its parent must exist.")
+@click.option("--strain-scale", type=click.Choice(["shared", "per-step"]), default="shared", show_default=True,
+              help="Colour scale of the strain and stress maps: one scale for all steps (compare steps) or one per step "
+                   "(detail within a step); the figure says which.")
+@click.option("--force", is_flag=True, help="Overwrite an earlier report in the output directory.")
+@click.option("--json", "as_json", is_flag=True, help="Print the files written as JSON.")
+def command(session, out, strain_scale, force, as_json):
     """Write a self-contained HTML report of SESSION (figures embedded) and the figures as PNG files."""
     from vfmlab.report import ReportError, build_report
 
+    path = Path(session)
+    out_dir = Path(out) if out else path.with_name(path.stem + "_report")
+    earlier = ["report.html"] if (out_dir / "report.html").exists() else []
+    check_output_dir(out_dir, force, will_write=earlier)
     t0 = time.perf_counter()
     try:
-        with console.status("Building the report..."):
-            path = build_report(session, out)
+        with (err_console if as_json else console).status("Building the report..."):
+            html = build_report(session, out_dir, strain_scale=strain_scale)
     except ReportError as exc:
         raise CliError(str(exc)) from None
-    n_fig = len(list(Path(path).parent.glob("fig*.png")))
-    console.print(f"Report written to [bold]{path}[/] ({n_fig} figures in {path.parent}, "
-                  f"{time.perf_counter() - t0:.1f} s). Open it in a browser: file://{path.resolve()}")
+    figures = sorted(Path(html).parent.glob("fig*.png"))
+    if as_json:
+        print_json({"report": str(html), "url": html.resolve().as_uri(), "figures": [str(f) for f in figures],
+                    "seconds": time.perf_counter() - t0})
+        return
+    console.print(f"Report written to [bold]{esc(html)}[/] ({len(figures)} figures in {esc(html.parent)}, "
+                  f"{time.perf_counter() - t0:.1f} s). Open it in a browser: {esc(html.resolve().as_uri())}")

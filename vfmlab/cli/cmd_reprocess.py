@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import click
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-from rich.markup import escape
 from rich.table import Table
 
-from vfmlab.cli._common import CliError, console, err_console, print_json
+from vfmlab.cli._common import CliError, console, err_console, esc, print_json
+from vfmlab.cli._outputs import check_output_path
 
 
 def _split(value: str, name: str, allowed: tuple[str, ...] | None = None) -> list[str]:
@@ -36,7 +36,16 @@ def _parse_set(pairs: tuple[str, ...]) -> dict:
     return out
 
 
-@click.command("reprocess")
+EPILOG = """
+\b
+Examples:
+  vfmlab reprocess a1.h5 a2.h5 a3.h5 --model fung,hgo --summary params.csv
+  vfmlab reprocess data/*.h5 --stages reconstruct,identify --smooth auto --workers 2
+  vfmlab reprocess data/*.h5 --scheduler tcp://10.0.0.5:8786 --json
+"""
+
+
+@click.command("reprocess", epilog=EPILOG)
 @click.argument("sessions", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--stages", default="identify", show_default=True,
               help="Comma-separated stages to re-run, in pipeline order: reconstruct, identify.")
@@ -48,8 +57,9 @@ def _parse_set(pairs: tuple[str, ...]) -> dict:
               help="Boundary of the marked region (identify).")
 @click.option("--optimizer", type=click.Choice(["lsq", "nelder-mead"]), default="lsq", show_default=True,
               help="Optimiser (identify).")
-@click.option("--smooth", default=None, metavar="AXIAL,HARMONICS",
-              help="Smooth the measured displacements before identifying (as 'vfmlab identify --smooth'), e.g. 4,2.")
+@click.option("--smooth", default=None, metavar="AXIAL,HARMONICS|auto",
+              help="Smooth the measured displacements before identifying (as 'vfmlab identify --smooth'): "
+                   "e.g. 4,2, or auto.")
 @click.option("--set", "set_pairs", multiple=True, metavar="KEY=VALUE",
               help="Extra setting for the reconstruct stage (JSON value), repeatable.")
 @click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
@@ -57,9 +67,12 @@ def _parse_set(pairs: tuple[str, ...]) -> dict:
 @click.option("--scheduler", metavar="ADDRESS",
               help="Dask distributed scheduler (e.g. tcp://10.0.0.5:8786): one task per session on the cluster.")
 @click.option("--summary", type=click.Path(dir_okay=False),
-              help="Write a CSV of the identified parameters across sessions (one row per identification).")
+              help="Write a CSV of the identified parameters across sessions (one row per identification; SI, "
+                   "the unit in each column name, e.g. beta_Pa).")
+@click.option("--force", is_flag=True, help="Overwrite the --summary file if it exists.")
 @click.option("--json", "as_json", is_flag=True, help="Print the outcomes as JSON.")
-def command(sessions, stages, models, walls, ends, optimizer, smooth, set_pairs, workers, scheduler, summary, as_json):
+def command(sessions, stages, models, walls, ends, optimizer, smooth, set_pairs, workers, scheduler, summary, force,
+            as_json):
     """Re-run STAGES on each SESSION with the given settings, appending new results (nothing is overwritten).
 
     A session that fails (corrupt file, missing markers, failed fit) is reported and the others go on;
@@ -69,14 +82,19 @@ def command(sessions, stages, models, walls, ends, optimizer, smooth, set_pairs,
     from vfmlab.reprocess import plan_runs, reprocess, write_summary
 
     stage_list = _split(stages, "--stages", tuple(STAGES))
+    if summary:
+        check_output_path(summary, force, inputs=sessions, option="--summary")
     smoothing = None
-    if smooth:
+    if smooth == "auto":
+        smoothing = "auto"
+    elif smooth:
         try:
             smoothing = [int(v) for v in smooth.split(",")]
             if len(smoothing) != 2 or min(smoothing) < 0:
                 raise ValueError
         except ValueError:
-            raise CliError(f"--smooth must be two non-negative integers AXIAL,HARMONICS like 4,2; got {smooth!r}") from None
+            raise CliError(f"--smooth must be 'auto' or two non-negative integers AXIAL,HARMONICS like 4,2; "
+                           f"got {smooth!r}") from None
     try:
         runs = plan_runs(stage_list, models=_split(models, "--model", ("fung", "delfino", "hgo", "neohookean")),
                          walls=_split(walls, "--wall", ("membrane", "thick")),
@@ -86,7 +104,7 @@ def command(sessions, stages, models, walls, ends, optimizer, smooth, set_pairs,
         raise CliError(f"--set: {exc}" if set_pairs else str(exc)) from None
     where = f"Dask scheduler {scheduler}" if scheduler else (f"{workers} worker processes" if workers > 1 else "serially")
     if not as_json:
-        console.print(f"Reprocessing {len(sessions)} session(s) {where}: " + "; ".join(r.label() for r in runs))
+        console.print(f"Reprocessing {len(sessions)} session(s) {esc(where)}: " + esc("; ".join(r.label() for r in runs)))
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                   console=err_console, transient=True, disable=as_json) as progress:
         task = progress.add_task("sessions", total=len(set(sessions)))
@@ -95,7 +113,7 @@ def command(sessions, stages, models, walls, ends, optimizer, smooth, set_pairs,
             progress.advance(task)
             if not outcome.ok and not as_json:
                 for err in outcome.errors:
-                    err_console.print(f"[red]failed:[/] {escape(err)}", soft_wrap=True)
+                    err_console.print(f"[red]failed:[/] {esc(err)}")
 
         try:
             outcomes = reprocess(sessions, runs, workers=workers, scheduler=scheduler, on_done=on_done)
@@ -107,15 +125,15 @@ def command(sessions, stages, models, walls, ends, optimizer, smooth, set_pairs,
         print_json({"outcomes": [o.to_dict() for o in outcomes], "summary": summary})
     else:
         table = Table(title="Reprocessing")
-        for col in ("session", "specimen", "new results", "seconds", "status"):
+        for col in ("session", "specimen", "new results", "time (s)", "status"):
             table.add_column(col, overflow="fold")
         for o in outcomes:
-            table.add_row(escape(o.path), escape(o.specimen), ", ".join(o.results) or "–", f"{o.seconds:.1f}",
+            table.add_row(esc(o.path), esc(o.specimen), esc(", ".join(o.results) or "–"), f"{o.seconds:.1f}",
                           "ok" if o.ok else f"[red]{len(o.errors)} error(s)[/]")
         console.print(table)
         n_bad = sum(not o.ok for o in outcomes)
         console.print(f"{len(outcomes) - n_bad} of {len(outcomes)} sessions processed without error."
-                      + (f" Summary: {path}" if summary else ""))
+                      + (f" Summary: {esc(path)}" if summary else ""))
     n_bad = sum(not o.ok for o in outcomes)
     if n_bad:
         raise CliError(f"{n_bad} of {len(outcomes)} session(s) failed; the others were processed (see above)")

@@ -2,42 +2,36 @@
 
 from __future__ import annotations
 
-import json
-
 import click
-from rich.markup import escape
 from rich.table import Table
 
 from acquisition.session import SessionError
-from vfmlab.cli._common import CliError, console, print_json
+from vfmlab.cli._common import CliError, console, esc, num, print_json, quantity
+from vfmlab.display import settings_text
 from vfmlab.cli._sessions import cli_session
 
 
 KEY_SETTINGS = {"identification": ("optimizer", "ends", "markers_result")}
 
 
-def _settings_text(kind: str, settings: dict, limit: int = 120) -> str:
-    keys = KEY_SETTINGS.get(kind)
-    items = [(k, settings[k]) for k in keys if k in settings] if keys else sorted(settings.items())
-    text = ", ".join(f"{k}={v}" if isinstance(v, str) else f"{k}={json.dumps(v)}" for k, v in items)
-    return text if len(text) <= limit else text[: limit - 1] + "…"
+def _settings_text(kind: str, settings: dict) -> str:
+    return settings_text(settings, KEY_SETTINGS.get(kind))  # --json or --compare show every setting
 
 
-def _num(value) -> str:
-    if value is None:
-        return "–"
-    try:
-        value = float(value)
-    except (TypeError, ValueError):
-        return str(value)
-    return "–" if value != value else f"{value:.4g}"
+EPILOG = """
+\b
+Examples:
+  vfmlab results a1.h5
+  vfmlab results a1.h5 --kind identification --json
+  vfmlab results a1.h5 --compare identification_001 identification_002
+"""
 
 
-@click.command("results")
+@click.command("results", epilog=EPILOG)
 @click.argument("session", type=click.Path(dir_okay=False))
 @click.option("--kind", help="Only results of this kind (calibration, markers, identification, ...).")
 @click.option("--compare", nargs=2, metavar="A B", help="Compare two results by name, e.g. identification_001 identification_002.")
-@click.option("--json", "as_json", is_flag=True, help="Machine-readable JSON on stdout.")
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable JSON on stdout (SI; each parameter has its unit).")
 def command(session, kind, compare, as_json):
     """List the results stored in SESSION (name, kind, date, version, settings; identified parameters),
     or compare two of them (settings diff and differences of their parameters)."""
@@ -58,43 +52,46 @@ def command(session, kind, compare, as_json):
         _print_comparison(data)
         return
     if not data:
-        console.print(f"{session}: no results{' of kind ' + kind if kind else ''} yet.")
+        console.print(f"{esc(session)}: no results{' of kind ' + esc(kind) if kind else ''} yet.")
         return
-    console.print(f"[bold]{escape(str(session))}[/]: {len(data)} result(s), oldest first")
+    console.print(f"[bold]{esc(session)}[/]: {len(data)} result(s), oldest first")
     for row in data:
-        console.print(f"[bold cyan]{row['name']}[/]  {row['date'][:19].replace('T', ' ')} UTC  "
-                      f"vfmlab {escape(row['version'])}", soft_wrap=True)
-        console.print(f"    settings: {escape(_settings_text(row['kind'], row['settings']))}", soft_wrap=True)
-        if row["kind"] == "identification":
-            params = ", ".join(f"{n} = {_num(p['value'])} ± {_num(p['stderr'])}" for n, p in row["parameters"].items())
-            state = "converged" if row["converged"] else "[red]NOT converged[/]"
-            console.print(f"    {row['model']} ({row['wall']}), cost {_num(row['cost'])}, {state}: {params}",
-                          soft_wrap=True)
-            flags = row["flags"] if isinstance(row["flags"], list) else [f"{k}: {v}" for k, v in row["flags"].items()]
-            for flag in flags:
-                console.print(f"    [yellow]warning:[/] {escape(str(flag))}", soft_wrap=True)
-        elif row["kind"] == "markers" and "n_markers" in row:
-            console.print(f"    {row['n_markers']} markers × {row['n_steps']} steps, "
-                          f"{row['completeness'] * 100:.1f} % of marker-steps reconstructed")
-        elif row["kind"] == "calibration" and "rms_px" in row:
-            console.print(f"    {len(row['rms_px'])} cameras, reprojection RMS "
-                          + ", ".join(f"{c} {v:.3f}" for c, v in zip(row["cameras"], row["rms_px"])) + " px",
-                          soft_wrap=True)
+        _print_row(row)
+
+
+def _print_row(row: dict) -> None:
+    console.print(f"[bold cyan]{esc(row['name'])}[/]  {esc(row['date'][:19].replace('T', ' '))} UTC  "
+                  f"vfmlab {esc(row['version'])}")
+    console.print(f"    settings: {esc(_settings_text(row['kind'], row['settings']))}")
+    if row["kind"] == "identification":
+        params = ", ".join(f"{esc(n)} = {quantity(p['value'], p['unit'])} ± {quantity(p['stderr'], p['unit'], 2)}"
+                           for n, p in row["parameters"].items())
+        state = "converged" if row["converged"] else "[red]NOT converged[/]"
+        console.print(f"    {esc(row['model'])} ({esc(row['wall'])}), cost {num(row['cost'], 3)}, {state}: {params}")
+        flags = row["flags"] if isinstance(row["flags"], list) else [f"{k}: {v}" for k, v in row["flags"].items()]
+        for flag in flags:
+            console.print(f"    [yellow]warning:[/] {esc(flag)}")
+    elif row["kind"] == "markers" and "n_markers" in row:
+        console.print(f"    {row['n_markers']} markers × {row['n_steps']} steps, "
+                      f"{row['completeness'] * 100:.1f} % of marker-steps reconstructed")
+    elif row["kind"] == "calibration" and "rms_px" in row:
+        console.print(f"    {len(row['rms_px'])} cameras, reprojection RMS "
+                      + ", ".join(f"{esc(c)} {v:.3f} px" for c, v in zip(row["cameras"], row["rms_px"])))
 
 
 def _print_comparison(data: dict) -> None:
-    a, b = data["a"]["name"], data["b"]["name"]
-    console.print(f"[bold]{a}[/] ({data['a']['kind']}, {data['a']['date'][:19]}) vs "
-                  f"[bold]{b}[/] ({data['b']['kind']}, {data['b']['date'][:19]})")
+    a, b = esc(data["a"]["name"]), esc(data["b"]["name"])
+    console.print(f"[bold]{a}[/] ({esc(data['a']['kind'])}, {esc(data['a']['date'][:19])}) vs "
+                  f"[bold]{b}[/] ({esc(data['b']['kind'])}, {esc(data['b']['date'][:19])})")
     if data.get("note"):
-        console.print(data["note"])
+        console.print(esc(data["note"]))
     diffs = {**data["settings_diff"], **{f"@{k}": v for k, v in data["attrs_diff"].items()}}
     if diffs:
         t = Table(title="Settings that differ")
         for col in ("setting", a, b):
             t.add_column(col)
         for k, v in diffs.items():
-            t.add_row(k, json.dumps(v["a"], default=str), json.dumps(v["b"], default=str))
+            t.add_row(esc(k), esc(settings_text({"": v["a"]})[1:]), esc(settings_text({"": v["b"]})[1:]))
         console.print(t)
     else:
         console.print("Same settings.")
@@ -104,12 +101,14 @@ def _print_comparison(data: dict) -> None:
             t.add_column(col, justify="right")
         for n, r in data["parameters"].items():
             rel = "–" if r["rel_diff"] != r["rel_diff"] else f"{r['rel_diff'] * 100:+.2f} %"
-            t.add_row(n, _num(r["a"]), _num(r["b"]), _num(r["diff"]), rel, _num(r["diff_over_stderr"]))
+            unit = r.get("unit", "")
+            t.add_row(esc(n), quantity(r["a"], unit), quantity(r["b"], unit), quantity(r["diff"], unit), rel,
+                      num(r["diff_over_stderr"], 3))
         console.print(t)
     if "positions" in data:
         p = data["positions"]
         if "note" in p:
-            console.print(p["note"])
+            console.print(esc(p["note"]))
         else:
             console.print(f"Marker positions: {p['common_marker_steps']} marker-steps in both; RMS distance "
                           f"{p['rms_distance_m'] * 1e3:.4f} mm, max {p['max_distance_m'] * 1e3:.4f} mm.")

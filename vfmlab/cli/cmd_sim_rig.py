@@ -9,12 +9,20 @@ import time
 
 import click
 
-from vfmlab.cli._common import console
+from vfmlab.cli._common import console, esc
 
 MMHG_PA = 133.322387415
 
 
-@click.command()
+EPILOG = """
+\b
+Examples:
+  vfmlab sim-rig                           # then: vfmlab monitor --pressure PORT --load-cell PORT
+  vfmlab sim-rig --manual --pressure-mmhg 80 --stretch 1.2 --json --duration 60
+"""
+
+
+@click.command(epilog=EPILOG)
 @click.option("--socket", "use_socket", is_flag=True,
               help="Serve on socket://127.0.0.1:PORT instead of pseudo-terminals.")
 @click.option("--manual", is_flag=True,
@@ -57,10 +65,10 @@ def command(use_socket, manual, pressure_mmhg, stretch, load_cell_measures, seed
                                    "load_cell_device": rig.device_path("force")}))
         else:
             kind = "CPG2500 indicator (manual pressure)" if manual else "CPC6050 controller"
-            console.print(f"pressure  (Mensor {kind}, s/n {rig.pressure_serial}): {rig.pressure_port}")
-            console.print(f"load cell (Mark-10 M5-20, s/n {rig.load_cell_serial}): {rig.load_cell_port}")
-            console.print(f"\ntry:  vfmlab monitor --pressure {rig.pressure_port} "
-                          f"--load-cell {rig.load_cell_port}\n\nCtrl-C to stop.")
+            console.print(f"pressure  (Mensor {kind}, s/n {esc(rig.pressure_serial)}): {esc(rig.pressure_port)}")
+            console.print(f"load cell (Mark-10 M5-20, s/n {esc(rig.load_cell_serial)}): {esc(rig.load_cell_port)}")
+            console.print(f"\ntry:  vfmlab monitor --pressure {esc(rig.pressure_port)} "
+                          f"--load-cell {esc(rig.load_cell_port)}\n\nCtrl-C to stop.")
         t_end = None if duration is None else time.monotonic() + duration
         previous = _stop_on_sigterm()
         try:

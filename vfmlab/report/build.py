@@ -5,7 +5,6 @@ from __future__ import annotations
 import base64
 import datetime as _dt
 import html
-import json
 import logging
 import time
 from collections.abc import Callable
@@ -17,8 +16,10 @@ import numpy as np
 
 from acquisition.session import Session, open_session
 from vfmlab import __version__
+from vfmlab.display import display_quantity, fixed, num, quantity, settings_text
 from vfmlab.fields import FieldsError, SurfaceFields, compute_fields, stress_strain_curves
 from vfmlab.report import figures
+from vfmlab.results import parameter_units
 
 log = logging.getLogger(__name__)
 
@@ -47,6 +48,7 @@ class ReportError(Exception):
 @dataclass
 class _Report:
     out_dir: Path
+    strain_scale: str = "shared"  # colour scale of the surface maps: "shared" by all steps or "per-step"
     sections: list[tuple[str, str, str]] = field(default_factory=list)  # (anchor, title, body html)
     figures: list[Path] = field(default_factory=list)
     timings: dict[str, float] = field(default_factory=dict)
@@ -81,10 +83,13 @@ class _Raw(str):
     """Already-escaped HTML for a table cell."""
 
 
+_SCALE_WORDS = {True: "one colour scale shared by all steps: colours compare across steps",
+                False: "one colour scale per step: colours compare within a step only (see each colour bar)"}
+_SCALE_WORDS_BY_NAME = {"shared": True, "per-step": False}
+
+
 def _fmt(value: float, digits: int = 4) -> str:
-    if value is None or not np.isfinite(value):
-        return "–"
-    return f"{value:.{digits}g}"
+    return num(value, digits)
 
 
 class _Context:
@@ -157,7 +162,7 @@ def _sec_instruments(ctx: _Context, rep: _Report) -> str:
     s = ctx.session
     rows = []
     for role, info in s.instruments.items():
-        settings = json.dumps(info["settings"], sort_keys=True) if info["settings"] else "–"
+        settings = settings_text(info["settings"]) if info["settings"] else "–"
         rows.append([role, info["identity"] or "–", settings])
     out = [_table(["instrument", "identity", "settings read back"], rows)]
     out.append(f"<p>The load cell measures the <b>{html.escape(s.load_cell_measures)}</b> force "
@@ -240,11 +245,13 @@ def _sec_strain(ctx: _Context, rep: _Report) -> str:
     shown = figures.map_steps(len(f.positions))
     if len(shown) < len(f.positions) - 1:
         out.append(f"<p>{len(shown)} of {len(f.positions) - 1} loaded steps are shown.</p>")
+    shared = rep.strain_scale == "shared"
+    out.append(f"<p>Colour scale: {_SCALE_WORDS[shared]}.</p>")
     for comp, name in (("E11", "circumferential"), ("E22", "axial")):
         fig = figures.surface_maps(f, f.kin[comp], title=f"{comp}: {name} strain", label=f"{comp} (%)", scale=100,
-                                    min_span=0.05)
+                                    min_span=0.05, shared=shared)
         out.append(rep.figure(fig, f"strain_{comp}", f"{name.capitalize()} Green–Lagrange strain {comp} at each step "
-                                                     "(paper Fig. 3)."))
+                                                     f"(paper Fig. 3); {_SCALE_WORDS[shared].split(':')[0]}."))
     return "".join(out)
 
 
@@ -258,12 +265,15 @@ def _sec_stress(ctx: _Context, rep: _Report) -> str:
     if not f.stress:
         return _absent("The identified models' stresses could not be evaluated (the identification package's "
                        "constitutive models are not available for these results).")
-    out = ["<p>Cauchy stresses of each identified model evaluated on the measured strains (paper Fig. 4).</p>"]
+    shared = rep.strain_scale == "shared"
+    out = ["<p>Cauchy stresses of each identified model evaluated on the measured strains (paper Fig. 4). "
+           f"Colour scale: {_SCALE_WORDS[shared]}.</p>"]
     for name, st in f.stress.items():
         for comp, label in (("s11", "circumferential σθθ"), ("s22", "axial σzz")):
             fig = figures.surface_maps(f, st[comp], title=f"{name} ({st['model']}): {label}",
-                                       label=f"{label.split()[1]} (kPa)", scale=1e-3, min_span=0.1)
-            out.append(rep.figure(fig, f"stress_{name}_{comp}", f"{label} from {name} ({st['model']})."))
+                                       label=f"{label.split()[1]} (kPa)", scale=1e-3, min_span=0.1, shared=shared)
+            out.append(rep.figure(fig, f"stress_{name}_{comp}", f"{label} from {name} ({st['model']}); "
+                                                                 f"{_SCALE_WORDS[shared].split(':')[0]}."))
     return "".join(out)
 
 
@@ -292,7 +302,7 @@ def _sec_pressure_radius(ctx: _Context, rep: _Report) -> str:
     out = [rep.figure(figures.pressure_radius(f.pressure, r, f.stretch), "pressure_radius",
                       "Pressure against the mean radius of the mid-span markers (middle 20 % of the marked length).")]
     out.append(_table(["step", "pressure (mmHg)", "λz", "mid-span radius (mm)"],
-                      [[k, f"{p / figures.MMHG:.1f}", f"{s:.3f}", _fmt(ri * 1e3, 5)]
+                      [[k, fixed(p / figures.MMHG, 1), f"{s:.3f}", _fmt(ri * 1e3, 5)]
                        for k, (p, s, ri) in enumerate(zip(f.pressure, f.stretch, r))], numeric={0, 1, 2, 3}))
     return "".join(out)
 
@@ -310,8 +320,9 @@ def _sec_stress_strain(ctx: _Context, rep: _Report) -> str:
     if not c["models"]:
         out.append(_absent("No identified model is available; only the Laplace-law estimates are shown."))
     out.append(rep.figure(figures.stress_strain({"E11": c["E11"], "E22": c["E22"]}, c, c["models"], f.stretch),
-                          "stress_strain", "Mean mid-span stress against strain: identified models against the "
-                                           "Laplace-law estimates (paper Fig. 8)."))
+                          "stress_strain", "Mean mid-span stress against strain: identified models evaluated along "
+                                           "the measured path (the measured circumferential and axial strains of "
+                                           "each step) against the Laplace-law estimates (paper Fig. 8)."))
     return "".join(out)
 
 
@@ -340,20 +351,17 @@ def _sec_parameters(ctx: _Context, rep: _Report) -> str:
         values = np.asarray(a.get("parameters", []), float)
         stderr = np.asarray(a.get("stderr", np.full(len(values), np.nan)), float)
         flags = r["attrs"].get("flags", {}) or {}
-        settings = ", ".join(f"{k}={v}" for k, v in sorted(r["parameters"].items()))
+        settings = settings_text(r["parameters"])
         out.append(f"<h3>{html.escape(r['name'])}: {html.escape(row['model'])} ({html.escape(row['wall'])})</h3>")
         out.append(f"<p>Settings: <code>{html.escape(settings) or '–'}</code>; cost {_fmt(row['cost'])}; "
                    f"{'converged' if row['converged'] else '<b>did not converge</b>'}; vfmlab "
                    f"{html.escape(str(r['attrs'].get('version', '?')))}, {html.escape(str(r['attrs'].get('date', '')))}.</p>")
         tab = []
-        for i, n in enumerate(names):
-            unit = _param_unit(row["model"], n)
+        for i, (n, si_unit) in enumerate(zip(names, parameter_units(row["model"], names))):
             rel = stderr[i] / abs(values[i]) * 100 if values[i] else np.nan
-            shown, err = values[i], stderr[i]
-            if unit == "Pa":  # SI inside, kPa / degrees on the page
-                shown, err, unit = shown / 1e3, err / 1e3, "kPa"
-            elif unit == "rad":
-                shown, err, unit = np.degrees(shown), np.degrees(err), "deg"
+            shown, unit = display_quantity(values[i], si_unit)  # SI inside, kPa / degrees on the page
+            err, _ = display_quantity(stderr[i], si_unit)
+            unit = unit or "–"
             if isinstance(flags, dict):
                 flag = flags.get(n, "")
             else:  # plain-words flags: those about this parameter, shortened to their first clause
@@ -380,18 +388,6 @@ def _sec_parameters(ctx: _Context, rep: _Report) -> str:
     return "".join(out)
 
 
-def _param_unit(model: str, name: str) -> str:
-    try:
-        from identification.models import get_model
-    except ImportError:
-        return "Pa" if name in ("beta", "c", "k1", "mu") else ("rad" if name == "phi" else "–")
-    try:
-        m = get_model(model)
-        return m.units[m.parameter_names.index(name)]
-    except (ValueError, IndexError):
-        return "?"
-
-
 def _sec_comparison(ctx: _Context, rep: _Report) -> str:
     rows = _ident_rows(ctx)
     if len(rows) < 2:
@@ -405,8 +401,9 @@ def _sec_comparison(ctx: _Context, rep: _Report) -> str:
     for row in rows:
         a = row["result"]["arrays"]
         vals = dict(zip([str(n) for n in a.get("parameter_names", [])], np.asarray(a.get("parameters", []), float)))
+        units = dict(zip(vals, parameter_units(row["model"], list(vals))))
         tab.append([row["name"], row["model"], row["wall"], _fmt(row["cost"]), "yes" if row["converged"] else "no"]
-                   + [_fmt(vals[n]) if n in vals else "" for n in all_names])
+                   + [quantity(vals[n], units[n]) if n in vals else "" for n in all_names])
     best = min((r for r in rows if r["cost"] is not None), key=lambda r: r["cost"], default=None)
     out = [_table(["result", "model", "wall", "cost", "converged"] + all_names, tab, numeric=set(range(3, 5 + len(all_names))))]
     if best is not None:
@@ -424,7 +421,7 @@ def _sec_provenance(ctx: _Context, rep: _Report) -> str:
     for name in s.results():
         r = s.result(name)
         rows.append([name, r["kind"], str(r["attrs"].get("date", "")), str(r["attrs"].get("version", "")),
-                     json.dumps(r["parameters"], sort_keys=True)[:200]])
+                     settings_text(r["parameters"])])
     out = [_table(["result", "kind", "date", "vfmlab version", "settings"], rows) if rows else
            _absent("No derived result is stored.")]
     if ctx.fields is not None:
@@ -450,13 +447,15 @@ _SECTIONS: list[tuple[str, str, Callable[[_Context, _Report], str]]] = [
 ]
 
 
-def build_report(session_path: str | Path, out_dir: str | Path | None = None) -> Path:
+def build_report(session_path: str | Path, out_dir: str | Path | None = None, *, strain_scale: str = "shared") -> Path:
     """Write ``report.html`` (self-contained: figures embedded as PNG) and the figure PNGs into ``out_dir``.
 
     Parameters
     ----------
     session_path : path of the session file.
-    out_dir : output directory (created); default ``<session stem>_report`` next to the session.
+    out_dir : output directory (created; its parent must exist); default ``<session stem>_report`` next to the
+        session.
+    strain_scale : "shared" (one colour scale for all steps of a surface map) or "per-step".
 
     Returns
     -------
@@ -472,14 +471,16 @@ def build_report(session_path: str | Path, out_dir: str | Path | None = None) ->
     session_path = Path(session_path)
     out = Path(out_dir) if out_dir is not None else session_path.with_name(session_path.stem + "_report")
     try:
-        out.mkdir(parents=True, exist_ok=True)
+        out.mkdir(exist_ok=True)  # the CLI checked that its parent exists
     except OSError as exc:
         raise ReportError(f"cannot create the report directory {out}: {exc}") from None
     try:
         session = open_session(session_path)
     except SessionError as exc:
         raise ReportError(str(exc)) from None
-    rep = _Report(out)
+    if strain_scale not in _SCALE_WORDS_BY_NAME:
+        raise ReportError(f"strain_scale must be one of {', '.join(_SCALE_WORDS_BY_NAME)}; got {strain_scale!r}")
+    rep = _Report(out, strain_scale=strain_scale)
     with session:
         t0 = time.perf_counter()
         ctx = _Context(session)

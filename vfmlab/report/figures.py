@@ -18,6 +18,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator, ScalarFormatter
 from matplotlib.tri import Triangulation
 
+from vfmlab.display import fixed
 from vfmlab.fields import SurfaceFields
 
 MMHG = 133.322387415
@@ -31,7 +32,7 @@ def _figure(width: float, height: float) -> Figure:
 
 
 def _step_label(pressure: float, stretch: float) -> str:
-    return f"{pressure / MMHG:.0f} mmHg, λz {stretch:.3f}"
+    return f"{fixed(pressure / MMHG, 0)} mmHg, λz {stretch:.3f}"
 
 
 def calibration_rms(camera_names: Sequence[str], rms: np.ndarray, per_view: np.ndarray | None = None) -> Figure:
@@ -196,11 +197,13 @@ def map_steps(n_steps: int) -> np.ndarray:
 
 
 def surface_maps(fields: SurfaceFields, values: np.ndarray, *, title: str, label: str, scale: float,
-                 diverging: bool = False, min_span: float = 0.0) -> Figure:
+                 diverging: bool = False, min_span: float = 0.0, shared: bool = True) -> Figure:
     """Small multiples of a per-triangle quantity ``values`` (n_steps, n_tri) on the unrolled surface.
 
-    Each panel has its own colour scale (1st-99th percentile of that step) so that the spatial
-    distribution stays visible at every pressure; the panel's range is on its colorbar.
+    ``shared``: one colour scale for every panel (1st-99th percentile over all shown steps), so that
+    steps compare and noise of a fraction of a percent does not look like structure; otherwise each
+    panel has its own scale (1st-99th percentile of that step, at least ``min_span`` wide), which shows
+    the spatial distribution within a step. The title says which is used.
     """
     steps = map_steps(len(values))
     ncols = min(3, len(steps))
@@ -214,6 +217,7 @@ def surface_maps(fields: SurfaceFields, values: np.ndarray, *, title: str, label
     # Manual layout (constrained layout costs more than drawing for these small multiples).
     fig = Figure(figsize=(width, height), dpi=110)
     v = values[steps] * scale
+    common = _limits(v, min_span) if shared else None
     axes = []
     for i, (k, vk) in enumerate(zip(steps, v)):
         row, col = divmod(i, ncols)
@@ -222,7 +226,7 @@ def surface_maps(fields: SurfaceFields, values: np.ndarray, *, title: str, label
         ax = fig.add_axes((left / width, bottom / height, panel_w / width, panel_h / height))
         cax = fig.add_axes(((left + panel_w + 0.08) / width, bottom / height, 0.1 / width, panel_h / height))
         axes.append(ax)
-        lo, hi = _limits(vk, min_span)
+        lo, hi = common if shared else _limits(vk, min_span)
         if diverging and lo < 0 < hi:
             norm, cmap = TwoSlopeNorm(0.0, lo, hi), colormaps["RdBu_r"]
         else:
@@ -246,7 +250,8 @@ def surface_maps(fields: SurfaceFields, values: np.ndarray, *, title: str, label
         cb.update_ticks()
         cb.ax.tick_params(labelsize=7)
         cb.set_label(label, fontsize=8)
-    fig.suptitle(f"{title} (grey: triangle not measured)", y=1 - 0.15 / height, va="top")
+    which = "one colour scale for all steps" if shared else "colour scale per step"
+    fig.suptitle(f"{title} ({which}; grey: triangle not measured)", y=1 - 0.15 / height, va="top")
     return fig
 
 
@@ -314,7 +319,8 @@ def stress_strain(strain: Mapping[str, np.ndarray], laplace: Mapping[str, np.nda
     """Mean Cauchy stress (kPa) against mean Green-Lagrange strain (%), circumferential and axial.
 
     ``strain``: E11, E22 (n_steps,); ``laplace``: s11, s22 (n_steps,) global-equilibrium estimates;
-    ``models``: {label: {"s11", "s22"} (n_steps,)} median model stresses over the mid-span triangles;
+    ``models``: {label: {"s11", "s22"} (n_steps,)} model stresses at the measured strains of each step (both
+    E11 and E22: the loading path), drawn in loading order for every stretch;
     ``stretch`` (n_steps,) imposed axial stretch (one curve per stretch).
     """
     fig = _figure(9.0, 3.8)
@@ -322,8 +328,7 @@ def stress_strain(strain: Mapping[str, np.ndarray], laplace: Mapping[str, np.nda
     for ax, (e, s, name) in zip(axes, (("E11", "s11", "circumferential"), ("E22", "s22", "axial"))):
         groups = np.unique(np.round(stretch, 4))
         for g, lam in enumerate(groups):
-            sel = np.flatnonzero(np.round(stretch, 4) == lam)
-            sel = sel[np.argsort(strain[e][sel])]
+            sel = np.flatnonzero(np.round(stretch, 4) == lam)  # in loading order: the path the specimen took
             label = "reference" if len(sel) == 1 and lam == 1.0 else f"Laplace law, λz {lam:.3f}"
             ax.plot(strain[e][sel] * 100, laplace[s][sel] / 1e3, ls="none", color="k", mfc="none",
                     marker="*" if label == "reference" else "os^vD"[g % 5], label=label)
@@ -335,7 +340,7 @@ def stress_strain(strain: Mapping[str, np.ndarray], laplace: Mapping[str, np.nda
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
         ax.set_title(f"{name.capitalize()} direction")
-    fig.suptitle("Stress–strain at mid-span: identified models vs Laplace-law estimates")
+    fig.suptitle("Stress–strain at mid-span: identified models along the measured path vs Laplace-law estimates")
     return fig
 
 

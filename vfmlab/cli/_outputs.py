@@ -1,0 +1,78 @@
+"""Where commands write: one check for every output path (``-o/--out``, ``--summary``).
+
+The grammar (docs/decisions/0004-cli-and-console.md): an output path's folder must already exist
+(nothing creates missing folders behind the operator's back); a session file or one of the command's
+own inputs is never overwritten; any other existing file is overwritten only with ``--force``.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Iterable
+
+from vfmlab.cli._common import CliError
+
+_HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+
+
+def _is_hdf5(path: Path) -> bool:
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(8) == _HDF5_SIGNATURE
+    except OSError:
+        return False
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def check_parent(path: str | os.PathLike, option: str = "--out") -> Path:
+    """``path`` as a Path, or a CliError when the folder it goes into does not exist (nothing creates it)."""
+    path = Path(path)
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        raise CliError(f"{option} {path}: the folder {parent} does not exist; create it first")
+    return path
+
+
+def check_output_path(path: str | os.PathLike, force: bool, inputs: Iterable[str | os.PathLike] = (),
+                      option: str = "--out") -> Path:
+    """Check that the file ``path`` may be written; returns it as a Path or raises CliError.
+
+    Refused: a missing parent folder, an existing folder, one of ``inputs``, an HDF5 (session) file;
+    an existing other file unless ``force``.
+    """
+    path = check_parent(path, option)
+    if path.is_dir():
+        raise CliError(f"{option} {path}: is a folder; give a file name")
+    if not path.exists():
+        return path
+    if any(_same_file(path, Path(p)) for p in inputs):
+        raise CliError(f"{option} {path}: is an input of this command; refusing to overwrite it")
+    if _is_hdf5(path):
+        raise CliError(f"{option} {path}: is an HDF5 session file; vfmlab never overwrites a session")
+    if not force:
+        raise CliError(f"{option} {path}: file exists; pass --force to overwrite it")
+    return path
+
+
+def check_output_dir(path: str | os.PathLike, force: bool, will_write: Iterable[str] = (),
+                     option: str = "--out") -> Path:
+    """Check that the folder ``path`` may receive this command's files; returns it or raises CliError.
+
+    The folder itself may be new, but its parent must exist. Files named in ``will_write`` that
+    already exist in it are overwritten only with ``force``.
+    """
+    path = check_parent(path, option)
+    if path.exists() and not path.is_dir():
+        raise CliError(f"{option} {path}: is a file; give a folder")
+    existing = [name for name in will_write if (path / name).exists()]
+    if existing and not force:
+        shown = ", ".join(existing[:3]) + (" …" if len(existing) > 3 else "")
+        raise CliError(f"{option} {path}: already holds {shown}; pass --force to overwrite, or choose another folder")
+    return path

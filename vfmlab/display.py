@@ -1,0 +1,84 @@
+"""Numbers as people read them: rounded, with their unit, never ``-0`` (shared by the CLI, live view, report).
+
+SI inside (docs/decisions/0001-units.md); these helpers are the edge: Pa -> kPa, rad -> degrees,
+m -> mm, and a fixed number of significant digits, so ``0.0013000000000000002`` prints as ``0.0013``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+__all__ = ["num", "fixed", "display_quantity", "quantity", "settings_text"]
+
+
+def num(value: Any, digits: int = 4) -> str:
+    """A number rounded to ``digits`` significant digits for people: no ``-0``, ``–`` for missing/NaN.
+
+    >>> num(0.0013000000000000002), num(-0.0), num(float("nan")), num(101325.0)
+    ('0.0013', '0', '–', '1.013e+05')
+    """
+    if value is None:
+        return "–"
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        return str(value)
+    if not math.isfinite(value):
+        return "–" if math.isnan(value) else ("∞" if value > 0 else "-∞")
+    text = f"{value:.{digits}g}"
+    return "0" if float(text) == 0 else text
+
+
+def fixed(value: Any, decimals: int) -> str:
+    """``value`` with ``decimals`` decimals, never ``-0.0`` (a reading of -0.04 mmHg shows as 0.0)."""
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        return "–"
+    if not math.isfinite(value):
+        return "–"
+    text = f"{value:.{decimals}f}"
+    return text.lstrip("-") if float(text) == 0 else text
+
+
+def display_quantity(value: Any, unit: str) -> tuple[float, str]:
+    """An SI value as people read it: Pa -> kPa, rad -> deg, m -> mm; "1" (dimensionless) -> "".
+
+    >>> display_quantity(6580.0, "Pa"), display_quantity(0.5, "rad")[1], display_quantity(2.0, "1")
+    ((6.58, 'kPa'), 'deg', (2.0, ''))
+    """
+    scale, shown = {"Pa": (1e-3, "kPa"), "rad": (180.0 / math.pi, "deg"), "m": (1e3, "mm"),
+                    "1": (1.0, "")}.get(unit, (1.0, unit))
+    try:
+        return float(value) * scale, shown
+    except (TypeError, ValueError):
+        return float("nan"), shown
+
+
+def quantity(value: Any, unit: str, digits: int = 4) -> str:
+    """``quantity(6580.0, "Pa")`` -> ``'6.58 kPa'``: the value in display units with its unit."""
+    shown, label = display_quantity(value, unit)
+    return "–" if not math.isfinite(shown) else f"{num(shown, digits)} {label}".rstrip()
+
+
+def settings_text(settings: dict, keys: tuple[str, ...] | None = None) -> str:
+    """``key=value, ...`` of stored settings for people: floats rounded to 6 significant digits.
+
+    >>> settings_text({"thickness": 0.0013000000000000002, "model": "fung", "smoothing": [4, 2]})
+    'model=fung, smoothing=[4, 2], thickness=0.0013'
+    """
+    items = [(k, settings[k]) for k in keys if k in settings] if keys else sorted(settings.items())
+    return ", ".join(f"{k}={_setting(v)}" for k, v in items)
+
+
+def _setting(value: Any) -> str:
+    if isinstance(value, bool) or value is None:
+        return str(value).lower() if value is not None else "none"
+    if isinstance(value, float):
+        return num(value, 6)
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_setting(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{" + settings_text(value) + "}"
+    return str(value)
