@@ -123,6 +123,7 @@ class LiveResults:
         self._lock = threading.Lock()
         self._status = LiveStatus()
         self._tracker = None
+        self._off = ""  # why the worker stopped for good (no calibration), or ""
         self._readings: list[tuple[int, float, float]] = []  # (row, pressure Pa, wall force N) per step
         self._thread = threading.Thread(target=self._work, name="live-results", daemon=True)
         self._thread.start()
@@ -176,6 +177,8 @@ class LiveResults:
             item = self._queue.get()
             if item is _STOP:
                 return
+            if self._off:
+                continue  # the queue is drained, nothing is computed
             t0 = time.perf_counter()
             try:
                 self._step(*item)
@@ -190,7 +193,12 @@ class LiveResults:
         if self._tracker is None:
             if self._cameras is None:
                 self._set(message="calibrating from the board views")
-                self._cameras = self._calibrate()
+                try:
+                    self._cameras = self._calibrate()
+                except Exception as exc:
+                    self._off = f"no calibration ({exc}): live results are off for this run"
+                    self._set(message=self._off)
+                    raise
             settings = ReconstructionSettings(marker_diameter=self.marker_diameter, specimen_radius=self.radius)
             self._tracker = SeriesTracker(self._cameras, settings)
         tracker = self._tracker
