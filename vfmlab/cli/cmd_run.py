@@ -47,7 +47,7 @@ def require_answers(yes: bool) -> None:
               help="Unattended: no prompts (capture anyway when a level does not settle; Ctrl-C quits resumably).")
 @click.option("--detect/--no-detect", default=True, show_default=True,
               help="Count markers in each capture for the live view.")
-@click.option("--live-models", default="fung", show_default=True, metavar="MODELS",
+@click.option("--live-models", default="none", show_default=True, metavar="MODELS",
               help="Models identified while the test runs (comma-separated: fung, delfino, hgo, neohookean; "
                    "'none' to switch off): each step is reconstructed in the background (cameras calibrated from "
                    "the board views) and the final parameters are stored as identification results.")
