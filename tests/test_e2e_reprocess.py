@@ -76,6 +76,8 @@ def test_corrupt_session_is_reported_and_skipped(batch, tmp_path, capsys):
     ok = [r for r in rows if r["status"] == "ok"]
     assert {r["specimen"] for r in ok} == {"tube-0", "tube-1"}
     assert all(float(r["alpha"]) > 0 and r["alpha_stderr"] != "" for r in ok)
+    # SI with the unit in the header; dimensionless parameters without a suffix
+    assert all(float(r["beta_Pa"]) > 0 and float(r["beta_stderr_Pa"]) >= 0 for r in ok)
     failed = [r for r in rows if r["status"] == "failed"]
     assert len(failed) == 1 and "corrupt.h5" in failed[0]["session"] and failed[0]["error"]
 
@@ -150,3 +152,13 @@ def test_unknown_reconstruct_setting_is_refused(tmp_path, capsys):
     assert main(["reprocess", str(session), "--stages", "reconstruct", "--set", "epipolar=3"]) == 1
     err = capsys.readouterr().err
     assert "unknown ['epipolar']" in err and "epipolar_px" in err
+
+
+def test_smooth_grammar_is_the_same_as_identify(tmp_path, capsys):
+    """--smooth takes AXIAL,HARMONICS or auto, as 'vfmlab identify --smooth' does."""
+    bare = make_session(tmp_path / "bare.h5", with_results=False)
+    assert main(["reprocess", str(bare), "--smooth", "4,x"]) == 1
+    assert "--smooth must be 'auto' or two non-negative integers" in capsys.readouterr().err
+    assert main(["reprocess", str(bare), "--smooth", "auto", "--json"]) == 1  # no markers: fails, but parsed
+    out = json.loads(capsys.readouterr().out)
+    assert "no marker tracks" in out["outcomes"][0]["errors"][0]

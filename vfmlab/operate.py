@@ -109,8 +109,8 @@ def _execute(runner_kwargs: dict[str, Any], protocol: Protocol, writer: SessionW
              detector: Callable[[np.ndarray], int] | None,
              observer: Callable[[RunnerState, Bench], None] | None = None, results: Any = None) -> SessionRunner:
     live = console.is_terminal
-    view = (LiveView(console, title=f"vfmlab run · {writer.path.name}", results=results.status if results else None)
-            if live else None)
+    view = (LiveView(console, title=f"vfmlab run · {esc(writer.path.name)}",
+                     results=results.status if results else None) if live else None)
     if yes:
         operator = AutoOperator(set_pressure=bench.operator_pressure, set_stretch=bench.stage,
                                 place_board=bench.place_board, remove_board=bench.remove_board)

@@ -40,7 +40,7 @@ def check_parent(path: str | os.PathLike, option: str = "--out") -> Path:
     return path
 
 
-def check_output_path(path: str | os.PathLike, force: bool, inputs: Iterable[str | os.PathLike] = (),
+def check_output_path(path: str | os.PathLike, *, force: bool, inputs: Iterable[str | os.PathLike] = (),
                       option: str = "--out") -> Path:
     """Check that the file ``path`` may be written; returns it as a Path or raises CliError.
 
@@ -52,7 +52,7 @@ def check_output_path(path: str | os.PathLike, force: bool, inputs: Iterable[str
         raise CliError(f"{option} {path}: is a folder; give a file name")
     if not path.exists():
         return path
-    if any(_same_file(path, Path(p)) for p in inputs):
+    if any(source is not None and _same_file(path, Path(source)) for source in inputs):
         raise CliError(f"{option} {path}: is an input of this command; refusing to overwrite it")
     if _is_hdf5(path):
         raise CliError(f"{option} {path}: is an HDF5 session file; vfmlab never overwrites a session")
@@ -61,18 +61,18 @@ def check_output_path(path: str | os.PathLike, force: bool, inputs: Iterable[str
     return path
 
 
-def check_output_dir(path: str | os.PathLike, force: bool, will_write: Iterable[str] = (),
+def check_output_dir(path: str | os.PathLike, *, force: bool, inputs: Iterable[str | os.PathLike] = (),
                      option: str = "--out") -> Path:
     """Check that the folder ``path`` may receive this command's files; returns it or raises CliError.
 
-    The folder itself may be new, but its parent must exist. Files named in ``will_write`` that
-    already exist in it are overwritten only with ``force``.
+    The folder itself may be new, but its parent must exist; an existing non-empty folder needs ``force``.
     """
     path = check_parent(path, option)
     if path.exists() and not path.is_dir():
         raise CliError(f"{option} {path}: is a file; give a folder")
-    existing = [name for name in will_write if (path / name).exists()]
-    if existing and not force:
-        shown = ", ".join(existing[:3]) + (" …" if len(existing) > 3 else "")
-        raise CliError(f"{option} {path}: already holds {shown}; pass --force to overwrite, or choose another folder")
+    if any(source is not None and _same_file(path, Path(source)) for source in inputs):
+        raise CliError(f"{option} {path}: is an input of this command; choose another folder")
+    if path.is_dir() and any(path.iterdir()) and not force:
+        raise CliError(f"{option} {path}: folder exists and is not empty; pass --force to overwrite its files, "
+                       "or choose another folder")
     return path

@@ -27,7 +27,7 @@ Examples:
               help="vtk: legacy ASCII VTK polydata with strain/stress cell data (+ .vtk.series index); "
                    "ply: binary PLY with E11 face colours and the fields as face properties.")
 @click.option("--markers", "markers_name", help="Markers result to export [default: the latest].")
-@click.option("--force", is_flag=True, help="Overwrite the files of an earlier export in the output directory.")
+@click.option("--force", is_flag=True, help="Write into an existing, non-empty output folder (its files of the same name are replaced).")
 @click.option("--json", "as_json", is_flag=True, help="Print the files written as JSON.")
 def command(session, out, fmt, markers_name, force, as_json):
     """Export the marker mesh of SESSION at every step, with E11/E22/E12 strains and each identified
@@ -37,8 +37,7 @@ def command(session, out, fmt, markers_name, force, as_json):
 
     path = Path(session)
     out_dir = Path(out) if out else path.with_name(path.stem + "_export")
-    earlier = sorted(p.name for p in out_dir.glob(f"surface*.{fmt}*")) if out_dir.is_dir() else []
-    check_output_dir(out_dir, force, will_write=earlier)
+    check_output_dir(out_dir, force=force, inputs=[path])
     with cli_session(path) as s:
         if markers_name:
             if markers_name not in s.results("markers"):

@@ -29,7 +29,7 @@ Examples:
 def command(session, out, result, units, force, as_json):
     """Write the latest marker tracks of SESSION (imported or reconstructed) as
     marker_id,step,x_m,y_m,z_m (or x_mm,y_mm,z_mm with --units mm), one row per marker and step."""
-    check_output_path(out, force, inputs=[session])
+    check_output_path(out, force=force, inputs=[session])
     with cli_session(session) as s:
         res = s.result(result) if result else latest_markers(s)
     arrays = res["arrays"]

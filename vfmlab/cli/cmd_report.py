@@ -25,7 +25,7 @@ Examples:
 @click.option("--strain-scale", type=click.Choice(["shared", "per-step"]), default="shared", show_default=True,
               help="Colour scale of the strain and stress maps: one scale for all steps (compare steps) or one per step "
                    "(detail within a step); the figure says which.")
-@click.option("--force", is_flag=True, help="Overwrite an earlier report in the output directory.")
+@click.option("--force", is_flag=True, help="Write into an existing, non-empty output folder (an earlier report there is replaced).")
 @click.option("--json", "as_json", is_flag=True, help="Print the files written as JSON.")
 def command(session, out, strain_scale, force, as_json):
     """Write a self-contained HTML report of SESSION (figures embedded) and the figures as PNG files."""
@@ -33,8 +33,7 @@ def command(session, out, strain_scale, force, as_json):
 
     path = Path(session)
     out_dir = Path(out) if out else path.with_name(path.stem + "_report")
-    earlier = ["report.html"] if (out_dir / "report.html").exists() else []
-    check_output_dir(out_dir, force, will_write=earlier)
+    check_output_dir(out_dir, force=force, inputs=[path])
     t0 = time.perf_counter()
     try:
         with (err_console if as_json else console).status("Building the report..."):

@@ -83,7 +83,7 @@ def command(sessions, stages, models, walls, ends, optimizer, smooth, set_pairs,
 
     stage_list = _split(stages, "--stages", tuple(STAGES))
     if summary:
-        check_output_path(summary, force, inputs=sessions, option="--summary")
+        check_output_path(summary, force=force, inputs=sessions, option="--summary")
     smoothing = None
     if smooth == "auto":
         smoothing = "auto"

@@ -23,7 +23,7 @@ Examples:
 @click.option("--rig", "rig", type=click.Path(dir_okay=False),
               help="Rig configuration; default: the rig file stored in the session.")
 @click.option("--sim", is_flag=True, hidden=True,
-              help="Accepted for old scripts: a session recorded on the simulated rig resumes on it anyway.")
+              help="A session recorded on the simulated rig resumes on it anyway.")
 @click.option("--sim-speed", type=click.FloatRange(min=0.1, max=100.0), default=1.0, show_default=True,
               help="For a simulated session: how much faster than real time the simulated pressure settles.")
 @click.option("--speed", "old_speed", type=click.FloatRange(min=0.1, max=100.0), default=None, hidden=True,

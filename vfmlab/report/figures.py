@@ -224,7 +224,6 @@ def surface_maps(fields: SurfaceFields, values: np.ndarray, *, title: str, label
         left = 0.7 + col * (panel_w + cb_w)
         bottom = height - 0.55 - row * row_h - 0.3 - panel_h
         ax = fig.add_axes((left / width, bottom / height, panel_w / width, panel_h / height))
-        cax = fig.add_axes(((left + panel_w + 0.08) / width, bottom / height, 0.1 / width, panel_h / height))
         axes.append(ax)
         lo, hi = common if shared else _limits(vk, min_span)
         if diverging and lo < 0 < hi:
@@ -245,11 +244,13 @@ def surface_maps(fields: SurfaceFields, values: np.ndarray, *, title: str, label
         ax.set_xlabel("R θ (mm)", fontsize=8, labelpad=1)
         if col == 0:
             ax.set_ylabel("z (mm)", fontsize=9)
-        cb = fig.colorbar(ScalarMappable(norm, cmap), cax=cax)
-        cb.formatter = ScalarFormatter(useOffset=False)
-        cb.update_ticks()
-        cb.ax.tick_params(labelsize=7)
-        cb.set_label(label, fontsize=8)
+        if not shared or col == ncols - 1 or i == len(steps) - 1:  # a shared scale: one colour bar per row
+            cax = fig.add_axes(((left + panel_w + 0.08) / width, bottom / height, 0.1 / width, panel_h / height))
+            cb = fig.colorbar(ScalarMappable(norm, cmap), cax=cax)
+            cb.formatter = ScalarFormatter(useOffset=False)
+            cb.update_ticks()
+            cb.ax.tick_params(labelsize=7)
+            cb.set_label(label, fontsize=8)
     which = "one colour scale for all steps" if shared else "colour scale per step"
     fig.suptitle(f"{title} ({which}; grey: triangle not measured)", y=1 - 0.15 / height, va="top")
     return fig
