@@ -3,7 +3,6 @@ background and stores the final parameters; a worker that fails never stops the 
 
 import io
 import logging
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,34 +10,16 @@ from rich.console import Console
 
 from acquisition.session import open_session
 from rig_sim.mechanics import PAPER_PARAMETERS
+from test_run_session_sim import FAST, ROOT, SPECIMEN
 from vfmlab.live import render_live_results
 from vfmlab.operate import run_session
 
-ROOT = Path(__file__).resolve().parents[1]
-SPECIMEN = ROOT / "examples" / "specimen.toml"
 SIZE = (816, 680)
 
-PROTOCOL = """
-[protocol]
-name = "live results"
-[preconditioning]
-pressure_cycles = 1
-pressure_max_mmHg = 80
-stretch_cycles = 1
-stretch_max = 1.3
-cycle_s = 0.2
-[stability]
-band_mmHg = 1.0
-dwell_s = 0.1
-timeout_s = 20
-[test]
-stretches = [1.1, 1.2]
-pressures_mmHg = [0, 50, 100, 150]
-[reference]
-capture = true
-[calibration]
-views = 0
-"""
+# the fast two-stretch protocol of the session tests, with one preconditioning cycle and 3 loaded levels
+PROTOCOL = (FAST.replace("pressure_cycles = 8", "pressure_cycles = 1").replace("stretch_cycles = 8", "stretch_cycles = 1")
+            .replace("[0, 20, 40, 60, 80, 100, 125, 150]", "[0, 50, 100, 150]")
+            + "[reference]\ncapture = true\n[calibration]\nviews = 0\n")
 
 
 def _files(tmp_path, size=SIZE, pressures="[0, 50, 100, 150]"):
