@@ -11,6 +11,7 @@ Errors: :class:`StageError` with one readable sentence (session path first).
 from __future__ import annotations
 
 import inspect
+import json
 import logging
 import os
 from collections.abc import Callable
@@ -22,7 +23,14 @@ from acquisition.session import SessionError, open_session, write_result
 
 log = logging.getLogger(__name__)
 
-__all__ = ["STAGES", "StageError", "StageUnavailable", "identification_arrays", "identify_session", "identify_stored", "load_identification_inputs",
+#: Standard deviation of a pressure reading used for the parameter uncertainty (Pa): ~0.02 mmHg,
+#: a controller-grade transducer averaged over the dwell.
+PRESSURE_NOISE = 3.0
+#: Standard deviation of a load-cell reading used for the parameter uncertainty (N).
+FORCE_NOISE = 0.002
+
+__all__ = ["STAGES", "StageError", "StageUnavailable", "identification_arrays", "identify_session", "identify_stored",
+           "load_identification_inputs",
            "reconstruct_session", "reconstruct_stored", "session_calibrated_cameras", "session_step_rows"]
 
 
@@ -40,7 +48,8 @@ def load_identification_inputs(session, markers: str | None = None) -> dict[str,
     Returns positions (n_steps, n_markers, 3) m (NaN where not visible), pressure (n_steps,) Pa,
     force (n_steps,) N (wall force: a "total" load-cell reading is corrected by + p pi r_i^2 with
     the reference lumen radius r_i = radius - thickness, decision 0003), thickness m, rows
-    (n_steps,) rows of the step table, markers_result name and notes (corrections applied).
+    (n_steps,) rows of the step table, markers_result name, notes (corrections applied) and
+    uncertainty (n_steps, n_markers) m, the reconstruction's reported marker uncertainty (or None).
     """
     names = session.results("markers")
     if markers is not None and markers not in names:
@@ -68,13 +77,16 @@ def load_identification_inputs(session, markers: str | None = None) -> dict[str,
         r_i = specimen.radius - specimen.thickness
         force = force + pressure * np.pi * r_i**2
         notes.append(f"load cell measures total force: wall force = total + p*pi*r_i^2 with r_i = {r_i * 1e3:.3f} mm")
+    uncertainty = np.asarray(arrays["uncertainty"], float) if "uncertainty" in arrays else None
+    if uncertainty is not None and uncertainty.shape != positions.shape[:2]:
+        uncertainty = None
     return {"positions": positions, "pressure": pressure, "force": force, "thickness": float(specimen.thickness),
-            "markers_result": result["name"], "rows": rows, "notes": notes}
+            "markers_result": result["name"], "rows": rows, "notes": notes, "uncertainty": uncertainty}
 
 
 def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str = "membrane", ends: str = "clamped",
-                    optimizer: str = "lsq", smoothing: str | tuple[int, int] | None = None, markers: str | None = None,
-                    invoked_by: str = "pipeline") -> tuple[str, Any, dict[str, Any]]:
+                    optimizer: str = "lsq", smoothing: str | tuple[int, int] | None = "auto", markers: str | None = None,
+                    uncertainty: str = "bootstrap", invoked_by: str = "pipeline") -> tuple[str, Any, dict[str, Any]]:
     """Identify ``model`` from the session's marker tracks with the VFM and store an "identification" result.
 
     Parameters
@@ -85,8 +97,12 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
     ends : "clamped" | "free".
     optimizer : "lsq" | "nelder-mead".
     smoothing : (axial Legendre degree, circumferential harmonics) to smooth the measured
-        displacements first, "auto" (smooth only when the estimated marker noise is large), or None.
+        displacements first, "auto" (the basis chosen from the data; none when the markers look
+        exact), or None. The standard errors and 95 % intervals come from a parametric bootstrap
+        (``identification.uncertainty``) with the sensor noise of ``PRESSURE_NOISE``/``FORCE_NOISE``.
     markers : markers result to use (default: the latest).
+    uncertainty : "bootstrap" (default, intervals that cover the truth; ~16 re-identifications) or
+        "gauss-newton" (fast, too small on noisy data).
     invoked_by : recorded in the result's attributes (e.g. "identify", "reprocess").
 
     Returns
@@ -113,7 +129,10 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
         raise StageError(str(exc)) from None
     try:
         result = identify(data["positions"], data["pressure"], data["force"], thickness=data["thickness"],
-                          model=model, wall=wall, ends=ends, optimizer=optimizer, smoothing=smoothing)
+                          model=model, wall=wall, ends=ends, optimizer=optimizer, smoothing=smoothing,
+                          uncertainty=uncertainty, uncertainty_options={
+                              "marker_sigma": data["uncertainty"], "pressure_noise": PRESSURE_NOISE,
+                              "force_noise": FORCE_NOISE} if uncertainty == "bootstrap" else None)
     except (IdentificationError, ValueError) as exc:
         raise StageError(f"{path}: cannot identify {model}: {exc}") from None
     arrays, settings, attrs = identification_arrays(result, data["rows"])
@@ -131,8 +150,9 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
 
 def identification_arrays(result: Any, rows: np.ndarray) -> tuple[dict, dict, dict]:
     """The arrays, settings (empty: the caller's) and attributes of an "identification" result
-    for an identification result object and the step-table rows it used."""
+    for an identification result object and the step-table rows (n_steps,) it was given."""
     names = list(result.parameters)
+    rows = np.asarray(rows)
     arrays = {
         "parameters": np.array([result.parameters[n] for n in names]),
         "stderr": np.array([result.stderr[n] for n in names]),
@@ -141,12 +161,24 @@ def identification_arrays(result: Any, rows: np.ndarray) -> tuple[dict, dict, di
         "ivw": result.ivw,
         "evw": result.evw,
         "residuals": result.residuals,
-        "step_index": np.asarray(rows),
+        "step_index": rows if getattr(result, "steps", None) is None else rows[list(result.steps)],
     }
+    if getattr(result, "uncertainty", None) is not None:
+        arrays["interval_low"] = np.array([result.uncertainty.interval[n][0] for n in names])
+        arrays["interval_high"] = np.array([result.uncertainty.interval[n][1] for n in names])
+        arrays["bootstrap_bias"] = np.array([result.uncertainty.bias[n] for n in names])
     attrs = {"cost": result.cost, "converged": result.converged, "flags": list(result.flags),
              "message": result.message, "n_evaluations": result.n_evaluations,
-             "field_names": list(result.field_names)}
+             "field_names": list(result.field_names), "smoothing_used": json.dumps(data_smoothing(result)),
+             "uncertainty": ("parametric bootstrap, 95 % intervals" if getattr(result, "uncertainty", None) is not None
+                             else "gauss-newton")}
     return arrays, {}, attrs
+
+
+def data_smoothing(result) -> list | None:
+    """The smoothing degrees a result was identified with (three [nz, nt] pairs), or None."""
+    used = getattr(result, "smoothing", None)
+    return None if used is None else [list(map(int, d)) for d in used]
 
 
 def identify_session(path: str | os.PathLike, **options: Any) -> str:
