@@ -57,7 +57,7 @@ def require_answers(yes: bool) -> None:
 def command(protocol: str, specimen: str, out: str, rig: str | None, sim: bool, sim_speed: float,
             old_speed: float | None, yes: bool, detect: bool, live_models: str, as_json: bool) -> None:
     """Run PROTOCOL (TOML) on the rig, writing every step to the session file --out as it happens."""
-    from vfmlab.operate import OperateError, as_json as outcome_json, detector_from_reconstruction, run_session
+    from vfmlab.operate import detector_from_reconstruction, run_session
 
     require_answers(yes)
     check_output_path(out, force=False, inputs=[protocol, specimen, rig], can_force=False, leftover_ok=True)
@@ -65,11 +65,20 @@ def command(protocol: str, specimen: str, out: str, rig: str | None, sim: bool, 
     unknown = [m for m in models if m not in ("fung", "delfino", "hgo", "neohookean")]
     if unknown:
         raise CliInputError(f"--live-models must be among fung, delfino, hgo, neohookean or 'none'; got {unknown}")
+    finish_session(lambda: run_session(protocol, specimen, out, rig_path=rig, sim=sim, yes=yes,
+                                       sim_speed=old_speed if old_speed is not None else sim_speed,
+                                       console=err_console if as_json else console,
+                                       detector=detector_from_reconstruction() if detect else None,
+                                       live_models=models), as_json)
+
+
+def finish_session(operate, as_json: bool) -> None:
+    """Run ``operate()`` (a run or a resume), print its outcome as JSON if asked, and end with
+    exit code 1 when the session aborted or failed (decision 0007)."""
+    from vfmlab.operate import OperateError, as_json as outcome_json
+
     try:
-        outcome = run_session(protocol, specimen, out, rig_path=rig, sim=sim, yes=yes,
-                              sim_speed=old_speed if old_speed is not None else sim_speed,
-                              console=err_console if as_json else console,
-                              detector=detector_from_reconstruction() if detect else None, live_models=models)
+        outcome = operate()
     except OperateError as exc:
         error = CliError(str(exc))
         error.exit_code = exc.exit_code
