@@ -160,7 +160,7 @@ class LiveResults:
         names = []
         for model, est in self.status().estimates.items():
             arrays, settings, attrs = identification_arrays(est.result, est.rows)
-            settings.update(model=model, wall="membrane", ends=self.ends, optimizer="lsq", smoothing=None,
+            settings.update(model=model, wall="membrane", ends=self.ends, optimizer="lsq", smoothing="auto",
                             markers_result="(live reconstruction)", thickness=self.thickness)
             attrs.update(model=model, wall="membrane", invoked_by="run (live)")
             names.append(write_result(path or self.session, "identification", arrays, settings, attrs=attrs,
@@ -221,8 +221,9 @@ class LiveResults:
         estimates = dict(self.status().estimates)
         for model in self.models:
             try:
+                # the command's defaults (smoothing chosen from the data); Gauss-Newton errors keep pace with the rig
                 res = identify(positions, readings[:, 1], readings[:, 2], thickness=self.thickness, model=model,
-                               ends=self.ends)
+                               ends=self.ends, smoothing="auto")
             except Exception as exc:  # noqa: BLE001 - one model failing must not hide the others
                 log.info("live results: %s not identified from %d steps: %s", model, positions.shape[0], exc)
                 self._set(error=f"{model}: {exc}")
