@@ -163,4 +163,4 @@ def test_simulated_heterogeneous_test_records_its_profile():
         AxialProfile(depth=1.2)
     m = prof(np.array([-15e-3, 5e-3]))
     assert m[0] == pytest.approx(1.0, abs=1e-6) and m[1] == pytest.approx(0.6, abs=1e-6)
-    assert prof.band_mean([2e-3, 8e-3, 17e-3]) == pytest.approx([0.6, 1.0], abs=0.01)
+    assert prof.band_mean([2e-3, 8e-3, 11e-3, 17e-3])[[0, 2]] == pytest.approx([0.6, 1.0], abs=0.01)
