@@ -1,0 +1,94 @@
+"""identification.regional: parameters per axial band, against rig_sim's clamped tube with a material varying along Z."""
+
+import numpy as np
+import pytest
+
+from identification.mesh import build_mesh
+from identification.regional import band_edges, band_fields, identify_regional, prepare_regional
+from identification.virtual_fields import check_fields, paper_fields
+from rig_sim.mechanics import PAPER_PARAMETERS, simulate_test
+from rig_sim.regional import AxialProfile
+
+FUNG = PAPER_PARAMETERS["fung"]
+# a 40 % weakening over a quarter of the 35 mm specimen, centred in the top third of the marked region
+WEAK = AxialProfile(depth=0.4, center=9e-3, width=35e-3 / 4)
+
+
+def _fit(sim, n_bands, **options):
+    rd = prepare_regional(sim.positions, sim.pressure, sim.axial_force, thickness=sim.thickness, n_bands=n_bands,
+                          **options)
+    res = identify_regional(rd, "fung")
+    z_world = rd.world_points(rd.edges)[:, 2]  # band edges in the simulator's frame (axis along world z)
+    return rd, res, z_world
+
+
+@pytest.fixture(scope="module")
+def weakened():
+    return simulate_test("fung", FUNG, clamped=True, stress_scale=WEAK)
+
+
+def test_band_fields_are_admissible_and_sum_to_the_paper_axial_field():
+    sim = simulate_test("fung", FUNG, clamped=False)
+    mesh = build_mesh(sim.positions[0])
+    edges = band_edges(mesh, 4)
+    fields = band_fields(mesh, edges)
+    check_fields(fields, mesh)
+    axial = fields.values[1::2, :, 2]
+    np.testing.assert_allclose(np.diff(edges) @ axial / (edges[-1] - edges[0]), paper_fields(mesh).values[1, :, 2],
+                               atol=1e-12)
+    # each radial field lives on its own band only
+    z = mesh.z
+    for b in range(4):
+        outside = (z < edges[b]) | (z > edges[b + 1])
+        assert np.all(fields.values[2 * b, outside, 0] == 0) and np.any(fields.values[2 * b, ~outside, 0] > 0.5)
+    with pytest.raises(ValueError, match="n_bands"):
+        band_edges(mesh, 0)
+
+
+def test_local_weakening_found_where_it_is(weakened):
+    rd, res, z = _fit(weakened, 3)
+    truth = FUNG["beta"] * WEAK.band_mean(z)  # band means of the true beta(Z)
+    beta = res.profiles["beta"]
+    weak = int(np.argmin(beta))
+    assert z[weak] < WEAK.center < z[weak + 1]
+    np.testing.assert_allclose(beta, truth, rtol=0.05)
+    assert res.differs.tolist() == [b == weak for b in range(3)], res.flags
+    assert any("band 2" in f and "differs" in f for f in res.flags)
+    # the homogeneous fit misses the weak band by far more than the regional one
+    gap_hom = res.homogeneous.parameters["beta"] / truth[weak] - 1
+    assert gap_hom > 0.25 and abs(beta[weak] / truth[weak] - 1) < 0.05 < gap_hom / 5
+
+
+def test_finer_bands_resolve_the_zone(weakened):
+    rd, res, z = _fit(weakened, 6)
+    truth = FUNG["beta"] * WEAK.band_mean(z)
+    np.testing.assert_allclose(res.profiles["beta"], truth, rtol=0.05)
+    inside = (0.5 * (z[1:] + z[:-1]) > WEAK.center - WEAK.width / 2)
+    assert res.differs.tolist() == inside.tolist()
+
+
+def test_homogeneous_tube_no_band_differs():
+    sim = simulate_test("fung", FUNG, clamped=True)
+    _, res, _ = _fit(sim, 3)
+    np.testing.assert_allclose(res.profiles["beta"], FUNG["beta"], rtol=0.01)
+    assert not res.differs.any(), res.flags
+
+
+def test_homogeneous_noisy_tube_no_band_differs_beyond_its_uncertainty():
+    """0.05 mm marker noise, displacements smoothed: bands scatter, but within their standard errors."""
+    sim = simulate_test("fung", FUNG, clamped=True, noise_std=0.05e-3, seed=0)
+    _, res, _ = _fit(sim, 3, smoothing=(4, 2))
+    assert np.all(res.stderr["beta"] > 0)
+    assert np.all(np.abs(res.z_score["beta"]) < 3.0), (res.profiles, res.stderr)
+    assert not res.differs.any()
+    np.testing.assert_allclose(res.profiles["beta"], FUNG["beta"], rtol=0.1)
+
+
+def test_regional_names_are_checked(weakened):
+    rd = prepare_regional(weakened.positions, weakened.pressure, weakened.axial_force,
+                          thickness=weakened.thickness, n_bands=2)
+    with pytest.raises(ValueError, match="regional"):
+        identify_regional(rd, "fung", regional=("gamma",))
+    with pytest.raises(ValueError, match="fields"):
+        prepare_regional(weakened.positions, weakened.pressure, weakened.axial_force, thickness=1e-3, n_bands=2,
+                         fields=None)
