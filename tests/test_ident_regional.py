@@ -92,3 +92,33 @@ def test_regional_names_are_checked(weakened):
     with pytest.raises(ValueError, match="fields"):
         prepare_regional(weakened.positions, weakened.pressure, weakened.axial_force, thickness=1e-3, n_bands=2,
                          fields=None)
+
+
+def test_cli_identify_regions_stores_profiles(tmp_path, capsys, weakened):
+    import json
+
+    from acquisition.session import SessionWriter, SpecimenInfo, StepRecord, open_session, write_result
+    from vfmlab.cli import main
+
+    sim = weakened
+    path = tmp_path / "weak.h5"
+    with SessionWriter.create(path, SpecimenInfo("W1", radius=sim.reference_radius, length=sim.length,
+                                                 thickness=sim.thickness), load_cell_measures="wall") as w:
+        for i, (lz, p, f) in enumerate(zip(sim.stretch, sim.pressure, sim.axial_force)):
+            w.add_step(StepRecord(0, float(lz), float(p), float(p), float(f), float(i), 1.7e9 + i))
+    n = sim.n_steps
+    write_result(path, "markers", {"positions": sim.positions, "visible": np.ones((n, sim.n_markers), bool),
+                                   "marker_id": np.arange(sim.n_markers), "step_index": np.arange(n)},
+                 {"method": "synthetic"})
+    assert main(["identify", str(path), "--regions", "3", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["units"]["beta"] == "Pa" and len(doc["profiles"]["beta"]) == 3
+    assert doc["differs"] == [False, False, True]
+    with open_session(path) as s:
+        res = s.result(doc["result_group"])
+    assert res["arrays"]["beta"] == pytest.approx(doc["profiles"]["beta"])
+    assert res["arrays"]["band_edges"].shape == (4,)
+    assert main(["identify", str(path), "--regions", "3"]) == 0
+    out = capsys.readouterr().out
+    assert "band" in out and "kPa" in out and "homogeneous fit" in out
+    assert main(["identify", str(path), "--regions", "0"]) != 0

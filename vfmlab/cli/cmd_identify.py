@@ -18,6 +18,7 @@ Examples:
   vfmlab identify a1.h5                                   # Fung, membrane, clamped ends
   vfmlab identify a1.h5 --model hgo --wall thick --smooth auto
   vfmlab identify a1.h5 --model delfino --json > delfino.json
+  vfmlab identify a1.h5 --regions 4                       # beta per axial band (where is the wall weaker?)
 """
 
 
@@ -35,9 +36,12 @@ Examples:
               help="Smooth the measured displacements (Legendre degree along the axis, Fourier harmonics around) "
                    "before differentiating; e.g. 4,2 for noisy markers (>~0.02 mm); 'auto' smooths (4,2) only when "
                    "the estimated marker noise exceeds 0.02 mm.")
+@click.option("--regions", type=click.IntRange(1, 12), default=None, metavar="N",
+              help="Identify the stress-like parameter (beta) per band of N equal axial bands, the others shared, "
+                   "with standard errors and the bands that differ; stored as a 'regional' result.")
 @click.option("--json", "as_json", is_flag=True,
               help="Print the result as JSON for scripts (SI; the unit of each parameter under 'units').")
-def command(session_path, model, wall, ends, optimizer, smooth, as_json):
+def command(session_path, model, wall, ends, optimizer, smooth, regions, as_json):
     """Identify MODEL parameters from the latest marker tracks of SESSION and store the result in it.
 
     Units: parameters in SI (Pa, rad); the table shows kPa and degrees.
@@ -54,6 +58,10 @@ def command(session_path, model, wall, ends, optimizer, smooth, as_json):
                 raise ValueError
         except ValueError:
             raise CliError(f"--smooth must be two non-negative integers AXIAL,HARMONICS like 4,2; got {smooth!r}")
+    if regions is not None:
+        from vfmlab.cli._regional import run_regional
+
+        return run_regional(session_path, model, wall, ends, smoothing, regions, as_json)
     try:
         group, result, data = identify_stored(session_path, model=model, wall=wall, ends=ends, optimizer=optimizer,
                                               smoothing=smoothing, invoked_by="identify")
