@@ -122,3 +122,13 @@ def test_cli_identify_regions_stores_profiles(tmp_path, capsys, weakened):
     out = capsys.readouterr().out
     assert "band" in out and "kPa" in out and "homogeneous fit" in out
     assert main(["identify", str(path), "--regions", "0"]) != 0
+
+
+def test_stiffness_gradient_profile():
+    """beta rising 30 % over the specimen length: four bands follow the band means of the truth."""
+    grad = AxialProfile(gradient=0.3 / 35e-3)
+    sim = simulate_test("fung", FUNG, clamped=True, stress_scale=grad)
+    _, res, z = _fit(sim, 4)
+    truth = FUNG["beta"] * grad.band_mean(z)
+    np.testing.assert_allclose(res.profiles["beta"], truth, rtol=0.02)
+    assert np.all(np.diff(res.profiles["beta"]) > 0)
