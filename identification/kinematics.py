@@ -20,9 +20,11 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.sparse import csr_matrix
 
 from .errors import DegenerateDataError
-from .mesh import SurfaceMesh, fit_axis, to_cylindrical, wrap_angle
+from .mesh import SurfaceMesh, wrap_angle
+from .step_axes import refit_axes
 
 __all__ = ["Kinematics", "align_steps", "membrane_kinematics", "QUADRATURE"]
 
@@ -151,16 +153,12 @@ def step_cylindrical(mesh: SurfaceMesh, aligned: np.ndarray):
 
     Returns ``r, theta, z`` of shape (n_steps, n_markers) and the list of step axes.
     """
-    out_r, out_t, out_z, axes = [], [], [], []
-    for step in aligned:
-        ok = np.all(np.isfinite(step), axis=1) & mesh.used
-        axis = fit_axis(step[ok], initial=mesh.axis) if ok.sum() >= 12 else mesh.axis
-        r, t, z = to_cylindrical(step, axis)
-        out_r.append(r)
-        out_t.append(t)
-        out_z.append(z)
-        axes.append(axis)
-    return np.array(out_r), np.array(out_t), np.array(out_z), axes
+    observed = np.all(np.isfinite(aligned), axis=-1) & mesh.used
+    axes = refit_axes(aligned, observed, mesh.axis)
+    origin = np.stack([a.origin for a in axes])  # (n_steps, 3)
+    basis = np.stack([a.basis for a in axes])  # (n_steps, 3, 3)
+    local = np.einsum("snk,sjk->snj", aligned - origin[:, None], basis)
+    return np.hypot(local[..., 0], local[..., 1]), np.arctan2(local[..., 1], local[..., 0]), local[..., 2], axes
 
 
 def smooth_cylindrical(mesh: SurfaceMesh, r, theta, z, degree: tuple[int, int]):
@@ -240,27 +238,40 @@ def marker_outliers(mesh: SurfaceMesh, r, theta, z, *, floor: float = 0.25, n_si
     nj = np.concatenate([edges[:, 1], edges[:, 0]])
     off = np.concatenate([np.column_stack([ds, dz]), -np.column_stack([ds, dz])])
     A = np.column_stack([np.ones(len(ci)), off / edge_len])  # (n_e2, 3), scaled for conditioning
+    to_centre = csr_matrix((np.ones(len(ci)), (ci, np.arange(len(ci)))), shape=(n, len(ci)))
+
+    def per_centre(values):  # (s, n_e2, ...) -> (s, n, ...): sum over each centre's edges
+        moved = np.moveaxis(values, 1, 0)
+        return np.moveaxis((to_centre @ moved.reshape(len(ci), -1)).reshape((n,) + moved.shape[1:]), 0, 1)
+
     outlier = np.zeros(disp.shape[:2], bool)
     for _ in range(2):  # second pass without the first pass's outliers among the neighbours
+        if _ == 1 and not outlier.any():
+            break  # the second pass would repeat the first exactly
         ok = np.all(np.isfinite(disp), -1) & ~outlier
         w = ok[:, nj].astype(float)  # (s, n_e2)
         dj = np.where(ok[:, nj, None], disp[:, nj], 0.0)
-        AtA = np.zeros((disp.shape[0], n, 3, 3))
-        Atd = np.zeros((disp.shape[0], n, 3, 3))
-        np.add.at(AtA, (slice(None), ci), w[..., None, None] * (A[:, :, None] * A[:, None, :])[None])
-        np.add.at(Atd, (slice(None), ci), w[..., None, None] * (A[:, :, None] * dj[:, :, None, :]))
-        count = np.zeros((disp.shape[0], n))
-        np.add.at(count, (slice(None), ci), w)
-        enough = (count >= 4) & (np.linalg.det(AtA) > 1e-6)
-        AtA = np.where(enough[..., None, None], AtA, np.eye(3))
-        coef = np.linalg.solve(AtA, Atd)  # (s, n, 3 coef, 3 comps)
-        dev = np.linalg.norm(disp - coef[:, :, 0, :], axis=-1)
+        AtA = per_centre(w[..., None, None] * (A[:, :, None] * A[:, None, :])[None])
+        Atd = per_centre(w[..., None, None] * (A[:, :, None] * dj[:, :, None, :]))
+        count = per_centre(w)
+        first_row, det = _inverse_first_row(AtA)  # only the fit's value at the centre is needed
+        enough = (count >= 4) & (det > 1e-6)
+        centre = np.einsum("snk,snkc->snc", first_row, Atd) / np.where(enough, det, 1.0)[..., None]
+        dev = np.linalg.norm(disp - centre, axis=-1)
         dev = np.where(enough & ok, dev, np.nan)
         sigma = 1.4826 * np.nanmedian(dev, axis=1, keepdims=True)
         limit = np.maximum(n_sigma * sigma, floor * edge_len)
         outlier |= np.nan_to_num(dev) > limit
     noise = np.nanmedian(np.where(outlier, np.nan, dev), axis=1) / 2.2
     return outlier, noise
+
+
+def _inverse_first_row(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """First row of the adjugate and the determinant of symmetric 3 x 3 matrices ``a (..., 3, 3)``."""
+    row = np.stack([a[..., 1, 1] * a[..., 2, 2] - a[..., 1, 2] * a[..., 2, 1],
+                    a[..., 0, 2] * a[..., 2, 1] - a[..., 0, 1] * a[..., 2, 2],
+                    a[..., 0, 1] * a[..., 1, 2] - a[..., 0, 2] * a[..., 1, 1]], -1)
+    return row, np.einsum("...k,...k->...", row, a[..., :, 0])
 
 
 def surface_state(mesh: SurfaceMesh, aligned: np.ndarray, quadrature: int = 1,

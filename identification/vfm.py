@@ -30,18 +30,19 @@ cost evaluation is then a few vectorised array operations.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.sparse import csr_matrix
 
 from .errors import DegenerateDataError
 from .kinematics import _cross, _grad, align_steps, reference_frame, surface_state, tangents
 from .mesh import SurfaceMesh, build_mesh, wrap_angle
 from .models import get_model
-from .models._base import Model, pk2_components
+from .models._base import Model, pk2_components, seed_virtual_strains, virtual_work_sensitivities
 from .virtual_fields import VirtualFields, check_fields, paper_fields
 
-__all__ = ["VFMData", "prepare", "internal_virtual_work", "end_force"]
+__all__ = ["VFMData", "prepare", "internal_virtual_work", "virtual_work_basis", "end_force"]
 
 log = logging.getLogger(__name__)
 
@@ -97,6 +98,8 @@ class VFMData:
     pressure: np.ndarray
     axial_force: np.ndarray
     thickness: float
+    #: parameter-independent intermediates of the cost (seeded virtual strains), filled on first use
+    cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @property
     def n_steps(self) -> int:
@@ -218,25 +221,84 @@ def prepare(
     e0 = float(thickness)
     reference = x[reference_step]
     if mesh is None:
-        mesh = build_mesh(reference, toward=toward)
+        mesh = _cached_mesh(reference, toward)
     if fields is None:
         fields = paper_fields(mesh)
     check_fields(fields, mesh)
     aligned, _, _ = align_steps(x, reference)
     st = surface_state(mesh, aligned, quadrature, smoothing, reject_outliers)
-    geo = st.geometry
-    tri = mesh.triangles
-    n_steps, n_tri = st.valid.shape
     if not st.valid.any(axis=1).all():
         bad = np.flatnonzero(~st.valid.any(axis=1)).tolist()
         raise DegenerateDataError(f"steps {bad} have no triangle with all three markers observed")
+    wg = _wall_geometry(fields, mesh, st, e0)
+    c, work_density, surface = _internal_work_terms(wg, wall, n_layers)
+    # External work: pressure on the loaded surface (markers for membrane, lumen for thick)
+    loaded = surface if wall == "membrane" else _layer(wg, 0.0)
+    pressure_work = p[None] * _pressure_work_per_pascal(wg, loaded)
+    n_end = end_force(f, p, _top_loop_area(mesh, st, wg.jac, wall, e0),
+                      _clamp_area(mesh, ends, wall, e0, clamp_radius))
+    end_work = fields.load_end[:, None] * n_end[None]
+    evw = pressure_work + end_work
+    scale = np.sqrt(np.mean(evw**2, axis=1))
+    if np.any(scale <= 0):
+        raise DegenerateDataError(f"virtual fields {[n for n, s in zip(fields.names, scale) if s <= 0]} do no "
+                                  "external work at any step")
+    n_valid = st.valid.sum(axis=1)
+    if np.any(n_valid < st.valid.shape[1]):
+        log.warning("triangles excluded for unobserved markers per step: %s", (st.valid.shape[1] - n_valid).tolist())
+    return VFMData(c=c, work_density=work_density, evw=evw, pressure_work=pressure_work, end_work=end_work,
+                   end_force=n_end, scale=scale, field_names=tuple(fields.names), wall=wall, ends=ends, mesh=mesh,
+                   n_valid_triangles=n_valid, n_outliers=st.outliers.sum(axis=1),
+                   marker_noise=float(np.nanmedian(st.noise)), smoothing=smoothing, pressure=p, axial_force=f,
+                   thickness=e0)
 
-    # Virtual field values and xi-gradients (n_fields, n_tri, n_q, 3) and (n_fields, n_tri, 3 comps, 2)
-    uv = fields.values[:, tri]  # (n_fields, n_tri, 3 vertices, 3 comps)
+
+#: Meshes of recently seen reference configurations (a reprocessing run meshes the same markers again).
+_MESH_CACHE: dict = {}
+_MESH_CACHE_SIZE = 8
+
+
+def _cached_mesh(reference: np.ndarray, toward) -> SurfaceMesh:
+    """``build_mesh(reference, toward=toward)``, reused when the same reference markers come again."""
+    key = (reference.shape, reference.tobytes(), None if toward is None else np.asarray(toward, float).tobytes())
+    mesh = _MESH_CACHE.get(key)
+    if mesh is None:
+        mesh = build_mesh(reference, toward=toward)
+        if len(_MESH_CACHE) >= _MESH_CACHE_SIZE:
+            _MESH_CACHE.pop(next(iter(_MESH_CACHE)))
+        _MESH_CACHE[key] = mesh
+    return mesh
+
+
+@dataclass(frozen=True)
+class _WallGeometry:
+    """Parameter-independent arrays shared by the layers of the wall (internal to ``prepare``).
+
+    Shapes: f fields, s steps, t triangles, q quadrature points; trailing 2 = xi = (Theta, Z).
+    """
+
+    e0: float
+    valid: np.ndarray    # (s, t)
+    jac: np.ndarray      # (s, t) d(theta, z) / d(Theta, Z), 1 where invalid
+    R: np.ndarray        # (1, t, q) reference radius at the markers
+    R_xi: np.ndarray     # (1, t, 1, 2)
+    r: np.ndarray        # (s, t, q) current radius at the markers
+    r_xi: np.ndarray     # (s, t, 1, 2)
+    th_xi: np.ndarray    # (s, t, 1, 2)
+    z_xi: np.ndarray     # (s, t, 1, 2)
+    area_q: np.ndarray   # (1, t, q) parametric area x quadrature weight
+    u_q: np.ndarray      # (f, t, q, 3) virtual field at the quadrature points (r, theta, z components)
+    u_xi: np.ndarray     # (f, t, 3, 2) its xi-gradient
+    d_theta: np.ndarray  # (f, s, t) d u_theta / d theta (current)
+    d_z: np.ndarray      # (f, s, t) d u_z / d z (current)
+
+
+def _wall_geometry(fields: VirtualFields, mesh: SurfaceMesh, st, e0: float) -> _WallGeometry:
+    """Virtual-field values and gradients, and the current-coordinate derivatives of the extension."""
+    geo = st.geometry
+    uv = fields.values[:, mesh.triangles]  # (n_fields, n_tri, 3 vertices, 3 comps)
     u_q = np.einsum("ftvc,qv->ftqc", uv, st.bary)
-    u_xi = np.stack([_grad(uv[..., c], geo.dinv) for c in range(3)], axis=2)  # (f, t, comp, 2)
-
-    # Current-coordinate derivatives of u_theta (d/dtheta) and u_z (d/dz), for the divergence-free extension
+    u_xi = np.moveaxis(_grad(np.moveaxis(uv, -1, -3), geo.dinv), -3, -2)  # (f, t, comp, 2)
     th_xi, z_xi = st.theta_xi, st.z_xi  # (s, t, 2)
     jac = th_xi[..., 0] * z_xi[..., 1] - th_xi[..., 1] * z_xi[..., 0]  # (s, t)
     if st.valid.sum() < 0.5 * st.valid.size:
@@ -245,88 +307,97 @@ def prepare(
     jac = np.where(st.valid, jac, 1.0)
     d_theta = (z_xi[None, ..., 1] * u_xi[:, None, :, 1, 0] - z_xi[None, ..., 0] * u_xi[:, None, :, 1, 1]) / jac
     d_z = (-th_xi[None, ..., 1] * u_xi[:, None, :, 2, 0] + th_xi[None, ..., 0] * u_xi[:, None, :, 2, 1]) / jac
-    # shapes (f, s, t)
+    return _WallGeometry(
+        e0=e0, valid=st.valid, jac=jac, R=st.R[None], R_xi=st.R_xi[None, :, None, :], r=st.r,
+        r_xi=st.r_xi[:, :, None, :], th_xi=th_xi[:, :, None, :], z_xi=z_xi[:, :, None, :],
+        area_q=geo.param_area[None, :, None] * st.qweight[None, None, :], u_q=u_q, u_xi=u_xi, d_theta=d_theta,
+        d_z=d_z)
 
+
+def _layer(g: _WallGeometry, sv: float):
+    """Kinematics and virtual gradients of the layer at reference depth fraction sv (1 = markers).
+
+    Returns C (s, t, q, 2, 2), dE* (f, s, t, q, 2, 2), dA0 (s, t, q), n da (s, t, q, 3) and the
+    virtual displacement there (f, s, t, q, 3).
+    """
+    depth = (1.0 - sv) * g.e0
+    R, R_xi, r, r_xi, thx, zx = g.R, g.R_xi, g.r, g.r_xi, g.th_xi, g.z_xi
+    J = g.jac[..., None]  # (s, t, 1)
+    kappa = depth * (2.0 * R - depth)  # R^2 - R_s^2
+    r2 = r * r - kappa / J
+    if np.any(r2[g.valid] <= 0):
+        raise DegenerateDataError("the wall thickness exceeds the measured radius (check thickness units: m)")
+    r_s = np.sqrt(np.where(r2 > 0, r2, 1.0))
+    r_s_xi = (r[..., None] * r_xi - depth * R_xi / J[..., None]) / r_s[..., None]
+    ginv, area_factor = reference_frame(np.broadcast_to(R_xi, R.shape + (2,)), R - depth)  # (1, t, q, ...)
+    Fxi = tangents(r_s, r_s_xi, thx, zx)  # (s, t, q, 3, 2)
+    F = Fxi @ ginv
+    C = np.swapaxes(F, -1, -2) @ F
+    # divergence-free extension of the fields to this layer
+    ur_o = g.u_q[..., 0][:, None]  # (f, 1, t, q)
+    ur_o_xi = g.u_xi[:, None, :, None, 0, :]  # (f, 1, t, 1, 2)
+    Dz, Dt = g.d_z[..., None], g.d_theta[..., None]  # (f, s, t, 1)
+    ur = (r * ur_o + 0.5 * kappa / J * Dz - (r_s - r) * Dt) / r_s
+    ur_xi = (r_xi * ur_o[..., None] + r[..., None] * ur_o_xi + depth * R_xi / J[..., None] * Dz[..., None]
+             - (r_s_xi - r_xi) * Dt[..., None] - r_s_xi * ur[..., None]) / r_s[..., None]
+    ut, ut_xi = g.u_q[..., 1][:, None], g.u_xi[:, None, :, None, 1, :]
+    uz, uz_xi = g.u_q[..., 2][:, None], g.u_xi[:, None, :, None, 2, :]
+    du = np.stack([ur_xi - ut[..., None] * thx, ut_xi + ur[..., None] * thx,
+                   np.broadcast_to(uz_xi, ur_xi.shape)], axis=-2)  # (f, s, t, q, 3, 2)
+    G = np.swapaxes(Fxi, -1, -2) @ du  # (f, s, t, q, 2, 2): t_i . du_j
+    dE = np.swapaxes(ginv, -1, -2) @ G @ ginv
+    dE = 0.5 * (dE + np.swapaxes(dE, -1, -2))
+    normal_da = _cross(Fxi[..., 0], Fxi[..., 1]) * g.area_q[..., None]  # (s, t, q, 3)
+    u_here = np.stack([ur, np.broadcast_to(ut, ur.shape), np.broadcast_to(uz, ur.shape)], -1)
+    return C, dE, area_factor * g.area_q, normal_da, u_here
+
+
+def _internal_work_terms(g: _WallGeometry, wall: str, n_layers: int):
+    """C components (s, n_points, 3) and work densities (f, s, n_points, 3) over the wall's layers.
+
+    Also returns the marker-surface layer (for the membrane's external work).
+    """
     if wall == "membrane":
         s_nodes, s_weights = np.array([1.0]), np.array([1.0])
     else:
-        g, w = np.polynomial.legendre.leggauss(int(n_layers))
-        s_nodes, s_weights = 0.5 * (g + 1.0), 0.5 * w
-
-    R = st.R[None]  # (1, t, q)
-    R_xi = st.R_xi[None, :, None, :]  # (1, t, 1, 2)
-    r = st.r  # (s, t, q)
-    r_xi = st.r_xi[:, :, None, :]  # (s, t, 1, 2)
-    J = jac[..., None]  # (s, t, 1)
-    thx = th_xi[:, :, None, :]
-    zx = z_xi[:, :, None, :]
-    area_q = geo.param_area[None, :, None] * st.qweight[None, None, :]  # (1, t, q)
-
-    def layer(sv: float):
-        """Kinematics and virtual gradients of the layer at reference depth fraction sv (1 = markers)."""
-        depth = (1.0 - sv) * e0
-        kappa = depth * (2.0 * R - depth)  # R^2 - R_s^2
-        R_s = R - depth
-        r2 = r * r - kappa / J
-        if np.any(r2[st.valid] <= 0):
-            raise DegenerateDataError("the wall thickness exceeds the measured radius (check thickness units: m)")
-        r_s = np.sqrt(np.where(r2 > 0, r2, 1.0))
-        r_s_xi = (r[..., None] * r_xi - depth * R_xi / J[..., None]) / r_s[..., None]
-        ginv, area_factor = reference_frame(np.broadcast_to(R_xi, R_s.shape + (2,)), R_s)  # (1, t, q, ...)
-        Fxi = tangents(r_s, r_s_xi, thx, zx)  # (s, t, q, 3, 2)
-        F = Fxi @ ginv
-        C = np.swapaxes(F, -1, -2) @ F
-        # divergence-free extension of the fields to this layer
-        ur_o = u_q[..., 0][:, None]  # (f, 1, t, q)
-        ur_o_xi = u_xi[:, None, :, None, 0, :]  # (f, 1, t, 1, 2)
-        Dz = d_z[..., None]
-        Dt = d_theta[..., None]  # (f, s, t, 1)
-        ur = (r * ur_o + 0.5 * kappa / J * Dz - (r_s - r) * Dt) / r_s
-        ur_xi = (r_xi * ur_o[..., None] + r[..., None] * ur_o_xi + depth * R_xi / J[..., None] * Dz[..., None]
-                 - (r_s_xi - r_xi) * Dt[..., None] - r_s_xi * ur[..., None]) / r_s[..., None]
-        ut = u_q[..., 1][:, None]
-        ut_xi = u_xi[:, None, :, None, 1, :]
-        uz = u_q[..., 2][:, None]
-        uz_xi = u_xi[:, None, :, None, 2, :]
-        du = np.stack([ur_xi - ut[..., None] * thx, ut_xi + ur[..., None] * thx,
-                       np.broadcast_to(uz_xi, ur_xi.shape)], axis=-2)  # (f, s, t, q, 3, 2)
-        G = np.swapaxes(Fxi, -1, -2) @ du  # (f, s, t, q, 2, 2): t_i . du_j
-        dE = np.swapaxes(ginv, -1, -2) @ G @ ginv
-        dE = 0.5 * (dE + np.swapaxes(dE, -1, -2))
-        normal_da = _cross(Fxi[..., 0], Fxi[..., 1]) * area_q[..., None]  # (s, t, q, 3)
-        u_here = np.stack([ur, np.broadcast_to(ut, ur.shape), np.broadcast_to(uz, ur.shape)], -1)
-        return C, dE, area_factor * area_q, normal_da, u_here
-
-    valid = st.valid[:, :, None]  # (s, t, 1)
-    cs, dens = [], []
+        gl, wl = np.polynomial.legendre.leggauss(int(n_layers))
+        s_nodes, s_weights = 0.5 * (gl + 1.0), 0.5 * wl
+    valid = g.valid[:, :, None]  # (s, t, 1)
+    n_fields, n_steps = g.d_z.shape[:2]
+    cs, dens, surface = [], [], None
     for sv, sw in zip(s_nodes, s_weights):
-        C, dE, dA0, _, _ = layer(sv)
-        dV0 = np.where(valid, dA0 * e0 * sw, 0.0)  # (s, t, q)
+        layer = _layer(g, sv)
+        C, dE, dA0 = layer[:3]
+        if sv == 1.0:
+            surface = layer
+        dV0 = np.where(valid, dA0 * g.e0 * sw, 0.0)  # (s, t, q)
         C = np.where(valid[..., None, None], C, np.eye(2))
         cs.append(np.stack([C[..., 0, 0], C[..., 1, 1], C[..., 0, 1]], -1).reshape(n_steps, -1, 3))
         dE = np.where(valid[None, ..., None, None], dE, 0.0)  # excluded triangles may hold NaN geometry
         dens.append((np.stack([dE[..., 0, 0], dE[..., 1, 1], 2.0 * dE[..., 0, 1]], -1)
-                     * dV0[None, ..., None]).reshape(fields.n_fields, n_steps, -1, 3))
-    c = np.concatenate(cs, axis=1)
-    work_density = np.concatenate(dens, axis=2)
+                     * dV0[None, ..., None]).reshape(n_fields, n_steps, -1, 3))
+    return np.concatenate(cs, axis=1), np.concatenate(dens, axis=2), surface
 
-    # External work: pressure on the loaded surface (markers for membrane, lumen for thick)
-    _, _, _, normal_da, u_here = layer(1.0 if wall == "membrane" else 0.0)
+
+def _pressure_work_per_pascal(g: _WallGeometry, layer) -> np.ndarray:
+    """Virtual work of a unit pressure on the loaded surface ``layer``, shape (n_fields, n_steps)."""
+    _, _, _, normal_da, u_here = layer
     with np.errstate(invalid="ignore"):
         pw = np.einsum("stqc,fstqc->fst", normal_da, u_here)
-    pw = np.where(st.valid[None], np.nan_to_num(pw), 0.0).sum(-1)
-    pressure_work = p[None] * pw
+    return np.where(g.valid[None], np.nan_to_num(pw), 0.0).sum(-1)
 
-    # Axial force across the top measured boundary
-    r_all, th_all = st.r_markers, st.theta_markers
-    r2 = r_all**2
+
+def _top_loop_area(mesh: SurfaceMesh, st, jac: np.ndarray, wall: str, e0: float) -> np.ndarray:
+    """Cross-section area (m^2) enclosed by the pressurised surface along the top boundary, per step."""
+    r2 = st.r_markers**2
     if wall == "thick":
         # per-marker J (mean over its triangles) for the lumen radius along the loop
-        jm = np.zeros((n_steps, mesh.n_markers))
-        cnt = np.zeros((n_steps, mesh.n_markers))
-        for v in range(3):
-            np.add.at(jm, (slice(None), tri[:, v]), np.where(st.valid, jac, 0.0))
-            np.add.at(cnt, (slice(None), tri[:, v]), st.valid.astype(float))
+        tri = mesh.triangles
+        incidence = csr_matrix((np.ones(tri.size), (tri.ravel(), np.arange(tri.size))),
+                               shape=(mesh.n_markers, tri.size))
+        per_vertex = np.repeat(np.where(st.valid, jac, 0.0), 3, axis=1)  # (s, 3 t), vertices in tri.ravel() order
+        jm = (incidence @ per_vertex.T).T
+        cnt = (incidence @ np.repeat(st.valid.astype(float), 3, axis=1).T).T
         jm = jm / np.maximum(cnt, 1.0)
         kappa_m = e0 * (2.0 * mesh.r - e0)
         r2 = r2 - kappa_m[None] / np.where(jm > 0, jm, np.nan)
@@ -335,30 +406,19 @@ def prepare(
     fillv = np.nanmean(np.where(np.isfinite(r2_top), r2_top, np.nan), axis=1, keepdims=True)
     r2 = r2.copy()
     r2[:, top] = np.where(np.isfinite(r2_top), r2_top, fillv)
-    th_ref = np.broadcast_to(mesh.theta, th_all.shape)
-    th_use = np.where(np.isfinite(th_all), th_all, th_ref)
-    loop_area = _loop_area(mesh.top_edges, r2, th_use)
-    if ends == "clamped":
-        rc = float(np.mean(mesh.r[top])) if clamp_radius is None else float(clamp_radius)
-        if clamp_radius is None and wall == "thick":
-            rc -= e0
-        clamp_area = np.pi * rc * rc
-    else:
-        clamp_area = None
-    n_end = end_force(f, p, loop_area, clamp_area)
-    end_work = fields.load_end[:, None] * n_end[None]
-    evw = pressure_work + end_work
-    scale = np.sqrt(np.mean(evw**2, axis=1))
-    if np.any(scale <= 0):
-        raise DegenerateDataError(f"virtual fields {[n for n, s in zip(fields.names, scale) if s <= 0]} do no "
-                                  "external work at any step")
-    n_valid = st.valid.sum(axis=1)
-    if np.any(n_valid < n_tri):
-        log.warning("triangles excluded for unobserved markers per step: %s", (n_tri - n_valid).tolist())
-    return VFMData(c=c, work_density=work_density, evw=evw, pressure_work=pressure_work, end_work=end_work,
-                   end_force=n_end, scale=scale, field_names=tuple(fields.names), wall=wall, ends=ends, mesh=mesh,
-                   n_valid_triangles=n_valid, n_outliers=st.outliers.sum(axis=1),
-                   marker_noise=float(np.nanmedian(st.noise)), smoothing=smoothing, pressure=p, axial_force=f, thickness=e0)
+    th_all = st.theta_markers
+    th_use = np.where(np.isfinite(th_all), th_all, np.broadcast_to(mesh.theta, th_all.shape))
+    return _loop_area(mesh.top_edges, r2, th_use)
+
+
+def _clamp_area(mesh: SurfaceMesh, ends: str, wall: str, e0: float, clamp_radius: float | None) -> float | None:
+    """Area (m^2) on which the pressure pushes at the load-cell clamp; None for free ends."""
+    if ends != "clamped":
+        return None
+    rc = float(np.mean(mesh.r[np.unique(mesh.top_edges)])) if clamp_radius is None else float(clamp_radius)
+    if clamp_radius is None and wall == "thick":
+        rc -= e0
+    return np.pi * rc * rc
 
 
 def internal_virtual_work(data: VFMData, model: str | Model, parameters) -> np.ndarray:
@@ -375,3 +435,80 @@ def internal_virtual_work(data: VFMData, model: str | Model, parameters) -> np.n
     if batched:
         return np.einsum("fspc,espc->efs", data.work_density, S)
     return np.einsum("fspc,spc->fs", data.work_density, S)
+
+
+def virtual_work_basis(data: VFMData, model: str | Model, parameters, *,
+                       closed_form: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """IVW of each linear (stress-like) parameter's part of W and its derivatives (variable projection).
+
+    W = sum_l p_l W_l(C; q) with p the model's ``linear`` parameters and q the others, so
+    ``IVW = sum_l p_l A_l(q)``. Values of the linear parameters in ``parameters`` are ignored.
+
+    Returns
+    -------
+    A : ndarray, shape (n_linear, n_fields, n_steps)
+        IVW (J) of W_l (that is of W with p_l = 1 and the other linear parameters 0).
+    dA : ndarray, shape (n_linear, n_nonlinear, n_fields, n_steps)
+        Exact derivatives of ``A`` with respect to the nonlinear parameters, in model order.
+
+    The derivatives come from the shared second-order AD of the strain energy
+    (``models.virtual_work_sensitivities``), or from the model's closed form (``Model.work``) when it
+    has one and ``closed_form`` is true (both agree to rounding; the closed form is ~10x faster).
+    """
+    model = get_model(model)
+    linear = [n for n, lin in zip(model.parameter_names, model.linear) if lin]
+    nonlinear = tuple(n for n, lin in zip(model.parameter_names, model.linear) if not lin)
+    n_f, n_s = data.evw.shape
+    A = np.zeros((len(linear), n_f, n_s))
+    dA = np.zeros((len(linear), len(nonlinear), n_f, n_s))
+    closed = _closed_form_work(data, model, parameters, nonlinear) if closed_form else {}
+    for i, name in enumerate(linear):
+        key = ("constant basis", model.name, name)  # a part of W that no nonlinear parameter enters
+        if name in closed:
+            A[i], dA[i] = closed[name][0], np.swapaxes(closed[name][1], 0, 1)
+            continue
+        if key in data.cache:
+            A[i] = data.cache[key]
+            continue
+        chunks = _seeded_chunks(data)
+        values = {n: float(parameters[n]) for n in nonlinear}
+        values.update({n: float(n == name) for n in linear})
+        constant = True
+        for seeds in chunks:
+            work, d_work, const = virtual_work_sensitivities(model, seeds, values, nonlinear)
+            A[i] += work.sum(-1)
+            dA[i] += np.swapaxes(d_work.sum(-1), 0, 1)
+            constant &= const
+        if constant:
+            data.cache[key] = A[i].copy()
+    return A, dA
+
+
+def _closed_form_work(data: VFMData, model: Model, parameters, nonlinear: tuple[str, ...]) -> dict:
+    """``model.work`` on this data set (features cached on ``data``); {} if the model has none."""
+    if model.work is None or model.work_features is None:
+        return {}
+    key = ("work features", model.name)
+    features = data.cache.get(key)
+    if features is None:
+        w = data.work_density
+        features = model.work_features(data.c[..., 0], data.c[..., 1], data.c[..., 2],
+                                       2.0 * w[..., 0], 2.0 * w[..., 1], w[..., 2])
+        data.cache[key] = features
+    return model.work(features, **{n: float(parameters[n]) for n in nonlinear})
+
+
+#: Quadrature points per block of the derivative evaluation (its arrays then stay in the CPU cache).
+CHUNK_POINTS = 4096
+
+
+def _seeded_chunks(data: VFMData) -> list:
+    """The C components seeded with the virtual strains, in blocks of points (cached on ``data``)."""
+    chunks = data.cache.get("seeds")
+    if chunks is None:
+        n_s, n_p = data.c.shape[:2]
+        step = max(1, CHUNK_POINTS // n_s)
+        chunks = [seed_virtual_strains(data.c[:, j:j + step, 0], data.c[:, j:j + step, 1], data.c[:, j:j + step, 2],
+                                       data.work_density[:, :, j:j + step]) for j in range(0, n_p, step)]
+        data.cache["seeds"] = chunks
+    return chunks

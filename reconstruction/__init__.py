@@ -6,14 +6,18 @@ Pure functions over arrays and images: no files, ports or clocks.
 from reconstruction.calibration import CalibrationError, CalibrationResult, calibrate_cameras, calibrate_from_detections
 from reconstruction.calibration_io import (
     CalibrationFileError,
+    camera_from_openptv,
+    camera_to_openptv,
     cameras_from_arrays,
     cameras_from_toml,
     cameras_from_yaml,
     cameras_to_arrays,
     cameras_to_toml,
     cameras_to_yaml,
+    parse_ptv_par,
 )
 from reconstruction.cameras import Camera, project_points, rotation_matrix
+from reconstruction.refraction import Window
 from reconstruction.correspondence import Correspondence, CylinderPrior, match_views
 from reconstruction.detection import REJECT_REASONS, Detections, detect_markers
 from reconstruction.pipeline import (
@@ -33,7 +37,7 @@ from reconstruction.triangulation import Triangulation, triangulate
 __all__ = [
     "CalibrationError", "CalibrationResult", "calibrate_cameras", "calibrate_from_detections",
     "CalibrationFileError", "cameras_from_arrays", "cameras_from_toml", "cameras_from_yaml", "cameras_to_arrays",
-    "cameras_to_toml", "cameras_to_yaml",
+    "cameras_to_toml", "cameras_to_yaml", "camera_from_openptv", "camera_to_openptv", "parse_ptv_par", "Window",
     "BoardDetection", "BoardSpec", "TargetError", "detect_board", "detect_boards",
     "Camera", "project_points", "rotation_matrix",
     "Correspondence", "CylinderPrior", "match_views",

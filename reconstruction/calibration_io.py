@@ -29,7 +29,9 @@ import cv2
 import numpy as np
 import tomli_w
 
+from .calibration_openptv import OpenPTVControl, camera_from_openptv, camera_to_openptv, parse_ptv_par
 from .cameras import Camera
+from .refraction import Window
 
 __all__ = [
     "CalibrationFileError",
@@ -40,6 +42,10 @@ __all__ = [
     "cameras_from_yaml",
     "cameras_to_arrays",
     "cameras_from_arrays",
+    "OpenPTVControl",
+    "parse_ptv_par",
+    "camera_from_openptv",
+    "camera_to_openptv",
 ]
 
 UNIT_SCALE = {"m": 1.0, "cm": 1e-2, "mm": 1e-3, "um": 1e-6, "µm": 1e-6}
@@ -286,7 +292,38 @@ def cameras_to_arrays(cameras: list[Camera], rms: np.ndarray | None = None) -> d
         "image_size": np.array([c.image_size for c in cameras], dtype=np.int64),
     }
     out["rms"] = np.full(len(cameras), np.nan) if rms is None else np.asarray(rms, float).reshape(len(cameras))
+    if any(c.window is not None for c in cameras):
+        out.update(_window_arrays(cameras))
     return out
+
+
+def _window_arrays(cameras: list[Camera]) -> dict[str, np.ndarray]:
+    """``window_*`` arrays (NaN rows for cameras without a window): normal (n, 3), offset (n,) m,
+    thickness (n, m) m, index (n, m), n_bath (n,), n_air (n,)."""
+    m = max(len(c.window.thicknesses) for c in cameras if c.window is not None)
+    n = len(cameras)
+    out = {"window_normal": np.full((n, 3), np.nan), "window_offset": np.full(n, np.nan),
+           "window_thickness": np.full((n, m), np.nan), "window_index": np.full((n, m), np.nan),
+           "window_n_bath": np.full(n, np.nan), "window_n_air": np.full(n, np.nan)}
+    for i, c in enumerate(cameras):
+        w = c.window
+        if w is None:
+            continue
+        k = len(w.thicknesses)
+        out["window_normal"][i], out["window_offset"][i] = w.normal, w.offset
+        out["window_thickness"][i, :k], out["window_index"][i, :k] = w.thicknesses, w.indices
+        out["window_n_bath"][i], out["window_n_air"][i] = w.n_bath, w.n_air
+    return out
+
+
+def _window_from_arrays(arrays: dict, i: int) -> Window | None:
+    if "window_normal" not in arrays or not np.all(np.isfinite(np.asarray(arrays["window_normal"])[i])):
+        return None
+    t = np.asarray(arrays["window_thickness"])[i]
+    k = np.isfinite(t)
+    return Window(np.asarray(arrays["window_normal"])[i], float(np.asarray(arrays["window_offset"])[i]), tuple(t[k]),
+                  tuple(np.asarray(arrays["window_index"])[i][k]), float(np.asarray(arrays["window_n_bath"])[i]),
+                  float(np.asarray(arrays["window_n_air"])[i]))
 
 
 def cameras_from_arrays(arrays: dict) -> list[Camera]:
@@ -296,4 +333,5 @@ def cameras_from_arrays(arrays: dict) -> list[Camera]:
         K, dist, rvec, tvec, size = (np.asarray(arrays[k]) for k in ("K", "dist", "rvec", "tvec", "image_size"))
     except KeyError as exc:
         raise CalibrationFileError(f"calibration arrays: missing {exc.args[0]!r}") from None
-    return [Camera(names[i], K[i], dist[i], rvec[i], tvec[i], tuple(size[i])) for i in range(len(names))]
+    return [Camera(names[i], K[i], dist[i], rvec[i], tvec[i], tuple(size[i]), window=_window_from_arrays(arrays, i))
+            for i in range(len(names))]

@@ -4,14 +4,20 @@ Frames (see ``docs/decisions/0002-frames-and-shapes.md``): world points are in t
 (metres, z along the specimen axis); a camera maps a world point X to its own frame by
 ``Xc = R @ X + t`` (R from the Rodrigues vector ``rvec``), z forward; pixels are OpenCV's
 (x right, y down, origin at the centre of the top-left pixel).
+
+A camera may look into the bath through a flat window (``Camera.window``, see
+``reconstruction/refraction.py``); then :meth:`Camera.project` and :meth:`Camera.rays` follow the
+refracted rays exactly. Without a window nothing changes.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
+
+from reconstruction.refraction import Window, refracted_directions, window_rays
 
 __all__ = ["Camera", "project_points", "rotation_matrix"]
 
@@ -46,6 +52,8 @@ class Camera:
         World -> camera rotation (Rodrigues, rad) and translation (m).
     image_size : tuple (width, height)
         Pixels.
+    window : Window or None
+        Flat window between the camera and the bath (world frame); None = straight rays.
     """
 
     name: str
@@ -55,6 +63,7 @@ class Camera:
     tvec: np.ndarray
     image_size: tuple[int, int]
     meta: dict = field(default_factory=dict, compare=False)
+    window: Window | None = None
 
     def __post_init__(self) -> None:
         K = np.asarray(self.K, dtype=float)
@@ -70,6 +79,13 @@ class Camera:
         object.__setattr__(self, "rvec", np.asarray(self.rvec, dtype=float).reshape(3))
         object.__setattr__(self, "tvec", np.asarray(self.tvec, dtype=float).reshape(3))
         object.__setattr__(self, "image_size", (int(self.image_size[0]), int(self.image_size[1])))
+        if self.window is not None and not isinstance(self.window, Window):
+            raise ValueError(f"Camera {self.name!r}: window must be a reconstruction.refraction.Window or None; "
+                             f"got {type(self.window).__name__}")
+
+    def without_window(self) -> "Camera":
+        """The same camera with straight rays (the window ignored)."""
+        return replace(self, window=None)
 
     @property
     def R(self) -> np.ndarray:
@@ -93,9 +109,25 @@ class Camera:
     def project(self, points: np.ndarray) -> np.ndarray:
         """Project world points ``(..., 3)`` (m) to distorted pixels ``(..., 2)``.
 
-        Points behind the camera (z <= 0) give NaN.
+        Points behind the camera (z <= 0) give NaN; with a window, so do points not beyond it.
         """
-        return project_points(self.K, self.dist, self.to_camera(points))
+        if self.window is None:
+            return project_points(self.K, self.dist, self.to_camera(points))
+        d, beyond = refracted_directions(self.window, self.R, self.center, points)
+        return np.where(beyond[..., None], project_points(self.K, self.dist, d), np.nan)
+
+    def rays(self, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """World-frame rays of distorted pixels ``(n, 2)``: origins ``(n, 3)`` (m) and unit directions ``(n, 3)``.
+
+        Without a window the origin is the optical centre; with one, the point where the ray
+        enters the bath and the direction is the one in the bath.
+        """
+        xy = self.undistort_pixels(pixels)
+        d = np.concatenate([xy, np.ones((xy.shape[0], 1))], axis=1) @ self.R  # camera -> world
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        if self.window is None:
+            return np.broadcast_to(self.center, d.shape).copy(), d
+        return window_rays(self.window, self.center, d)
 
     def undistort_pixels(self, pixels: np.ndarray) -> np.ndarray:
         """Distorted pixels ``(n, 2)`` -> normalised undistorted image coordinates ``(n, 2)``.

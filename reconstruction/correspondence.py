@@ -156,6 +156,84 @@ def _midpoints(c1, d1, c2, d2):
     return 0.5 * (c1 + s[:, None] * d1 + c2 + t[:, None] * d2), s, t
 
 
+def _straight_pairs(i, j, dets, cameras, norm, rays, epipolar_px):
+    """Detection pairs within ``epipolar_px`` of each other's epipolar line; their ray mid-points."""
+    Ri, Rj = cameras[i].R, cameras[j].R
+    Rij = Rj @ Ri.T
+    tij = cameras[j].tvec - Rij @ cameras[i].tvec
+    E = _skew(tij) @ Rij
+    xi = np.hstack([norm[i], np.ones((len(norm[i]), 1))])
+    xj = np.hstack([norm[j], np.ones((len(norm[j]), 1))])
+    lj = xi @ E.T  # lines in j: (n_i, 3)
+    li = xj @ E  # lines in i: (n_j, 3)
+    num = xj @ lj.T  # (n_j, n_i) = x_j^T E x_i
+    dj = np.abs(num) / np.linalg.norm(lj[:, :2], axis=1)[None, :] * cameras[j].K[0, 0]
+    di = np.abs(num) / np.linalg.norm(li[:, :2], axis=1)[:, None] * cameras[i].K[0, 0]
+    b, a = np.nonzero(np.maximum(di, dj) <= epipolar_px)
+    X, s, t = _midpoints(rays[i][0][a], rays[i][1][a], rays[j][0][b], rays[j][1][b])
+    return a, b, X, (s > 0) & (t > 0)
+
+
+def _refracted_pairs(i, j, dets, cameras, rays, epipolar_px, chunk: int = 200_000):
+    """Pairs along the epipolar curves through the windows (see :func:`match_views`).
+
+    A loose 3-D gate on the distance between the rays in the bath (4 pixel footprints per
+    ``epipolar_px``) keeps the candidates few; the exact gate then projects each ray's
+    closest-approach point into the other camera and measures the pixel distance to the detection
+    there. Processed in blocks of about ``chunk`` pairs to bound memory.
+    """
+    (oi, di), (oj, dj) = rays[i], rays[j]
+    ci, cj = cameras[i].center, cameras[j].center
+    fi, fj = cameras[i].K[0, 0], cameras[j].K[0, 0]
+    step = max(1, chunk // max(len(oj), 1))
+    parts = []
+    for start in range(0, len(oi), step):
+        a, b = np.meshgrid(np.arange(start, min(start + step, len(oi))), np.arange(len(oj)), indexing="ij")
+        a, b = a.ravel(), b.ravel()
+        _, s, t = _midpoints(oi[a], di[a], oj[b], dj[b])
+        pa, pb = oi[a] + s[:, None] * di[a], oj[b] + t[:, None] * dj[b]
+        foot = np.maximum(np.linalg.norm(pa - ci, axis=1) / fi, np.linalg.norm(pb - cj, axis=1) / fj)
+        keep = (s > 0) & (t > 0) & (np.linalg.norm(pa - pb, axis=1) <= 4.0 * epipolar_px * foot)
+        parts.append((a[keep], b[keep], pa[keep], pb[keep]))
+    a, b, pa, pb = (np.concatenate([p[k] for p in parts]) for k in range(4))
+    err_j = np.linalg.norm(cameras[j].project(pa) - dets[j][b], axis=1)
+    err_i = np.linalg.norm(cameras[i].project(pb) - dets[i][a], axis=1)
+    ok = np.maximum(err_i, err_j) <= epipolar_px
+    return a[ok], b[ok], 0.5 * (pa[ok] + pb[ok]), np.ones(int(ok.sum()), bool)
+
+
+def _seed_candidates(dets, cameras, epipolar_px, prior, min_angle, max_angle, bounds) -> list:
+    """Steps 1-2 of :func:`match_views`: candidate pairs and their mid-points, per camera pair."""
+    n_cams = len(cameras)
+    refracted = any(c.window is not None for c in cameras)
+    norm = [cam.undistort_pixels(d) if len(d) else np.zeros((0, 2)) for cam, d in zip(cameras, dets)]
+    rays = [cam.rays(d) if len(d) else (np.zeros((0, 3)), np.zeros((0, 3))) for cam, d in zip(cameras, dets)]
+    axes = np.stack([c.R[2] for c in cameras])
+    seeds = []
+    for i in range(n_cams):
+        for j in range(i + 1, n_cams):
+            if len(dets[i]) == 0 or len(dets[j]) == 0:
+                continue
+            ang = np.degrees(np.arccos(np.clip(axes[i] @ axes[j], -1, 1)))
+            if ang < min_angle or ang > max_angle:
+                continue
+            if refracted:
+                a, b, X, ok = _refracted_pairs(i, j, dets, cameras, rays, epipolar_px)
+            else:
+                a, b, X, ok = _straight_pairs(i, j, dets, cameras, norm, rays, epipolar_px)
+            ok = ok & np.all(np.isfinite(X), axis=1)
+            if bounds is not None:
+                ok &= np.all((X >= np.asarray(bounds[0])) & (X <= np.asarray(bounds[1])), axis=1)
+            if prior is not None:
+                ok &= prior.admissible(X) & prior.facing(X, cameras[i]) & prior.facing(X, cameras[j])
+            if np.any(ok):
+                obs = np.full((int(ok.sum()), n_cams), -1, dtype=np.int64)
+                obs[:, i] = a[ok]
+                obs[:, j] = b[ok]
+                seeds.append((X[ok], obs))
+    return seeds
+
+
 def match_views(
     detections: list[np.ndarray],
     cameras: list[Camera],
@@ -167,6 +245,7 @@ def match_views(
     min_pair_angle_deg: float = 8.0,
     max_pair_angle_deg: float = 150.0,
     sigma_px: float | None = None,
+    bounds: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> Correspondence:
     """Find which detections in different cameras are the same marker, and triangulate them.
 
@@ -189,6 +268,13 @@ def match_views(
         cameras cannot both see a marker on an opaque tube anyway).
     sigma_px : float, optional
         Pixel noise for the triangulation covariance (default estimated).
+    bounds : (ndarray (3,), ndarray (3,)), optional
+        World box (m) the points lie in (e.g. a particle measurement volume); candidates outside are
+        dropped. Useful without a prior.
+
+    Cameras with a window (``Camera.window``) are matched along their epipolar *curves*: the rays
+    in the bath are intersected, and the distance of each detection to the projection of the
+    other camera's ray is measured at the closest approach of the two rays.
 
     Returns
     -------
@@ -200,47 +286,8 @@ def match_views(
     if min_views < 2:
         raise ValueError(f"min_views must be >= 2; got {min_views}")
     dets = [np.asarray(d, dtype=float).reshape(-1, 2) for d in detections]
-    norm = [cam.undistort_pixels(d) if len(d) else np.zeros((0, 2)) for cam, d in zip(cameras, dets)]
-    Rs = [c.R for c in cameras]
-    centres = [c.center for c in cameras]
-    rays = []
-    for R, u in zip(Rs, norm):
-        h = np.hstack([u, np.ones((len(u), 1))]) @ R  # R^T x, row form
-        rays.append(h / np.linalg.norm(h, axis=1, keepdims=True) if len(u) else np.zeros((0, 3)))
-    axes = np.stack([R[2] for R in Rs])
     trees = [cKDTree(d) if len(d) else None for d in dets]
-
-    # 1-2. candidate pairs
-    seeds = []
-    for i in range(n_cams):
-        for j in range(i + 1, n_cams):
-            if len(dets[i]) == 0 or len(dets[j]) == 0:
-                continue
-            ang = np.degrees(np.arccos(np.clip(axes[i] @ axes[j], -1, 1)))
-            if ang < min_pair_angle_deg or ang > max_pair_angle_deg:
-                continue
-            Rij = Rs[j] @ Rs[i].T
-            tij = cameras[j].tvec - Rij @ cameras[i].tvec
-            E = _skew(tij) @ Rij
-            xi = np.hstack([norm[i], np.ones((len(norm[i]), 1))])
-            xj = np.hstack([norm[j], np.ones((len(norm[j]), 1))])
-            lj = xi @ E.T  # lines in j: (n_i, 3)
-            li = xj @ E  # lines in i: (n_j, 3)
-            num = xj @ lj.T  # (n_j, n_i) = x_j^T E x_i
-            dj = np.abs(num) / np.linalg.norm(lj[:, :2], axis=1)[None, :] * cameras[j].K[0, 0]
-            di = np.abs(num) / np.linalg.norm(li[:, :2], axis=1)[:, None] * cameras[i].K[0, 0]
-            b, a = np.nonzero(np.maximum(di, dj) <= epipolar_px)
-            if a.size == 0:
-                continue
-            X, s, t = _midpoints(centres[i], rays[i][a], centres[j], rays[j][b])
-            ok = (s > 0) & (t > 0) & np.all(np.isfinite(X), axis=1)
-            if prior is not None:
-                ok &= prior.admissible(X) & prior.facing(X, cameras[i]) & prior.facing(X, cameras[j])
-            if np.any(ok):
-                obs = np.full((int(ok.sum()), n_cams), -1, dtype=np.int64)
-                obs[:, i] = a[ok]
-                obs[:, j] = b[ok]
-                seeds.append((X[ok], obs))
+    seeds = _seed_candidates(dets, cameras, epipolar_px, prior, min_pair_angle_deg, max_pair_angle_deg, bounds)
     empty_tri = triangulate(np.zeros((n_cams, 0, 2)), cameras)
     if not seeds:
         return Correspondence(np.zeros((0, n_cams), np.int64), empty_tri, [np.arange(len(d)) for d in dets], 0)

@@ -112,8 +112,9 @@ def detect_markers(
     centroid_threshold: float = 0.2,
     background_order: int = 3,
     split_merged: bool = True,
+    polarity: str = "dark",
 ) -> Detections:
-    """Detect dark circular markers with sub-pixel centres.
+    """Detect dark circular markers (or bright particles, ``polarity="bright"``) with sub-pixel centres.
 
     Parameters
     ----------
@@ -153,6 +154,9 @@ def detect_markers(
         Fraction of each blob's peak darkness subtracted before the centroid (weights
         ``max(w - t * peak, 0)``), so that background texture inside the window does not pull
         the centre; 0 gives the plain background-subtracted grey-value centroid.
+    polarity : {"dark", "bright"}
+        "dark": dark markers on bright tissue; "bright": bright particles on a dark background
+        (the image is inverted first, and saturation then means nothing unless given).
 
     Returns
     -------
@@ -161,6 +165,7 @@ def detect_markers(
     image = np.asarray(image)
     if image.ndim != 2:
         raise ValueError(f"image must be a 2-D grey-level array (H, W); got shape {image.shape}")
+    image, saturation = _apply_polarity(image, polarity, saturation)
     H, W = image.shape
     sat = _saturation_level(image, saturation)
     img = image.astype(np.float32)
@@ -417,6 +422,16 @@ def _fit_two_discs(dark, other, xx, yy, m, cov, r0, dmin, dmax):
     except np.linalg.LinAlgError:
         return None
     return cen, r, float(abs(p[6])), prec
+
+
+def _apply_polarity(image: np.ndarray, polarity: str, saturation):
+    """Invert bright-on-dark images so that the dark-marker detector sees dark blobs."""
+    if polarity not in ("dark", "bright"):
+        raise ValueError(f"polarity must be 'dark' (dark markers on a bright background) or 'bright'; got {polarity!r}")
+    if polarity == "dark":
+        return image, saturation
+    top = np.iinfo(image.dtype).max if np.issubdtype(image.dtype, np.integer) else float(np.nanmax(image))
+    return (top - image).astype(image.dtype), (None if saturation == "auto" else saturation)
 
 
 def _smooth3(a: np.ndarray) -> np.ndarray:

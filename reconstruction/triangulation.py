@@ -12,8 +12,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from reconstruction.cameras import Camera, project_points
+from reconstruction.refraction import refracted_directions
 
-__all__ = ["Triangulation", "triangulate", "triangulate_linear", "undistort_views"]
+__all__ = ["Triangulation", "triangulate", "triangulate_linear", "triangulate_rays", "undistort_views"]
 
 log = logging.getLogger(__name__)
 
@@ -98,17 +99,66 @@ def triangulate_linear(normalised: np.ndarray, cameras: list[Camera]) -> np.ndar
     return out
 
 
+def triangulate_rays(origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """Least-squares closest point to several rays per point.
+
+    Parameters
+    ----------
+    origins, directions : ndarray, shape (n_cameras, n_points, 3)
+        Ray origins (m) and unit directions; NaN where not observed.
+
+    Returns
+    -------
+    ndarray, shape (n_points, 3)
+        NaN for points with fewer than two rays or (near) parallel rays.
+    """
+    ok = np.all(np.isfinite(origins), -1) & np.all(np.isfinite(directions), -1)
+    d = np.where(ok[..., None], directions, 0.0)
+    o = np.where(ok[..., None], origins, 0.0)
+    P = ok[..., None, None] * np.eye(3) - d[..., :, None] * d[..., None, :]  # (n_cams, n_pts, 3, 3)
+    A = P.sum(axis=0)
+    b = np.einsum("cpij,cpj->pi", P, o)
+    out = np.full(b.shape, np.nan)
+    with np.errstate(invalid="ignore"):
+        good = (ok.sum(axis=0) >= 2) & (np.abs(np.linalg.det(A)) > 1e-12)
+    if np.any(good):
+        out[good] = np.linalg.solve(A[good], b[good][..., None])[..., 0]
+    return out
+
+
+def _initial_points(pixels: np.ndarray, cameras: list[Camera]) -> np.ndarray:
+    """DLT on straight rays, or the closest point of the rays in the bath when a camera has a window."""
+    if all(c.window is None for c in cameras):
+        return triangulate_linear(undistort_views(pixels, cameras), cameras)
+    shape = pixels.shape[:2] + (3,)
+    origins, directions = np.full(shape, np.nan), np.full(shape, np.nan)
+    for c, cam in enumerate(cameras):
+        ok = np.all(np.isfinite(pixels[c]), axis=-1)
+        if np.any(ok):
+            origins[c, ok], directions[c, ok] = cam.rays(pixels[c, ok])
+    return triangulate_rays(origins, directions)
+
+
 class _Cam:
     """Camera arrays with the rotation matrix computed once (``Camera.R`` recomputes it)."""
 
-    __slots__ = ("R", "tvec", "K", "dist")
+    __slots__ = ("R", "tvec", "K", "dist", "window", "center")
 
     def __init__(self, cam: Camera):
         self.R, self.tvec, self.K, self.dist = cam.R, cam.tvec, cam.K, cam.dist
+        self.window = cam.window
+        self.center = -self.R.T @ self.tvec
+
+
+def _project_one(c: _Cam, points: np.ndarray) -> np.ndarray:
+    if c.window is None:
+        return project_points(c.K, c.dist, points @ c.R.T + c.tvec)
+    d, beyond = refracted_directions(c.window, c.R, c.center, points)
+    return np.where(beyond[..., None], project_points(c.K, c.dist, d), np.nan)
 
 
 def _project_all(points: np.ndarray, cams: list[_Cam]) -> np.ndarray:
-    return np.stack([project_points(c.K, c.dist, points @ c.R.T + c.tvec) for c in cams])  # (n_cams, n_pts, 2)
+    return np.stack([_project_one(c, points) for c in cams])  # (n_cams, n_pts, 2)
 
 
 def triangulate(
@@ -145,11 +195,10 @@ def triangulate(
     n_cams, n_pts = pixels.shape[:2]
     ok = np.all(np.isfinite(pixels), axis=-1)
     n_views = ok.sum(axis=0)
-    X = triangulate_linear(undistort_views(pixels, cameras), cameras)
+    X = _initial_points(pixels, cameras)
     cams = [_Cam(c) for c in cameras]
     active = np.all(np.isfinite(X), axis=1)
     converged = np.zeros(n_pts, dtype=bool)
-    w = ok.astype(float)[..., None]
     obs = np.where(ok[..., None], pixels, 0.0)
     J = np.zeros((n_cams, n_pts, 2, 3))
     for _ in range(max_iterations):
@@ -157,8 +206,8 @@ def triangulate(
         if idx.size == 0:
             break
         Xa = X[idx]
-        r = (_project_all(Xa, cams) - obs[:, idx]) * w[:, idx]  # (n_cams, m, 2)
-        Ja = _jacobian(Xa, cams) * w[:, idx, :, None]  # (n_cams, m, 2, 3)
+        r = np.where(ok[:, idx, None], _project_all(Xa, cams) - obs[:, idx], 0.0)  # (n_cams, m, 2)
+        Ja = np.where(ok[:, idx, None, None], _jacobian(Xa, cams), 0.0)  # (n_cams, m, 2, 3)
         JtJ = np.einsum("cmki,cmkj->mij", Ja, Ja)
         Jtr = np.einsum("cmki,cmk->mi", Ja, r)
         try:
@@ -180,13 +229,7 @@ def triangulate(
         sigma_px = float(np.sqrt(sq[active].sum() / dof)) if dof > 0 else 0.02
         if not np.isfinite(sigma_px) or sigma_px <= 0:
             sigma_px = 0.02
-    Jf = _jacobian(np.where(active[:, None], X, 0.0), cams) * w[..., None]
-    JtJ = np.einsum("cmki,cmkj->mij", Jf, Jf)
-    cov = np.full((n_pts, 3, 3), np.nan)
-    det = np.linalg.det(JtJ)
-    inv_ok = active & (np.abs(det) > 0)
-    if np.any(inv_ok):
-        cov[inv_ok] = sigma_px**2 * np.linalg.inv(JtJ[inv_ok])
+    cov = _covariance(X, cams, ok, active, sigma_px)
     unc = np.sqrt(np.trace(cov, axis1=1, axis2=2))
     return Triangulation(
         points=X,
@@ -200,8 +243,21 @@ def triangulate(
     )
 
 
+def _covariance(X, cams, ok, active, sigma_px) -> np.ndarray:
+    """``sigma_px^2 (J^T J)^-1`` per point ``(n_pts, 3, 3)``, NaN where not determined."""
+    Jf = np.where(ok[..., None, None] & active[None, :, None, None], _jacobian(np.where(active[:, None], X, 0.0), cams), 0.0)
+    JtJ = np.einsum("cmki,cmkj->mij", Jf, Jf)
+    JtJ = np.where(np.isfinite(JtJ), JtJ, 0.0)  # a refracted point that left a window's bath side
+    cov = np.full((X.shape[0], 3, 3), np.nan)
+    inv_ok = active & (np.abs(np.linalg.det(JtJ)) > 0)
+    if np.any(inv_ok):
+        cov[inv_ok] = sigma_px**2 * np.linalg.inv(JtJ[inv_ok])
+    return cov
+
+
 def _jacobian(points: np.ndarray, cameras: list) -> np.ndarray:
-    """d(pixel)/d(X) for every camera and point, shape (n_cams, n_pts, 2, 3), by analytic chain rule."""
+    """d(pixel)/d(X) for every camera and point, shape (n_cams, n_pts, 2, 3): analytic chain rule, or
+    central differences through a window."""
     cams = [c if isinstance(c, _Cam) else _Cam(c) for c in cameras]
     out = np.empty((len(cams), points.shape[0], 2, 3))
     for c, cam in enumerate(cams):
@@ -209,7 +265,19 @@ def _jacobian(points: np.ndarray, cameras: list) -> np.ndarray:
     return out
 
 
+def _refracted_jacobian(cam: _Cam, points: np.ndarray, step: float = 1e-6) -> np.ndarray:
+    """Central differences (step in m) through the window: the refracted projection is smooth."""
+    out = np.empty((points.shape[0], 2, 3))
+    for i in range(3):
+        dx = np.zeros(3)
+        dx[i] = step
+        out[:, :, i] = (_project_one(cam, points + dx) - _project_one(cam, points - dx)) / (2 * step)
+    return out
+
+
 def _camera_jacobian(cam: _Cam, points: np.ndarray) -> np.ndarray:
+    if cam.window is not None:
+        return _refracted_jacobian(cam, points)
     R = cam.R
     Xc = points @ R.T + cam.tvec
     z = Xc[:, 2]

@@ -9,11 +9,12 @@ Snell's law keeps the ray in the plane spanned by ``w`` and the point, with the 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from reconstruction.cameras import Camera, project_points
+from reconstruction.cameras import Camera
+from reconstruction.refraction import Window
 
 __all__ = ["FlatWindow", "tilted_window", "project_refracted", "rays_in_water"]
 
@@ -48,6 +49,11 @@ class FlatWindow:
             raise ValueError(f"FlatWindow.normal must be a non-zero 3-vector; got {self.normal}")
         object.__setattr__(self, "normal", w / norm)
 
+    def to_window(self, camera: Camera) -> Window:
+        """The same window as a world-frame :class:`reconstruction.refraction.Window` for ``camera``."""
+        nw = camera.R.T @ self.normal
+        return Window(nw, self.distance + nw @ camera.center, (self.thickness,), (self.n_glass,), self.n_water, self.n_air)
+
 
 def tilted_window(tilt: float, *, azimuth: float = 0.0, **kwargs) -> FlatWindow:
     """Window whose normal is the optical axis tilted by ``tilt`` rad towards image direction ``azimuth`` (rad)."""
@@ -55,45 +61,13 @@ def tilted_window(tilt: float, *, azimuth: float = 0.0, **kwargs) -> FlatWindow:
     return FlatWindow(w, **kwargs)
 
 
-def _radial(window: FlatWindow, s: np.ndarray, h: np.ndarray) -> np.ndarray:
-    """Radial offset reached at depth h (along the normal) by a ray with Snell invariant s, and its derivative."""
-    d, t = window.distance, window.thickness
-    out = np.zeros_like(s)
-    der = np.zeros_like(s)
-    for n, length in ((window.n_air, d), (window.n_glass, t), (window.n_water, h - d - t)):
-        sin = s / n
-        cos = np.sqrt(1 - sin * sin)
-        out += length * sin / cos
-        der += length / (n * cos**3)
-    return out, der
-
-
 def project_refracted(camera: Camera, window: FlatWindow, points: np.ndarray) -> np.ndarray:
     """Pixels ``(..., 2)`` of world points ``(..., 3)`` in the bath seen through ``window``.
 
-    Points not beyond the window give NaN.
+    Points not beyond the window give NaN. The physics is the reconstruction's own
+    (:class:`reconstruction.refraction.Window`), so simulator and reconstruction share one model.
     """
-    Xc = camera.to_camera(points)
-    w = window.normal
-    h = Xc @ w
-    radial_vec = Xc - h[..., None] * w
-    rho = np.linalg.norm(radial_vec, axis=-1)
-    u = radial_vec / np.where(rho > 0, rho, 1.0)[..., None]
-    beyond = h > window.distance + window.thickness
-    hh = np.where(beyond, h, window.distance + window.thickness + 1.0)
-    # Newton on s in [0, n_air) from the straight-line guess in water
-    s = window.n_air * np.sin(np.arctan2(rho, hh)) * 0.9
-    smax = min(window.n_air, window.n_glass, window.n_water) * (1 - 1e-12)
-    for _ in range(30):
-        f, df = _radial(window, s, hh)
-        step = (f - rho) / df
-        s = np.clip(s - step, 0.0, smax)
-        if np.all(np.abs(step) < 1e-15):
-            break
-    sin_a = s / window.n_air
-    d_air = np.sqrt(1 - sin_a**2)[..., None] * w + sin_a[..., None] * u
-    px = project_points(camera.K, camera.dist, d_air)
-    return np.where(beyond[..., None], px, np.nan)
+    return replace(camera, window=window.to_window(camera)).project(points)
 
 
 def rays_in_water(camera: Camera, window: FlatWindow, normalised: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -22,9 +22,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["Model", "register", "get_model", "available_models", "pk2_stress", "cauchy_stress", "strain_energy"]
+__all__ = ["Model", "register", "get_model", "available_models", "pk2_stress", "cauchy_stress", "strain_energy",
+           "seed_virtual_strains", "virtual_work_sensitivities"]
 
 from ._dual import seed
+from ._hyperdual import HyperDual, seed_directions, seed_parameters
+
 
 @dataclass(frozen=True)
 class Model:
@@ -48,6 +51,15 @@ class Model:
         Stress-like parameters W is proportional to (the optimiser fits them linearly at each start).
     lower, upper : tuple of float
         Bounds for the parameters that are not log-scaled (ignored for positive ones).
+    work_features, work : callable, optional
+        A closed-form shortcut of the identification's hot path: ``work_features(c11, c22, c12,
+        d11, d22, d12)`` precomputes what does not depend on the parameters (C components
+        ``(...)``, virtual-strain directions ``(k, ...)``), and ``work(features, **nonlinear)``
+        returns ``{linear name: (virtual work (k, ...[:-1]), its derivatives by the nonlinear
+        parameters (k, n_nonlinear, ...[:-1]))}`` summed over the last axis, for W with that
+        linear parameter 1 and the others 0. It must equal the shared AD path
+        (``virtual_work_sensitivities``; tests/test_ident_models.py checks it); linear parameters it
+        leaves out go through the AD path.
     """
 
     name: str
@@ -60,6 +72,8 @@ class Model:
     lower: tuple[float, ...] = field(default=())
     upper: tuple[float, ...] = field(default=())
     description: str = ""
+    work_features: Callable[..., object] | None = None
+    work: Callable[..., dict] | None = None
 
     def __post_init__(self) -> None:
         n = len(self.parameter_names)
@@ -138,6 +152,56 @@ def pk2_components(model: Model, c11, c22, c12, parameters: Mapping[str, np.ndar
     grad = np.broadcast_to(w.d, (3,) + np.shape(w.v))
     # c12 stands for both off-diagonal entries of C: dW/dc12 = 2 dW/dC_12 = S_12.
     return 2.0 * grad[0], 2.0 * grad[1], grad[2]
+
+
+def seed_virtual_strains(c11, c22, c12, weights) -> tuple[HyperDual, HyperDual, HyperDual, HyperDual]:
+    """The in-plane C components (and C33 = 1 / det C) varying along the virtual strains.
+
+    ``S : dE* dV0 = dW/dt (C + 2 t dE*) dV0``: the internal virtual work density of a field is the
+    derivative of W along its virtual strain. ``weights`` has shape ``(k, ...) + (3,)``:
+    dV0 (dE*11, dE*22, 2 dE*12) of k fields (``VFMData.work_density``); C components ``(...)``.
+    The result is parameter-independent: compute it once per data set.
+    """
+    w = np.asarray(weights, dtype=float)
+    # c12 stands for both off-diagonal entries: its direction is 2 dE*12 (= weights[..., 2]).
+    c11 = seed_directions(c11, 2.0 * w[..., 0])
+    c22 = seed_directions(c22, 2.0 * w[..., 1])
+    c12 = seed_directions(c12, w[..., 2])
+    return c11, c22, c12, 1.0 / (c11 * c22 - c12 * c12)
+
+
+def virtual_work_sensitivities(model: Model, seeds, parameters: Mapping[str, float], nonlinear: tuple[str, ...]):
+    """Internal virtual work density and its derivatives with respect to the ``nonlinear`` parameters.
+
+    Parameters
+    ----------
+    seeds : from ``seed_virtual_strains`` (values of shape ``(...)``, k virtual strains)
+    parameters : the model's parameters (floats); those named in ``nonlinear`` are differentiated.
+
+    Returns
+    -------
+    work : ndarray, shape ``(k, ...)``
+        dW along each virtual strain (J per quadrature point, summed by the caller).
+    d_work : ndarray, shape ``(k, len(nonlinear), ...)``
+        Its exact derivatives with respect to the nonlinear parameters.
+    constant : bool
+        True if the derivatives of W by the nonlinear parameters vanish identically (its work can be cached).
+    """
+    c11 = seeds[0]
+    ndim = np.ndim(c11.v)
+    values = dict(parameters)
+    for name, dual in zip(nonlinear, seed_parameters([parameters[n] for n in nonlinear], ndim)):
+        values[name] = dual
+    w = model.energy(*seeds, **values)
+    k = c11.a.shape[0]
+    shape = np.shape(c11.v)
+    work = np.zeros((k,) + shape) if w.a is None else np.broadcast_to(w.a, (k,) + shape)
+    d_work = (np.zeros((k, len(nonlinear)) + shape) if w.ab is None
+              else np.broadcast_to(w.ab, (k, len(nonlinear)) + shape))
+    # exactly zero parameter derivatives at every point: the part does not depend on them (e.g. HGO's
+    # matrix term, whose fibre terms are multiplied by k1 = 0)
+    constant = (w.b is None or not np.any(w.b)) and (w.ab is None or not np.any(w.ab))
+    return work, d_work, constant
 
 
 def pk2_stress(model: str | Model, C: np.ndarray, parameters: Mapping[str, float]) -> np.ndarray:

@@ -18,8 +18,53 @@ def _val(x):
     return x.v if isinstance(x, Dual) else x
 
 
+def _elementary(ufunc, v):
+    """(f, f', f'') of the elementary functions the models use, at v; None for others."""
+    if ufunc is np.exp:
+        e = np.exp(v)
+        return e, e, e
+    if ufunc is np.log:
+        inv = 1.0 / v
+        return np.log(v), inv, -inv * inv
+    if ufunc is np.sqrt:
+        r = np.sqrt(v)
+        return r, 0.5 / r, -0.25 / (r * r * r)
+    if ufunc is np.sin:
+        sn, cs = np.sin(v), np.cos(v)
+        return sn, cs, -sn
+    if ufunc is np.cos:
+        sn, cs = np.sin(v), np.cos(v)
+        return cs, -sn, -cs
+    return None
+
+
+_REFLECTED = {np.add: "__radd__", np.subtract: "__rsub__", np.multiply: "__rmul__", np.true_divide: "__rtruediv__"}
+_FORWARD = {np.add: "__add__", np.subtract: "__sub__", np.multiply: "__mul__", np.true_divide: "__truediv__"}
+
+
+def apply_ufunc(cls, ufunc, inputs):
+    """The numpy ufuncs on dual numbers of class ``cls`` (shared by ``Dual`` and ``HyperDual``).
+
+    Arithmetic goes through the class operators; elementary functions through ``x._chain`` with the
+    derivatives up to the class's ``order``.
+    """
+    if ufunc in _FORWARD:
+        x, y = inputs
+        return getattr(x, _FORWARD[ufunc])(y) if isinstance(x, cls) else getattr(y, _REFLECTED[ufunc])(x)
+    if ufunc is np.power and isinstance(inputs[0], cls):
+        return inputs[0] ** inputs[1]
+    x = inputs[0]
+    if len(inputs) != 1 or not isinstance(x, cls):
+        return NotImplemented
+    if ufunc is np.negative:
+        return -x
+    d = _elementary(ufunc, x.v)
+    return NotImplemented if d is None else x._chain(*d[: cls.order + 1])
+
+
 class Dual:
     __array_priority__ = 1000
+    order = 1
 
     def __init__(self, v, d):
         self.v = v
@@ -74,34 +119,7 @@ class Dual:
     def __array_ufunc__(self, ufunc, method, *inputs, **kwargs):
         if method != "__call__" or kwargs:
             return NotImplemented
-        if ufunc is np.add:
-            return inputs[0] + inputs[1] if isinstance(inputs[0], Dual) else inputs[1] + inputs[0]
-        if ufunc is np.subtract:
-            return inputs[0] - inputs[1] if isinstance(inputs[0], Dual) else -(inputs[1] - inputs[0])
-        if ufunc is np.multiply:
-            return inputs[0] * inputs[1] if isinstance(inputs[0], Dual) else inputs[1] * inputs[0]
-        if ufunc is np.true_divide:
-            return inputs[0] / inputs[1] if isinstance(inputs[0], Dual) else inputs[1].__rtruediv__(inputs[0])
-        if ufunc is np.negative:
-            return -inputs[0]
-        if ufunc is np.power and isinstance(inputs[0], Dual):
-            return inputs[0] ** inputs[1]
-        x = inputs[0]
-        if len(inputs) != 1 or not isinstance(x, Dual):
-            return NotImplemented
-        if ufunc is np.exp:
-            e = np.exp(x.v)
-            return x._chain(e, e)
-        if ufunc is np.log:
-            return x._chain(np.log(x.v), 1.0 / x.v)
-        if ufunc is np.sqrt:
-            s = np.sqrt(x.v)
-            return x._chain(s, 0.5 / s)
-        if ufunc is np.sin:
-            return x._chain(np.sin(x.v), np.cos(x.v))
-        if ufunc is np.cos:
-            return x._chain(np.cos(x.v), -np.sin(x.v))
-        return NotImplemented
+        return apply_ufunc(Dual, ufunc, inputs)
 
     def __array_function__(self, func, types, args, kwargs):
         if func is np.real:

@@ -57,17 +57,45 @@ def _table(result) -> Table:
     return t
 
 
-def _import(path: Path, file_units: str, session, store: bool, out, units: str, as_json: bool) -> None:
-    """``--import``: read a calibration file, check it against the session's cameras, store and/or convert it."""
-    from reconstruction.calibration_io import (CalibrationFileError, cameras_from_toml, cameras_from_yaml,
-                                               cameras_to_arrays, cameras_to_toml, cameras_to_yaml)
+def _read_calibration(path: Path, file_units: str, body: str | None) -> tuple[list, dict]:
+    """Cameras and metadata of ``--import``: a TOML/YAML file or an OpenPTV folder (optionally refined on its body)."""
+    from reconstruction.calibration_io import CalibrationFileError, cameras_from_toml, cameras_from_yaml
+    from vfmlab import openptv
 
     try:
-        text = path.read_text()
+        if path.is_dir():
+            cams = openptv.load_cameras(path)
+            return (cams, {"units": "m"}) if body is None else _refine_on_body(path, cams, body)
+        if body is not None:
+            raise CliError("--body needs an OpenPTV folder for --import (its cal/camN.tif and cal/target_on_a_side.txt)")
         reader = cameras_from_toml if path.suffix.lower() == ".toml" else cameras_from_yaml
-        cams, meta = reader(text, units=file_units)
-    except (CalibrationFileError, UnicodeDecodeError) as exc:
+        return reader(path.read_text(), units=file_units)
+    except (CalibrationFileError, UnicodeDecodeError, OSError) as exc:
         raise CliError(f"--import {path}: {exc}") from None
+
+
+def _refine_on_body(folder: Path, cams: list, focal: str) -> tuple[list, dict]:
+    """Refine the imported cameras on the calibration body, through the window; refuse an ill-posed result."""
+    from vfmlab import openptv
+
+    res = openptv.calibrate_body_folder(folder, cams, fix_focal=focal == "fixed", refine_k2=True, refine_window=True)
+    for r in res:
+        err_console.print(r.message)
+    bad = [r.camera.name for r in res if not r.well_posed]
+    if bad:
+        raise CliError(f"--body: calibration of {bad} is ill-posed (focal length not determined by one view of this body); "
+                       "use --body fixed to keep the imported focal length")
+    return [r.camera for r in res], {"units": "m", "rms_px": [r.rms for r in res],
+                                     "body_calibration": f"{folder}/cal (focal {focal})"}
+
+
+def _import(path: Path, file_units: str, session, store: bool, out, units: str, as_json: bool, body: str | None = None) -> None:
+    """``--import``: read a calibration, check it against the session's cameras, store and/or convert it."""
+    from reconstruction.calibration_io import cameras_to_arrays, cameras_to_toml, cameras_to_yaml
+
+    cams, meta = _read_calibration(path, file_units, body)
+    if out is not None and any(c.window is not None for c in cams):
+        raise CliError(f"-o {out}: TOML/YAML files hold no window (refraction); store the calibration in a session instead")
     stored = None
     if session is not None and store:
         from acquisition.session import SessionError, write_result
@@ -91,7 +119,8 @@ def _import(path: Path, file_units: str, session, store: bool, out, units: str, 
             stored = write_result(session, "calibration", arrays,
                                   {"source": str(path), "imported": True, "file_units": meta.get("units", file_units)},
                                   {"converged": True, "n_observations": 0, "n_outliers": 0},
-                                  units={"K": "px", "tvec": "m", "rvec": "rad", "rms": "px", "image_size": "px"})
+                                  units={"K": "px", "tvec": "m", "rvec": "rad", "rms": "px", "image_size": "px",
+                                         "window_offset": "m", "window_thickness": "m", "window_normal": "1", "window_index": "1"})
         except SessionError as exc:
             raise CliError(str(exc)) from None
     if out is not None:
@@ -117,6 +146,7 @@ Examples:
   vfmlab calibrate a1.h5                                  # board views stored in the session
   vfmlab calibrate --images boards/ --squares 8x6 --square-size-mm 4.5 -o calibration.toml
   vfmlab calibrate a1.h5 --import calibration.toml --import-units mm
+  vfmlab calibrate a1.h5 --import openptv-project/ --body fixed   # OpenPTV cameras + window, refined on its body
 """
 
 
@@ -146,14 +176,19 @@ Examples:
               help="Length unit of the translations in --out.")
 @click.option("--store/--no-store", default=True, show_default=True,
               help="Store the result in SESSION (as a new 'calibration' result) when a session is given.")
-@click.option("--import", "import_file", type=click.Path(exists=True, dir_okay=False, path_type=Path),
-              help="Take the calibration from a file instead of board images: aniposelib calibration.toml or "
-                   "OpenCV FileStorage .yaml/.yml/.xml/.json (store it in SESSION and/or convert it with -o).")
+@click.option("--import", "import_file", type=click.Path(exists=True, path_type=Path),
+              help="Take the calibration from a file instead of board images: aniposelib calibration.toml, "
+                   "OpenCV FileStorage .yaml/.yml/.xml/.json, or an OpenPTV working folder (parameters/ptv.par, "
+                   "cal/*.ori + .addpar: cameras with their glass/water window). Store it in SESSION and/or convert it with -o.")
+@click.option("--body", type=click.Choice(["fixed", "free"]), default=None,
+              help="With an OpenPTV folder: refine every camera on its image of the 3-D calibration body "
+                   "(cal/camN.tif, cal/target_on_a_side.txt) through the window; 'fixed' keeps the imported focal "
+                   "length, 'free' refines it too and refuses the result if one view cannot determine it.")
 @click.option("--import-units", type=click.Choice(["m", "cm", "mm", "um"]), default="mm", show_default=True,
               help="Length unit of an imported file's translations when the file does not say (aniposelib does not).")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
 def command(session, images_dir, board, squares, square_size_mm, marker_size_mm, dictionary, subpix_window, reference,
-            world_view, fix_k3, out, force, units, store, import_file, import_units, as_json):
+            world_view, fix_k3, out, force, units, store, import_file, import_units, body, as_json):
     """Calibrate the cameras jointly from calibration-board images.
 
     Each camera is initialised alone (OpenCV), camera poses are chained through shared board
@@ -174,7 +209,7 @@ def command(session, images_dir, board, squares, square_size_mm, marker_size_mm,
     if import_file is not None:
         if images_dir is not None:
             raise CliError("--import and --images exclude each other: calibrate from images or import a calibration")
-        _import(import_file, import_units, session, store, out, units, as_json)
+        _import(import_file, import_units, session, store, out, units, as_json, body)
         return
     if session is None and images_dir is None:
         raise CliError("give a SESSION (its calibration images) or --images DIR")

@@ -60,6 +60,17 @@ def _read(path: Path) -> np.ndarray:
     return img
 
 
+def _check_tube(cyl, centres: np.ndarray) -> None:
+    """The specimen's radius and length are measured assuming the step-0 markers lie on a tube: refuse when they do not."""
+    extent = float(np.ptp(centres, axis=0).max())
+    if not (cyl.rms < 0.1 * cyl.radius and cyl.radius < 2.0 * extent):
+        raise CliError(
+            f"the {centres.shape[0]} step-0 markers do not lie on a tube (cylinder fit: radius {cyl.radius * 1e3:.3g} mm, "
+            f"RMS {cyl.rms * 1e3:.3g} mm, markers spread over {extent * 1e3:.3g} mm): the specimen's radius and length "
+            "are measured assuming a tubular specimen; give --radius-mm and --length-mm"
+        )
+
+
 EPILOG = """
 \b
 Examples:
@@ -72,8 +83,12 @@ Then: vfmlab reconstruct a1.h5
 
 @click.command("import-images", epilog=EPILOG)
 @click.argument("images_dir", type=click.Path(file_okay=False, path_type=Path))
-@click.option("--calibration", required=True, type=click.Path(dir_okay=False, path_type=Path),
-              help="Calibration of the cameras: aniposelib calibration.toml or OpenCV .yaml.")
+@click.option("--calibration", required=True, type=click.Path(path_type=Path),
+              help="Calibration of the cameras: aniposelib calibration.toml, OpenCV .yaml, or an OpenPTV folder "
+                   "(cameras looking through a glass/water window).")
+@click.option("--polarity", type=click.Choice(["dark", "bright"]), default="dark", show_default=True,
+              help="Markers darker than their background (dark markers on tissue) or brighter (particles, "
+                   "retro-reflective markers).")
 @click.option("--calibration-units", type=click.Choice(["mm", "m", "cm", "um"]), default=None,
               help="Length unit of the calibration when the file does not say [default: mm].")
 @click.option("--loads", "loads_csv", required=True, type=click.Path(dir_okay=False, path_type=Path),
@@ -93,7 +108,7 @@ Then: vfmlab reconstruct a1.h5
               help="What axial_force_N is: force carried by the wall, or a total reading behind a pressurised cannula.")
 @click.option("--force", "overwrite", is_flag=True, help="Overwrite OUT if it exists.")
 @click.option("--json", "as_json", is_flag=True, help="Print what was imported as JSON (SI: m).")
-def command(images_dir, calibration, calibration_units, loads_csv, out, marker_diameter_mm, thickness_mm, radius_mm,
+def command(images_dir, calibration, polarity, calibration_units, loads_csv, out, marker_diameter_mm, thickness_mm, radius_mm,
             length_mm, specimen_id, notes, force_is, overwrite, as_json):
     """Build a session from IMAGES_DIR/<camera>/<step>.png (camera names as in the calibration file,
     step 0 = reference), the camera calibration and a loads CSV. Then run 'vfmlab reconstruct OUT'."""
@@ -135,11 +150,13 @@ def command(images_dir, calibration, calibration_units, loads_csv, out, marker_d
     if radius_mm is None or length_mm is None:
         from reconstruction.surface import fit_cylinder
 
-        pts, _ = reconstruct_step(first, cams, ReconstructionSettings(marker_diameter=marker_diameter_mm * 1e-3))
+        settings = ReconstructionSettings(marker_diameter=marker_diameter_mm * 1e-3, detection={"polarity": polarity})
+        pts, _ = reconstruct_step(first, cams, settings)
         if pts.centres.shape[0] < 8:
             raise CliError("could not measure the specimen from the step-0 images (fewer than 8 markers "
                            "reconstructed); give --radius-mm and --length-mm")
         cyl = fit_cylinder(pts.centres)
+        _check_tube(cyl, pts.centres)
         _, _, z = cyl.cylindrical(pts.centres)
         if radius_mm is None:
             radius_mm = (cyl.radius - 0.5 * marker_diameter_mm * 1e-3) * 1e3
@@ -157,7 +174,7 @@ def command(images_dir, calibration, calibration_units, loads_csv, out, marker_d
         raise CliError(str(exc)) from None
     specs = [CameraSpec(c.name, "imported", c.image_size[0], c.image_size[1], dtype) for c in cams]
     rig = {"source": "import-images", "images_dir": str(images_dir), "calibration": str(calibration),
-           "loads_csv": str(loads_csv), "marker_diameter_mm": marker_diameter_mm}
+           "loads_csv": str(loads_csv), "marker_diameter_mm": marker_diameter_mm, "marker_polarity": polarity}
     try:
         with SessionWriter.create(out, specimen, cameras=specs, protocol_text="", rig=rig,
                                   load_cell_measures=force_is, overwrite=overwrite) as writer:

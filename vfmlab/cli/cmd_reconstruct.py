@@ -15,12 +15,20 @@ from vfmlab.cli._common import CliError, console, err_console, esc, print_json
 log = logging.getLogger(__name__)
 
 def load_calibration_file(path: Path, units: str | None = None) -> list:
-    """Cameras from an aniposelib ``.toml`` or OpenCV ``.yaml``/``.yml`` calibration file."""
+    """Cameras from an aniposelib ``.toml`` or OpenCV ``.yaml``/``.yml`` calibration file, or an OpenPTV
+    working folder (``parameters/ptv.par`` + ``cal/*.ori``/``.addpar``: cameras with their window)."""
     from reconstruction.calibration_io import CalibrationFileError, cameras_from_toml, cameras_from_yaml
+    from vfmlab import openptv
 
+    if path.is_dir():
+        try:
+            return openptv.load_cameras(path)
+        except (CalibrationFileError, OSError) as exc:
+            raise CliError(f"--calibration {path}: {exc}") from None
     suffix = path.suffix.lower()
     if suffix not in (".toml", ".yaml", ".yml"):
-        raise CliError(f"--calibration must be a .toml (aniposelib) or .yaml/.yml (OpenCV) file; got {path.name!r}")
+        raise CliError(f"--calibration must be a .toml (aniposelib) or .yaml/.yml (OpenCV) file or an OpenPTV folder; "
+                       f"got {path.name!r}")
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:

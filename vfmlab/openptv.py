@@ -1,0 +1,103 @@
+"""Reading an OpenPTV working folder (``parameters/ptv.par``, ``cal/*.ori``/``.addpar``, images, ``res/rt_is.*``).
+
+File I/O only; the conversions live in ``reconstruction/calibration_openptv.py``. OpenPTV lengths
+are mm and its pixels are offset by +0.5 px from OpenCV's: everything returned here is SI and
+OpenCV pixels.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from reconstruction.calibration_io import CalibrationFileError, camera_from_openptv, parse_ptv_par
+
+__all__ = ["is_openptv_folder", "load_cameras", "read_image", "read_rt_is", "read_target_file", "frame_path"]
+
+
+def is_openptv_folder(path: str | Path) -> bool:
+    """True for a folder with ``parameters/ptv.par``."""
+    return (Path(path) / "parameters" / "ptv.par").is_file()
+
+
+def _calibration_files(folder: Path, image_name: str) -> tuple[Path, Path | None]:
+    ori = folder / (image_name + ".ori")
+    add = folder / (image_name + ".addpar")
+    if not ori.is_file():
+        raise CalibrationFileError(f"{folder}: OpenPTV calibration {ori.name} not found (ptv.par names {image_name})")
+    return ori, add if add.is_file() else None
+
+
+def load_cameras(folder: str | Path, *, media: bool = True) -> list:
+    """Cameras (SI, OpenCV pixels) of an OpenPTV folder; ``media=False`` drops the window."""
+    folder = Path(folder)
+    if not is_openptv_folder(folder):
+        raise CalibrationFileError(f"{folder}: not an OpenPTV folder (no parameters/ptv.par)")
+    control = parse_ptv_par((folder / "parameters" / "ptv.par").read_text())
+    cams = []
+    for i, image in enumerate(control["calibration_images"]):
+        ori, add = _calibration_files(folder, image)
+        cam = camera_from_openptv(f"cam{i + 1}", ori.read_text(), add.read_text() if add else None, control)
+        cams.append(cam if media else cam.without_window())
+    return cams
+
+
+def read_image(path: str | Path) -> np.ndarray:
+    """A grey image (``uint8``/``uint16``, shape (H, W)); OpenPTV's frames are TIFFs without extension."""
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise FileNotFoundError(f"cannot read image {path}")
+    return img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+
+
+def frame_path(folder: str | Path, camera: int, frame: int, *, pattern: str = "img_1/cam{camera}.1000{frame}") -> Path:
+    """Path of frame ``frame`` of camera ``camera`` (1-based, as OpenPTV names them)."""
+    return Path(folder) / pattern.format(camera=camera, frame=frame)
+
+
+def read_rt_is(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """OpenPTV 3-D result: points ``(n, 3)`` in m and target indices ``(n, n_cameras)`` (-1 = none)."""
+    rows = np.loadtxt(path, skiprows=1, ndmin=2)
+    return rows[:, 1:4] * 1e-3, rows[:, 4:].astype(int)
+
+
+def read_target_file(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """Calibration body ``id x y z`` (mm): ids ``(n,)`` and points ``(n, 3)`` in m."""
+    rows = np.loadtxt(path, ndmin=2)
+    return rows[:, 0].astype(int), rows[:, 1:4] * 1e-3
+
+
+# ------------------------------------------------------------------------------------- the data set, end to end
+
+#: Particle detection settings of this kind of scene (OpenPTV's targ_rec.par of test_cavity: grey threshold 9,
+#: 4..500 px, summed grey >= 150), bright particles on a dark background.
+PARTICLE_SETTINGS = {"polarity": "bright", "threshold": 9.0, "pixels_range": (4, 500), "min_sum": 150.0}
+#: Calibration-body dots: large bright dots on a dark background.
+BODY_DOT_SETTINGS = {"polarity": "bright", "background_px": 41, "threshold": 20.0, "pixels_range": (10, 2000)}
+
+
+def detect_frame(folder: str | Path, frame: int, n_cameras: int = 4, **settings) -> list[np.ndarray]:
+    """Particle centres ``(n_i, 2)`` (OpenCV px) in every camera's image of ``frame``."""
+    from reconstruction.particles import detect_particles
+
+    opts = {**PARTICLE_SETTINGS, **settings}
+    return [detect_particles(read_image(frame_path(folder, c + 1, frame)), **opts).centres for c in range(n_cameras)]
+
+
+def calibrate_body_folder(folder: str | Path, seeds: list, **options) -> list:
+    """:func:`~reconstruction.calibration_body.calibrate_from_body` of every camera on ``cal/camN.tif`` and
+    ``cal/target_on_a_side.txt``, seeded by ``seeds`` (e.g. the imported calibration)."""
+    from reconstruction.calibration_body import calibrate_from_body, match_body_points
+    from reconstruction.particles import detect_particles
+
+    folder = Path(folder)
+    _, body = read_target_file(folder / "cal" / "target_on_a_side.txt")
+    out = []
+    for i, seed in enumerate(seeds):
+        dots = detect_particles(read_image(folder / "cal" / f"cam{i + 1}.tif"), **BODY_DOT_SETTINGS).centres
+        # coarse: a wide gate (dots are ~50 px apart) and a fixed focal length, then the fine match
+        coarse = calibrate_from_body(match_body_points(dots, seed, body, gate_px=20.0), body, seed, fix_focal=True)
+        out.append(calibrate_from_body(match_body_points(dots, coarse.camera, body, gate_px=4.0), body, seed, **options))
+    return out
