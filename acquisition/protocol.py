@@ -26,6 +26,7 @@ Protocol file layout (see ``examples/paper-protocol.toml``)::
 
 from __future__ import annotations
 
+import difflib
 import math
 import tomllib
 from dataclasses import dataclass, field
@@ -55,6 +56,14 @@ __all__ = [
 ]
 
 MMHG = 133.322387415  # Pa
+#: A protocol that would run longer than this is refused before anything moves, s.
+MAX_DURATION_S = 86400.0
+#: Shortest preconditioning cycle a pressure controller can follow, s.
+MIN_CYCLE_S = 0.1
+#: Most cameras a rig file may declare.
+MAX_CAMERAS = 64
+#: Lower bounds of the time one step, one camera frame and one calibration view take, s.
+_STEP_FLOOR_S, _FRAME_S, _VIEW_FLOOR_S = 0.5, 0.05, 1.0
 PRESSURE_UNITS: dict[str, float] = {"Pa": 1.0, "kPa": 1000.0, "mmHg": MMHG}
 
 
@@ -203,6 +212,27 @@ class Protocol:
                     f"expected one of {names} or 'all'"
                 )
 
+    def min_duration_s(self, n_cameras: int = 1) -> float:
+        """A lower bound of the time the protocol takes, s (cycles, dwell and capture; no waiting)."""
+        pc = self.preconditioning
+        cycles = (pc.pressure_cycles + pc.stretch_cycles) * pc.cycle_s
+        steps = self.n_steps * (self.stability.dwell_s + _STEP_FLOOR_S + _FRAME_S * n_cameras)
+        views = self.calibration.views * (_VIEW_FLOOR_S + _FRAME_S * n_cameras)
+        return cycles + steps + views
+
+    def check_duration(self, n_cameras: int = 1) -> None:
+        """Raise :class:`ConfigError` if the protocol would take more than a day (estimate in the message)."""
+        total = self.min_duration_s(n_cameras)
+        if total > MAX_DURATION_S:
+            pc = self.preconditioning
+            raise ConfigError(
+                f"{self.source}: the protocol would take at least {_human_duration(total)} "
+                f"({pc.pressure_cycles + pc.stretch_cycles} preconditioning cycles x {pc.cycle_s:g} s, "
+                f"{self.n_steps} steps x >= {self.stability.dwell_s + _STEP_FLOOR_S:g} s, "
+                f"{self.calibration.views} calibration views, {n_cameras} camera(s)); the limit is "
+                f"{_human_duration(MAX_DURATION_S)}: split it into several sessions"
+            )
+
     def camera_names(self, rig: RigConfig) -> list[str]:
         """Names of the cameras to capture on ``rig``."""
         if "all" in self.capture.cameras:
@@ -256,6 +286,13 @@ class SafetyLimits:
     max_stretch: float = 1.6
     max_force: float = 50.0
 
+    def __post_init__(self) -> None:
+        # A limit that is NaN or infinite can never trip: refuse it wherever the limits come from.
+        for name, floor in (("max_pressure", 0.0), ("max_stretch", 1.0), ("max_force", 0.0)):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > floor):
+                raise ConfigError(f"safety limit {name} must be a finite number > {floor:g}; got {value!r}")
+
 
 @dataclass(frozen=True)
 class SimulationConfig:
@@ -302,13 +339,28 @@ class SpecimenFile:
     notes: str = ""
 
 
+def _human_duration(seconds: float) -> str:
+    if seconds >= 86400 * 365:
+        return f"{seconds / (86400 * 365.25):.3g} years"
+    if seconds >= 86400:
+        return f"{seconds / 86400:.3g} days"
+    return f"{seconds / 3600:.3g} h"
+
+
 # ----------------------------------------------------------------------------- TOML helpers
 def _read(path: str | Path) -> tuple[dict, str, str]:
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        raw = path.read_bytes()
     except OSError as exc:
-        raise ConfigError(f"{path}: cannot read file ({exc.strerror})") from exc
+        raise ConfigError(f"{path}: cannot read file ({exc.strerror})") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw[: exc.start].count(b"\n") + 1
+        column = exc.start - (raw.rfind(b"\n", 0, exc.start) + 1) + 1
+        raise ConfigError(f"{path}: line {line}, column {column}: byte 0x{raw[exc.start]:02x} is not UTF-8 text; "
+                          "save the file as UTF-8 (it looks like Latin-1 or another legacy encoding)") from None
     return _loads(text, path.name), text, path.name
 
 
@@ -328,6 +380,8 @@ class _Table:
             self.fail("", f"expected a table; got {type(data).__name__}")
         self.data = dict(data)
         self.seen: set[str] = set()
+        self.known: set[str] = set()  # every key this table may hold (for "did you mean")
+        self.unit_used = False
 
     def loc(self, key: str) -> str:
         return f"{self.source}: {self.where}" + (f".{key}" if key else "")
@@ -338,11 +392,24 @@ class _Table:
     def has(self, key: str) -> bool:
         return key in self.data
 
+    def misspelt(self, key: str) -> str | None:
+        """An unexpected key of the table that looks like a misspelling of ``key``."""
+        strays = [k for k in self.data if k not in self.seen and k not in self.known]
+        close = difflib.get_close_matches(key, strays, n=1, cutoff=0.75)
+        return close[0] if close else None
+
+    def missing(self, key: str, extra: str = "") -> None:
+        stray = self.misspelt(key)
+        if stray is not None:
+            self.fail(stray, f"unknown key {stray!r}; did you mean {key!r}?")
+        self.fail(key, "missing required key" + extra)
+
     def get(self, key: str, default: Any = ..., kind: type | tuple = object) -> Any:
         self.seen.add(key)
+        self.known.add(key)
         if key not in self.data:
             if default is ...:
-                self.fail(key, "missing required key")
+                self.missing(key)
             return default
         value = self.data[key]
         if not _is(value, kind):
@@ -373,6 +440,7 @@ class _Table:
 
     def pressure(self, base: str, default: Any = ..., many: bool = False) -> Any:
         """A pressure (or list) given as ``base_<unit>`` or ``base`` + table key ``unit``; Pa."""
+        self.known.update([base, "unit"] + [f"{base}_{u}" for u in PRESSURE_UNITS])
         keys = [k for k in (f"{base}_{u}" for u in PRESSURE_UNITS) if k in self.data]
         if base in self.data:
             keys.append(base)
@@ -380,6 +448,9 @@ class _Table:
             self.fail(keys[1], f"given twice (also as {keys[0]!r}); give one of them")
         if not keys:
             if default is ...:
+                stray = self.misspelt(f"{base}_mmHg") or self.misspelt(f"{base}_kPa") or self.misspelt(base)
+                if stray is not None:
+                    self.fail(stray, f"unknown key {stray!r}; did you mean {base}_mmHg (or {base}_kPa, {base}_Pa)?")
                 self.fail(f"{base}_mmHg", f"missing required key (or {base}_kPa, {base}_Pa, {base} + unit)")
             return default
         key = keys[0]
@@ -389,10 +460,9 @@ class _Table:
             unit = self.get("unit", kind=str)
             if unit not in PRESSURE_UNITS:
                 self.fail("unit", f"expected one of {sorted(PRESSURE_UNITS)}; got {unit!r}")
+            self.unit_used = True
         else:
             unit = key[len(base) + 1:]
-        if "unit" in self.data:
-            self.get("unit", kind=str)
         scale = PRESSURE_UNITS[unit]
         if many:
             values = self.get(key, kind=list)
@@ -405,13 +475,19 @@ class _Table:
                     self.fail(f"{key}[{i}]", f"expected a gauge pressure >= 0; got {v:g} {unit}")
             return tuple(float(v) * scale for v in values)
         value = self.get(key, kind=(int, float))
+        if not math.isfinite(value):
+            self.fail(key, f"expected a finite pressure; got {value} {unit}")
         if value < 0:
             self.fail(key, f"expected a pressure >= 0; got {value:g} {unit}")
         return float(value) * scale
 
     def table(self, key: str, required: bool = False) -> _Table | None:
+        self.known.add(key)
         if key not in self.data:
             if required:
+                stray = self.misspelt(key)
+                if stray is not None:
+                    self.fail(stray, f"unknown table [{stray}]; did you mean [{key}]?")
                 self.fail(key, "missing required table")
             self.seen.add(key)
             return None
@@ -419,11 +495,18 @@ class _Table:
         return _Table(self.data[key], self.source, f"[{key}]" if not self.where else f"{self.where}.{key}")
 
     def done(self) -> None:
+        if "unit" in self.data and not self.unit_used:
+            unit = self.data["unit"]
+            self.fail("unit", f"unit = {unit!r} is ignored: no pressure key of this table uses it (they carry their "
+                              "unit in the key, e.g. pressures_mmHg); remove it, or drop the unit from the key")
         unknown = [k for k in self.data if k not in self.seen]
         if unknown:
             where = f"{self.where}." if self.where else ""
+            close = difflib.get_close_matches(unknown[0], sorted(self.known - set(self.data)), n=1, cutoff=0.6)
+            hint = (f"; did you mean {close[0]!r}?" if close
+                    else "; check the spelling (units go in the key, e.g. pressures_mmHg)")
             self.fail("", f"unknown key {where}{unknown[0]!r}" + (f" (and {unknown[1:]})" if unknown[1:] else "")
-                      + "; check the spelling (units go in the key, e.g. pressures_mmHg)")
+                      + hint)
 
 
 def _is(value: Any, kind: type | tuple) -> bool:
@@ -464,29 +547,8 @@ def parse_protocol(data: dict | str, text: str = "", source: str = "<protocol>",
         meta.done()
 
     max_stretch = rig.safety.max_stretch if rig is not None else math.inf
-    pre = Preconditioning()
-    t = top.table("preconditioning")
-    if t is not None:
-        pc = t.integer("pressure_cycles", 0)
-        pmax = t.pressure("pressure_max", 0.0)
-        sc = t.integer("stretch_cycles", 0)
-        smax = t.number("stretch_max", 1.0, lo=1.0)
-        if pc and pmax <= 0:
-            t.fail("pressure_max_mmHg", f"pressure_cycles = {pc} needs a pressure_max > 0")
-        if sc and smax <= 1.0:
-            t.fail("stretch_max", f"stretch_cycles = {sc} needs a stretch_max > 1; got {smax:g}")
-        pre = Preconditioning(pc, pmax, sc, smax, t.number("cycle_s", 10.0, lo=0.0, lo_open=True),
-                              t.get("imaged", False, bool))
-        t.done()
-
-    stab = Stability()
-    t = top.table("stability")
-    if t is not None:
-        stab = Stability(t.pressure("band", stab.band), t.number("dwell_s", stab.dwell_s, lo=0.0),
-                         t.number("timeout_s", stab.timeout_s, lo=0.0, lo_open=True))
-        if stab.band <= 0:
-            t.fail("band_mmHg", "expected a band > 0")
-        t.done()
+    pre = _preconditioning(top.table("preconditioning"))
+    stab = _stability(top.table("stability"))
 
     blocks: list[TestBlock] = []
     t = top.table("test")
@@ -508,6 +570,8 @@ def parse_protocol(data: dict | str, text: str = "", source: str = "<protocol>",
         b.done()
     if not blocks:
         top.fail("", "no test blocks: add a [test] table (stretches, pressures_mmHg) or [[block]] entries")
+    if "stability" in data:
+        _check_band(stab, blocks, source, rig)
     for i, blk in enumerate(blocks):
         if blk.stretch > max_stretch:
             raise ConfigError(f"{source}: block #{i + 1} .stretch: {blk.stretch:g} is above the rig's stretch "
@@ -542,7 +606,49 @@ def parse_protocol(data: dict | str, text: str = "", source: str = "<protocol>",
                      source=source, has_reference=has_reference)
     if rig is not None:
         proto.check_against(rig)
+    proto.check_duration(len(proto.camera_names(rig)) if rig is not None else 1)
     return proto
+
+
+def _preconditioning(t: _Table | None) -> Preconditioning:
+    if t is None:
+        return Preconditioning()
+    pc = t.integer("pressure_cycles", 0)
+    pmax = t.pressure("pressure_max", 0.0)
+    sc = t.integer("stretch_cycles", 0)
+    smax = t.number("stretch_max", 1.0, lo=1.0)
+    if pc and pmax <= 0:
+        t.fail("pressure_max_mmHg", f"pressure_cycles = {pc} needs a pressure_max > 0")
+    if sc and smax <= 1.0:
+        t.fail("stretch_max", f"stretch_cycles = {sc} needs a stretch_max > 1; got {smax:g}")
+    pre = Preconditioning(pc, pmax, sc, smax, t.number("cycle_s", 10.0, lo=MIN_CYCLE_S),
+                          t.get("imaged", False, bool))
+    t.done()
+    return pre
+
+
+def _stability(t: _Table | None) -> Stability:
+    stab = Stability()
+    if t is None:
+        return stab
+    stab = Stability(t.pressure("band", stab.band), t.number("dwell_s", stab.dwell_s, lo=0.0),
+                     t.number("timeout_s", stab.timeout_s, lo=0.0, lo_open=True))
+    if stab.band <= 0:
+        t.fail("band_mmHg", "expected a band > 0")
+    t.done()
+    return stab
+
+
+def _check_band(stab: Stability, blocks: list[TestBlock], source: str, rig: RigConfig | None) -> None:
+    """The stability band must tell neighbouring levels apart and sit well inside the safety limit."""
+    gaps = [b - a for blk in blocks for a, b in zip(sorted(set(blk.pressures)), sorted(set(blk.pressures))[1:])]
+    if gaps and stab.band >= 0.5 * min(gaps):
+        raise ConfigError(f"{source}: [stability].band: {stab.band / MMHG:.3g} mmHg is not smaller than half the "
+                          f"smallest step between pressure levels ({min(gaps) / MMHG:.3g} mmHg): a level could be "
+                          "captured at its neighbour's pressure; narrow the band")
+    if rig is not None and stab.band >= 0.1 * rig.safety.max_pressure:
+        raise ConfigError(f"{source}: [stability].band: {stab.band / MMHG:.3g} mmHg is not small against the rig's "
+                          f"safety limit {rig.safety.max_pressure / MMHG:.3g} mmHg (expected < 10 % of it)")
 
 
 def _stretch(t: _Table, key: str, value: Any) -> float:
@@ -580,8 +686,11 @@ def parse_rig(data: dict | str, text: str = "", source: str = "<rig>") -> RigCon
         meta.done()
     pressure = _port(top.table("pressure", required=True), is_load_cell=False)
     load_cell = _port(top.table("load_cell", required=True), is_load_cell=True)
-    cams = []
-    for i, raw in enumerate(top.get("camera", [], list)):
+    cams: list[CameraConfig] = []
+    raw_cams = top.get("camera", [], list)
+    if len(raw_cams) > MAX_CAMERAS:
+        top.fail("camera", f"{len(raw_cams)} [[camera]] entries: expected at most {MAX_CAMERAS}")
+    for i, raw in enumerate(raw_cams):
         c = _Table(raw, source, f"[[camera]] #{i + 1} ")
         cname = c.get("name", kind=str)
         backend = c.get("backend", kind=str)
@@ -589,6 +698,7 @@ def parse_rig(data: dict | str, text: str = "", source: str = "<rig>") -> RigCon
             c.fail("backend", f"expected one of {list(_BACKENDS)}; got {backend!r}")
         settings = c.get("settings", {}, dict)
         c.done()
+        _check_referenced_paths(c, settings)
         if any(x.name == cname for x in cams):
             c.fail("name", f"duplicate camera name {cname!r}")
         cams.append(CameraConfig(cname, backend, dict(settings)))
@@ -597,11 +707,13 @@ def parse_rig(data: dict | str, text: str = "", source: str = "<rig>") -> RigCon
     safety = SafetyLimits()
     t = top.table("safety")
     if t is not None:
-        safety = SafetyLimits(t.pressure("max_pressure", safety.max_pressure),
-                              t.number("max_stretch", safety.max_stretch, lo=1.0),
-                              t.number("max_force_N", safety.max_force, lo=0.0, lo_open=True))
-        if safety.max_pressure <= 0:
+        limits = (t.pressure("max_pressure", safety.max_pressure), t.number("max_stretch", safety.max_stretch, lo=1.0),
+                  t.number("max_force_N", safety.max_force, lo=0.0, lo_open=True))
+        if limits[0] <= 0:
             t.fail("max_pressure_mmHg", "expected a limit > 0")
+        if limits[1] <= 1.0:
+            t.fail("max_stretch", f"expected a limit > 1 (L/L0 = 1 is the unstretched length); got {limits[1]:g}")
+        safety = SafetyLimits(*limits)
         t.done()
     simulation = SimulationConfig()
     t = top.table("simulation")
@@ -615,6 +727,18 @@ def parse_rig(data: dict | str, text: str = "", source: str = "<rig>") -> RigCon
         t.done()
     top.done()
     return RigConfig(name, pressure, load_cell, tuple(cams), safety, simulation, text, source)
+
+
+_PATH_KEYS = ("path", "file", "folder", "directory")
+
+
+def _check_referenced_paths(t: _Table, settings: dict) -> None:
+    """A file or folder a camera's settings name must exist (checked now, before anything moves)."""
+    for key, value in settings.items():
+        if isinstance(value, str) and (key in _PATH_KEYS or key.endswith(("_path", "_file", "_dir"))):
+            if not Path(value).expanduser().exists():
+                t.fail(f"settings.{key}", f"{value!r} does not exist (paths are relative to the folder vfmlab "
+                                          f"runs in: {Path.cwd()})")
 
 
 def _port(t: _Table, is_load_cell: bool) -> PortConfig:

@@ -49,6 +49,7 @@ __all__ = [
     "RunnerError",
     "SessionAborted",
     "SessionQuit",
+    "DiskFull",
     "Operator",
     "AutoOperator",
     "RunnerState",
@@ -66,7 +67,19 @@ class RunnerError(RuntimeError):
 
 
 class SessionAborted(RunnerError):
-    """The session was aborted (by the operator or a safety limit); status 'aborted'."""
+    """The session was aborted (by the operator or a safety limit); the runner's status is 'aborted'.
+
+    ``resumable``: the completed steps are sound and the cause can be fixed (a safety limit that
+    tripped, a capture that kept failing): the file stays resumable. An operator's abort is final.
+    """
+
+    def __init__(self, message: str, *, resumable: bool = False):
+        super().__init__(message)
+        self.resumable = resumable
+
+
+class DiskFull(RunnerError):
+    """Not enough free space for the next write: stopped at a step boundary, resumable."""
 
 
 class SessionQuit(RunnerError):
@@ -236,6 +249,7 @@ class SessionRunner:
         Failed captures retried automatically (after ``retry_delay_s``) before the operator
         is asked to retry or abort.
     clock, sleep : injectable time sources.
+    free_space : callable() -> bytes free where the session file lives (injectable for tests).
     """
 
     def __init__(self, protocol: Protocol, writer: Any, *, pressure: Any, sampler: Any,
@@ -244,7 +258,8 @@ class SessionRunner:
                  detector: Callable[[np.ndarray], int] | None = None,
                  on_update: Callable[[RunnerState], None] | None = None, tick_s: float = 0.05,
                  capture_retries: int = 2, retry_delay_s: float = 0.5,
-                 clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep):
+                 clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep,
+                 free_space: Callable[[], float] | None = None):
         if pressure_mode not in ("controller", "manual"):
             raise ValueError(f"pressure_mode: expected 'controller' or 'manual'; got {pressure_mode!r}")
         if pressure_mode == "controller" and not getattr(pressure, "is_controller", False):
@@ -268,6 +283,10 @@ class SessionRunner:
         self.capture_retries, self.retry_delay_s = int(capture_retries), float(retry_delay_s)
         self._capture_failures = 0
         self.status = "running"
+        self.resumable = False  # after run(): whether an 'aborted' run left the file resumable
+        self.stop_reason = ""
+        self._free_space = free_space or self._disk_free
+        self._last_step_bytes = 0
 
     # ------------------------------------------------------------------ public
     def request_pause(self) -> None:
@@ -307,10 +326,17 @@ class SessionRunner:
             status = "interrupted"
             self._warn(str(exc))
             self._safe_event("quit", str(exc))
+        except DiskFull as exc:
+            status = "interrupted"
+            self.stop_reason = str(exc)
+            self._warn(str(exc))
+            self._safe_event("disk_full", str(exc))
         except SessionAborted as exc:
             status = "aborted"
+            self.resumable = exc.resumable
+            self.stop_reason = str(exc)
             self._warn(str(exc))
-            self._safe_event("abort", str(exc))
+            self._safe_event("abort", str(exc) + ("; the session stays resumable" if exc.resumable else ""))
         except BaseException as exc:  # noqa: BLE001 - clean-up below, then re-raise
             error = exc
             status = "aborted"
@@ -369,7 +395,9 @@ class SessionRunner:
                             force=force, t_monotonic=t_mono, t_wall=t_wall, supersedes=supersedes)
         images = {name: frames[name].pixels for name in self.writer.camera_names}
         self._pump()
-        row = self.writer.add_step(record, images)
+        self._last_step_bytes = sum(np.asarray(im).nbytes for im in images.values())
+        self._ensure_space(self._last_step_bytes, "the next step")
+        row = self._write(self.writer.add_step, record, images)
         self._last_step = (row, block, stretch, target)
         self._step_times.append(self.clock())
         if block >= 0 and supersedes < 0:
@@ -392,20 +420,71 @@ class SessionRunner:
             rec = self.sampler.history(ch, seconds=seconds)
             values = np.asarray(rec.value, dtype=float)
             if values.size:
-                out.append(float(values.mean()))
+                out.append(_robust_mean(values))
             else:
                 latest = self.sampler.latest(ch)
                 out.append(float(latest.value) if latest is not None else math.nan)
         self._check_limits(out[0], out[1])
         return out[0], out[1]
 
+    def _over_limit(self, ch: str, value: float) -> str | None:
+        """What is wrong when ``value`` of channel ``ch`` exceeds the rig's safety limit, else None."""
+        if ch == "pressure" and value > self.safety.max_pressure * 1.05:  # 5 % grace on pressure
+            return (f"pressure {value / MMHG:.1f} mmHg exceeds the safety limit "
+                    f"{self.safety.max_pressure / MMHG:.1f} mmHg")
+        if ch == "force" and abs(value) > self.safety.max_force:
+            return f"force {value:.3f} N exceeds the safety limit {self.safety.max_force:.3f} N"
+        return None
+
     def _check_limits(self, pressure: float, force: float) -> None:
-        """Abort (and so vent) when a reading exceeds the rig's safety limits (5 % grace on pressure)."""
-        if pressure > self.safety.max_pressure * 1.05:
-            raise SessionAborted(f"pressure {pressure / MMHG:.1f} mmHg exceeds the safety limit "
-                                 f"{self.safety.max_pressure / MMHG:.1f} mmHg")
-        if abs(force) > self.safety.max_force:
-            raise SessionAborted(f"force {force:.3f} N exceeds the safety limit {self.safety.max_force:.3f} N")
+        """Abort (and so vent) when a reading exceeds the rig's safety limits (resumable once safe)."""
+        for ch, value in (("pressure", pressure), ("force", force)):
+            what = self._over_limit(ch, value)
+            if what is not None:
+                raise SessionAborted(what + "; pressure vented", resumable=True)
+
+    #: Fresh samples that must confirm an over-limit reading, and how long to wait for them, s.
+    CONFIRM_SAMPLES, CONFIRM_WAIT_S = 3, 0.5
+
+    def _check_readings(self, drained: dict[str, Any]) -> None:
+        """Judge every new sample against the limits, and an over-limit one against its neighbours.
+
+        One corrupted reading (a well-formed reply with a wrong number) must not abort a test: an
+        over-limit sample is retried, i.e. confirmed by the fresh samples that follow it; the
+        session aborts if most of them are over the limit too (or none arrive), and the lone
+        reading is recorded as an event and ignored otherwise.
+        """
+        for ch in CHANNELS:
+            rec = drained.get(ch)
+            if rec is None or not len(rec.t_monotonic):
+                continue
+            values, times = np.asarray(rec.value, dtype=float), np.asarray(rec.t_monotonic, dtype=float)
+            over = [i for i in range(values.size) if self._over_limit(ch, values[i]) is not None]
+            for i in over:
+                self._judge(ch, float(values[i]), float(times[i]))
+
+    def _judge(self, ch: str, value: float, t_sample: float) -> None:
+        what = self._over_limit(ch, value)
+        fresh = self._fresh_samples(ch, t_sample)
+        bad = sum(self._over_limit(ch, v) is not None for v in fresh)
+        if len(fresh) < self.CONFIRM_SAMPLES or bad * 2 > len(fresh):
+            raise SessionAborted(what + f" (confirmed by {bad} of {len(fresh)} following readings); "
+                                        "pressure vented", resumable=True)
+        msg = (f"implausible {_NAMES[ch]} reading ignored: {what}, but {len(fresh) - bad} of the "
+               f"{len(fresh)} readings that followed are normal (median {np.median(fresh):.4g})")
+        self._warn(msg)
+        self._event("implausible_reading", msg)
+
+    def _fresh_samples(self, ch: str, t_after: float) -> list[float]:
+        """Values of ``ch`` sampled after ``t_after``, waiting (bounded) for CONFIRM_SAMPLES of them."""
+        deadline = self.clock() + self.CONFIRM_WAIT_S
+        while True:
+            rec = self.sampler.history(ch, seconds=self.CONFIRM_WAIT_S + 5.0)
+            t = np.asarray(rec.t_monotonic, dtype=float)
+            values = np.asarray(rec.value, dtype=float)[t > t_after]
+            if values.size >= self.CONFIRM_SAMPLES or self.clock() >= deadline:
+                return values[: max(self.CONFIRM_SAMPLES, 5)].tolist()
+            self.sleep(self.tick_s)
 
     # ------------------------------------------------------------------ actuation
     def _set_stretch(self, stretch: float) -> None:
@@ -502,15 +581,21 @@ class SessionRunner:
         cal = self.protocol.calibration
         if not cal.views:
             return
-        self._phase("calibrating", f"{cal.views} calibration-board views ({cal.board or 'board'})")
+        done = int(getattr(self.writer, "n_calibration_views", 0))
+        if done >= cal.views:
+            self._event("calibration_done", f"{done} calibration views already stored")
+            return
+        self._phase("calibrating", f"{cal.views} calibration-board views ({cal.board or 'board'})"
+                    + (f", {done} already stored" if done else ""))
         self._event("calibration", self.state.message)
-        for k in range(cal.views):
+        for k in range(done, cal.views):
             self.state.message = f"board view {k + 1}/{cal.views}"
             self.operator.place_board(k, cal.views)
             self._pump()
             result = self._capture_retrying(f"board view {k + 1}")
-            index = self.writer.add_calibration_view(
-                {name: f.pixels for name, f in result.frames.items() if name in self.writer.camera_names})
+            frames = {name: f.pixels for name, f in result.frames.items() if name in self.writer.camera_names}
+            self._ensure_space(sum(np.asarray(im).nbytes for im in frames.values()), "the next calibration view")
+            index = self._write(self.writer.add_calibration_view, frames)
             self._event("calibration_view", f"board view {k + 1}/{cal.views} stored as calibration view {index}")
         self.operator.remove_board()
         self._event("calibration_done", f"{cal.views} calibration views captured")
@@ -643,10 +728,14 @@ class SessionRunner:
     # ------------------------------------------------------------------ log, events, view
     def _pump(self) -> None:
         """Drain the sampler into the session log and refresh the live state."""
+        if not self._finalizing:
+            self._ensure_space(0, "the instrument log")
+        drained = {}
         for ch in CHANNELS:
-            rec = self.sampler.drain(ch)
+            rec = drained[ch] = self.sampler.drain(ch)
             if len(rec.t_monotonic):
-                self.writer.append_log(ch, rec.t_monotonic, rec.t_wall, rec.value, list(rec.raw), seq=rec.seq)
+                self._write(self.writer.append_log, ch, rec.t_monotonic, rec.t_wall, rec.value, list(rec.raw),
+                            seq=rec.seq)
             if getattr(rec, "lost", 0):
                 self._warn(f"{rec.lost} {ch} samples lost (sampler queue overflow)")
         for ev in self.sampler.drain_events():
@@ -657,7 +746,42 @@ class SessionRunner:
                 setattr(self.state, ch, float(s.value))
         self._update()
         if not self._finalizing:
-            self._check_limits(self.state.pressure, self.state.force)
+            self._check_readings(drained)
+
+    # ------------------------------------------------------------------ disk space
+    #: Free space kept in hand besides the next write (the log, events and HDF5 metadata), bytes.
+    RESERVE_BYTES = 16e6
+
+    def _disk_free(self) -> float:
+        import shutil
+        from pathlib import Path
+
+        return float(shutil.disk_usage(Path(self.writer.path).resolve().parent).free)
+
+    def _ensure_space(self, nbytes: float, what: str) -> None:
+        """Stop at this boundary (nothing half-written) when ``nbytes`` plus the reserve do not fit."""
+        free = self._free_space()
+        need = nbytes + self.RESERVE_BYTES
+        if free >= need:
+            return
+        left = self.protocol.n_steps - self.state.steps_done
+        per_step = max(nbytes, self._last_step_bytes)
+        raise DiskFull(f"disk full: {free / 1e6:.1f} MB free where {self.writer.path} is written; {what} needs "
+                       f"about {need / 1e6:.1f} MB"
+                       + (f" and the {left} remaining steps about {(left * per_step + self.RESERVE_BYTES) / 1e6:.0f} MB"
+                          if left and per_step else "")
+                       + f". Stopped cleanly at a step boundary: free some space, then `vfmlab resume "
+                         f"{self.writer.path}`")
+
+    def _write(self, fn: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
+        """A session write; running out of space (ENOSPC) becomes :class:`DiskFull`."""
+        try:
+            return fn(*args, **kwargs)
+        except OSError as exc:
+            if getattr(exc, "errno", None) == 28 or "No space left" in str(exc):
+                raise DiskFull(f"disk full while writing {self.writer.path} ({exc}); free some space, then "
+                               f"`vfmlab resume {self.writer.path}`") from exc
+            raise
 
     def _safe_event(self, kind: str, message: str) -> None:
         try:
@@ -717,7 +841,22 @@ class SessionRunner:
             for cam in self.cameras:
                 cam.close()
             # 'interrupted' = leave 'running' so readers report interrupted and resume accepts it
-            self.writer.close(status="running" if status == "interrupted" else status)
+            # a resumable abort (safety limit, vented) is recorded as 'interrupted': resume accepts it
+            # an operator's quit leaves 'running' (readers report interrupted once the process is gone);
+            # a fault that stopped a resumable run (disk full, a safety trip, vented) says so at once
+            if (status == "aborted" and self.resumable) or (status == "interrupted" and self.stop_reason):
+                self.writer.close(status="interrupted")
+            else:
+                self.writer.close(status="running" if status == "interrupted" else status)
 
 
 _NAMES = {"pressure": "pressure transducer", "force": "load cell"}
+
+
+def _robust_mean(values: np.ndarray) -> float:
+    """Mean of ``values`` (n,) without readings far from their neighbours (> 5 robust sigma off the median)."""
+    med = float(np.median(values))
+    mad = 1.4826 * float(np.median(np.abs(values - med)))
+    scale = max(mad, 1e-3 * abs(med), 1e-12)
+    keep = np.abs(values - med) <= 5 * scale
+    return float(values[keep].mean()) if keep.any() else med

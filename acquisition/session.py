@@ -29,11 +29,15 @@ flushes + fsyncs after every step, so a process killed at any point leaves a fil
 from __future__ import annotations
 
 import datetime as _dt
+import errno
+import fcntl
+import shutil
 import hashlib
 import json
 import logging
 import os
 import socket
+import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -42,6 +46,7 @@ from typing import Any
 import h5py
 import numpy as np
 
+from acquisition.h5journal import JournalError, LockTimeout, journaled_h5, recover, wait_lock
 from acquisition.h5recover import clear_consistency_flags
 
 __all__ = [
@@ -54,6 +59,7 @@ __all__ = [
     "Session",
     "open_session",
     "write_result",
+    "incomplete_leftover",
 ]
 
 log = logging.getLogger(__name__)
@@ -210,15 +216,21 @@ class SessionWriter:
             raise ValueError(f"camera names must be unique; got {names}")
         if path.exists() and not overwrite:
             raise SessionError(f"{path}: file exists; refusing to overwrite a session (choose another --out)")
+        if path.exists():
+            _refuse_live_session(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        f = h5py.File(path, "w", libver="latest")
+        # Built under a temporary name and renamed into place: a kill during creation never
+        # leaves a partial file at ``path`` that would block run and resume.
+        tmp = path.with_name(f".{path.name}.creating-{os.getpid()}")
+        f = h5py.File(tmp, "w", libver="latest")
         try:
             cls._build(f, specimen, cameras, protocol_text, rig or {}, instruments or {}, load_cell_measures)
             f.flush()
             f.swmr_mode = True
+            os.replace(tmp, path)
         except BaseException:
             f.close()
-            path.unlink(missing_ok=True)
+            tmp.unlink(missing_ok=True)
             raise
         writer = cls(f, path)
         writer._fsync()
@@ -237,8 +249,7 @@ class SessionWriter:
         entry.attrs["NX_class"] = "NXentry"
         entry.attrs["start_time"] = _now_iso()
         entry.attrs["software_version"] = _software_version()
-        entry.attrs["writer_pid"] = os.getpid()
-        entry.attrs["writer_host"] = socket.gethostname()
+        _stamp_writer(entry)
         entry.create_dataset("status", data=np.bytes_(b"running"), dtype=_STATUS_DTYPE)
         entry.create_dataset("end_time", data=np.bytes_(b""), dtype="S40")
 
@@ -275,6 +286,13 @@ class SessionWriter:
         proto["data"] = protocol_text
         proto.attrs["sha256"] = hashlib.sha256(protocol_text.encode("utf-8")).hexdigest()
 
+        SessionWriter._build_growing(entry, cameras)
+        res = entry.create_group("results")
+        res.attrs["NX_class"] = "NXcollection"
+
+    @staticmethod
+    def _build_growing(entry: h5py.Group, cameras: Sequence[CameraSpec]) -> None:
+        """Every dataset that grows (logs, steps, frames, events), created before SWMR mode."""
         logs = entry.create_group("log")
         logs.attrs["NX_class"] = "NXcollection"
         for channel, units in _LOG_CHANNELS.items():
@@ -311,8 +329,6 @@ class SessionWriter:
         _growable(events, "time", "f8", "s", chunk=256)
         _growable(events, "kind", _EVENT_KIND_DTYPE, None, chunk=256)
         _growable(events, "message", _EVENT_MESSAGE_DTYPE, None, chunk=256)
-        res = entry.create_group("results")
-        res.attrs["NX_class"] = "NXcollection"
 
     @classmethod
     def resume(cls, path: str | os.PathLike) -> SessionWriter:
@@ -329,10 +345,17 @@ class SessionWriter:
         try:
             f = h5py.File(path, "a", libver="latest")
         except OSError as exc:
-            raise SessionError(f"{path}: cannot reopen for writing: {exc}") from None
+            if "unable to lock file" not in str(exc):
+                raise SessionError(f"{path}: cannot reopen for writing: {exc}") from None
+            # Readers that have the interrupted file open (SWMR readers, a live view, 'vfmlab info'
+            # in another terminal) hold HDF5's shared lock; they must not block resume. One writer
+            # at a time is kept by the status check above (a live writer = "running").
+            try:
+                f = h5py.File(path, "a", libver="latest", locking=False)
+            except OSError as exc2:
+                raise SessionError(f"{path}: cannot reopen for writing: {exc2}") from None
         trimmed = _trim_partial_records(f["entry"])
-        f["entry"].attrs["writer_pid"] = os.getpid()
-        f["entry"].attrs["writer_host"] = socket.gethostname()
+        _stamp_writer(f["entry"])
         f.flush()
         f.swmr_mode = True
         f["entry/status"][()] = np.bytes_(b"running")
@@ -349,6 +372,12 @@ class SessionWriter:
     @property
     def camera_names(self) -> list[str]:
         return list(self._entry["steps/images"].keys())
+
+    @property
+    def n_calibration_views(self) -> int:
+        """Calibration-board views already stored (a resumed session continues after them)."""
+        calib = self._entry["calibration/images"]
+        return int(min((calib[name].shape[0] for name in calib), default=0))
 
     def append_log(
         self,
@@ -468,6 +497,45 @@ class SessionWriter:
         self.close("complete" if exc_type is None else "aborted")
 
 
+def incomplete_leftover(path: str | os.PathLike) -> bool:
+    """True if ``path`` is a tiny file that is not a readable session: what a run killed while it
+    created the file leaves (0 to a few dozen bytes, no data). Such a file may be replaced."""
+    path = Path(path)
+    try:
+        if not path.is_file() or path.stat().st_size >= 4096:
+            return False
+    except OSError:
+        return False
+    try:
+        open_session(path).close()
+    except SessionError:
+        return True
+    return False
+
+
+def _refuse_live_session(path: Path) -> None:
+    """Two writers never share a file: refuse to replace a session another process is recording."""
+    for attempt in range(3):
+        try:
+            with open_session(path) as session:
+                status = session.status
+                pid = session.file["entry"].attrs.get("writer_pid", "?")
+            break
+        except SessionError:
+            if incomplete_leftover(path):
+                return  # the few bytes a killed creation left: nothing is recorded into it
+            time.sleep(0.2)  # a reader can catch a live writer mid-append: look again
+    else:
+        with open(path, "rb") as fh:
+            if fh.read(8) != b"\x89HDF\r\n\x1a\n":
+                return  # not HDF5: not a session
+        raise SessionError(f"{path}: an HDF5 file that cannot be read right now (a session being written?); "
+                           "refusing to replace it")
+    if status == "running":
+        raise SessionError(f"{path}: a session is being recorded into this file right now (writer pid {pid}); "
+                           "refusing to replace it")
+
+
 def _trim_partial_records(entry: h5py.Group) -> list[str]:
     """Cut every table a killed writer may have left half-appended back to its complete rows.
 
@@ -483,6 +551,12 @@ def _trim_partial_records(entry: h5py.Group) -> list[str]:
             if ds.shape[0] > n:
                 dropped.append(f"{ds.name}[{n}:{ds.shape[0]}]")
                 ds.resize((n,) + ds.shape[1:])
+    calib = entry["calibration/images"] if "calibration/images" in entry else {}
+    n_views = min((ds.shape[0] for ds in calib.values()), default=0)
+    for ds in calib.values():  # a view is complete once every camera has its frame
+        if ds.shape[0] > n_views:
+            dropped.append(f"{ds.name}[{n_views}:{ds.shape[0]}]")
+            ds.resize((n_views,) + ds.shape[1:])
     steps = entry["steps"]
     n_rows = min(steps[name].shape[0] for name in _STEP_COLUMNS)
     for ds in [steps[name] for name in _STEP_COLUMNS] + list(steps["images"].values()):
@@ -507,9 +581,35 @@ def _read(ds: h5py.Dataset) -> Any:
     return _decode(ds[()])
 
 
-def _writer_alive(pid: int, host: str) -> bool:
+def _boot_id() -> str:
+    try:
+        return Path("/proc/sys/kernel/random/boot_id").read_text().strip()
+    except OSError:
+        return ""
+
+
+def _start_ticks(pid: int) -> int:
+    """Start time of process ``pid`` in clock ticks since boot (/proc/<pid>/stat field 22), or -1."""
+    try:
+        return int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[19])
+    except (OSError, IndexError, ValueError):
+        return -1
+
+
+def _stamp_writer(entry: h5py.Group) -> None:
+    """Record who writes: pid, host, boot id and the process start time (a reused pid is not us)."""
+    entry.attrs["writer_pid"] = os.getpid()
+    entry.attrs["writer_host"] = socket.gethostname()
+    entry.attrs["writer_boot_id"] = _boot_id()
+    entry.attrs["writer_start_ticks"] = _start_ticks(os.getpid())
+
+
+def _writer_alive(pid: int, host: str, boot_id: str = "", start_ticks: int = -1) -> bool:
+    """Is the process that recorded ``status = running`` still running (on this machine, this boot)?"""
     if host != socket.gethostname():
         return False  # another machine wrote it; nobody here is still writing
+    if boot_id and _boot_id() and boot_id != _boot_id():
+        return False  # the machine rebooted since: every writer of that boot is gone
     if pid == os.getpid():
         return True
     try:
@@ -517,7 +617,9 @@ def _writer_alive(pid: int, host: str) -> bool:
     except ProcessLookupError:
         return False
     except PermissionError:
-        return True
+        pass
+    if start_ticks >= 0 and _start_ticks(pid) not in (-1, start_ticks):
+        return False  # the pid was reused by another process
     try:
         state = Path(f"/proc/{pid}/stat").read_text().split(")")[-1].split()[0]
         return state != "Z"  # a zombie has exited
@@ -553,9 +655,11 @@ class Session:
         """complete | aborted | interrupted (recorded, or the writer died while running) | running."""
         status = self.recorded_status
         if status == "running":
-            pid = int(self._entry.attrs.get("writer_pid", -1))
-            host = str(_decode(self._entry.attrs.get("writer_host", "")))
-            if not _writer_alive(pid, host):
+            attrs = self._entry.attrs
+            pid = int(attrs.get("writer_pid", -1))
+            host = str(_decode(attrs.get("writer_host", "")))
+            if not _writer_alive(pid, host, str(_decode(attrs.get("writer_boot_id", ""))),
+                                 int(attrs.get("writer_start_ticks", -1))):
                 return "interrupted"
         return status
 
@@ -725,6 +829,19 @@ class Session:
 
 def _h5_open_read(path: Path) -> h5py.File:
     try:
+        return _h5_open_read_once(path)
+    except OSError as exc:
+        if "unable to lock file" not in str(exc):
+            raise
+    # Another job is appending a result (an exclusive lock for a moment): wait for it, bounded.
+    with open(path, "rb") as fh:
+        wait_lock(fh.fileno(), path, exclusive=False, what="read")
+        fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
+    return _h5_open_read_once(path)
+
+
+def _h5_open_read_once(path: Path) -> h5py.File:
+    try:
         return h5py.File(path, "r")
     except OSError as exc:
         if "already open for write" in str(exc):
@@ -747,6 +864,10 @@ def open_session(path: str | os.PathLike) -> Session:
         raise SessionError(f"{path}: no such file")
     if path.is_dir():
         raise SessionError(f"{path}: is a directory, not a session file")
+    try:
+        recover(path)  # roll back a result write that a killed job left unfinished
+    except (JournalError, LockTimeout) as exc:
+        raise SessionError(str(exc)) from None
     with open(path, "rb") as fh:
         head = fh.read(8)
     if head != b"\x89HDF\r\n\x1a\n":
@@ -829,39 +950,68 @@ def write_result(
         if session.status == "running":
             raise SessionError(f"{path}: the session is still being written; add results once it has finished")
         interrupted = session.status == "interrupted"
+    prepare = None
     if interrupted:
-        # The writer is gone: clearing its "open for write" flag is safe, and resume still works after.
-        clear_consistency_flags(path)
+        # The writer is gone: clearing its "open for write" flag is safe (and journaled, so a
+        # kill right after leaves the file as it was); resume still works after.
+        def prepare(jf) -> None:
+            jf.save_original(0, 64)
+            clear_consistency_flags(path)
     try:
-        f = h5py.File(path, "a", libver="latest")
+        with journaled_h5(path, prepare=prepare) as f:
+            name = _write_result_group(f, kind, arrays, parameters, attrs, units)
+    except LockTimeout as exc:
+        raise SessionError(str(exc)) from None
     except OSError as exc:
-        raise SessionError(f"{path}: cannot open for writing ({exc})") from None
-    with f:
-        res = f["entry"].require_group("results")
-        existing = [n for n in res if n.startswith(kind + "_")]
-        number = 1 + max((int(n.rsplit("_", 1)[1]) for n in existing if n.rsplit("_", 1)[1].isdigit()), default=0)
-        name = f"{kind}_{number:03d}"
-        g = res.create_group(name)
-        g.attrs["NX_class"] = "NXprocess"
-        g.attrs["kind"] = kind
-        g.attrs["program"] = "vfmlab"
-        g.attrs["version"] = _software_version()
-        g.attrs["date"] = _now_iso()
-        g.attrs["parameters"] = json.dumps(dict(parameters), sort_keys=True, default=_json_default)
-        for key, value in (attrs or {}).items():
-            if isinstance(value, (dict, list, tuple)):
-                g.attrs[f"{key}_json"] = json.dumps(value, default=_json_default)
-            elif value is None:
-                g.attrs[key] = "None"
-            else:
-                g.attrs[key] = value
-        for key, value in arrays.items():
-            ds = _store_array(g, key, value)
-            if units and key in units:
-                ds.attrs["units"] = units[key]
-        f.flush()
+        raise SessionError(_write_failure(path, exc)) from None
     log.info("wrote result %s to %s", name, path)
     return name
+
+
+def _write_result_group(f: h5py.File, kind: str, arrays: Mapping[str, Any], parameters: Mapping[str, Any],
+                        attrs: Mapping[str, Any] | None, units: Mapping[str, str] | None) -> str:
+    res = f["entry"].require_group("results")
+    existing = [n for n in res if n.startswith(kind + "_")]
+    number = 1 + max((int(n.rsplit("_", 1)[1]) for n in existing if n.rsplit("_", 1)[1].isdigit()), default=0)
+    name = f"{kind}_{number:03d}"
+    g = res.create_group(name)
+    g.attrs["NX_class"] = "NXprocess"
+    g.attrs["kind"] = kind
+    g.attrs["program"] = "vfmlab"
+    g.attrs["version"] = _software_version()
+    g.attrs["date"] = _now_iso()
+    g.attrs["parameters"] = json.dumps(dict(parameters), sort_keys=True, default=_json_default)
+    for key, value in (attrs or {}).items():
+        if isinstance(value, (dict, list, tuple)):
+            g.attrs[f"{key}_json"] = json.dumps(value, default=_json_default)
+        elif value is None:
+            g.attrs[key] = "None"
+        else:
+            g.attrs[key] = value
+    for key, value in arrays.items():
+        ds = _store_array(g, key, value)
+        if units and key in units:
+            ds.attrs["units"] = units[key]
+    return name
+
+
+def _write_failure(path: Path, exc: OSError) -> str:
+    """One sentence for a result write that failed (and was rolled back)."""
+    if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        free = shutil.disk_usage(path.parent).free
+        needed = getattr(exc, "needed", 0)
+        return (f"{path}: disk full while writing the result ({_size(free)} free"
+                + (f", about {_size(needed)} more needed" if needed else "")
+                + "); the session was left exactly as it was before. Free some space and run the command again")
+    return f"{path}: cannot write the result ({exc}); the session was left exactly as it was before"
+
+
+def _size(nbytes: float) -> str:
+    """A byte count for people: kB below 1 MB, MB below 1 GB, else GB."""
+    for unit, scale in (("GB", 1e9), ("MB", 1e6)):
+        if nbytes >= scale:
+            return f"{nbytes / scale:.1f} {unit}"
+    return f"{max(nbytes, 0) / 1e3:.0f} kB"
 
 
 def _json_default(obj: Any) -> Any:

@@ -26,7 +26,8 @@ from .errors import DegenerateDataError
 from .mesh import SurfaceMesh, wrap_angle
 from .step_axes import refit_axes
 
-__all__ = ["Kinematics", "align_steps", "membrane_kinematics", "QUADRATURE"]
+__all__ = ["AUTO_DEGREES", "Kinematics", "align_steps", "membrane_kinematics", "QUADRATURE", "select_smoothing",
+           "smooth_cylindrical", "smoothing_basis"]
 
 log = logging.getLogger(__name__)
 
@@ -142,6 +143,7 @@ class SurfaceState:
     bary: np.ndarray    # (n_q, 3)
     qweight: np.ndarray  # (n_q,)
     geometry: TriangleGeometry
+    smoothing: tuple | None = None  # degrees used: three (nz, nt) pairs (r, theta, z), or None
 
 
 def step_cylindrical(mesh: SurfaceMesh, aligned: np.ndarray):
@@ -161,47 +163,140 @@ def step_cylindrical(mesh: SurfaceMesh, aligned: np.ndarray):
     return np.hypot(local[..., 0], local[..., 1]), np.arctan2(local[..., 1], local[..., 0]), local[..., 2], axes
 
 
-def smooth_cylindrical(mesh: SurfaceMesh, r, theta, z, degree: tuple[int, int]):
+#: Candidate smoothing bases (axial Legendre degree, circumferential harmonics) searched by
+#: ``select_smoothing`` (``smoothing="auto"``).
+AUTO_DEGREES = tuple((nz, nt) for nz in range(0, 9) for nt in range(0, 5))
+#: Estimated marker noise (m) below which ``smoothing="auto"`` leaves the markers unsmoothed (exact data).
+EXACT_MARKERS = 0.5e-6
+#: A candidate basis may use at most this fraction of the observed markers of a step.
+MAX_BASIS_FRACTION = 1.0 / 3.0
+
+
+def smoothing_basis(mesh: SurfaceMesh, degree: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Legendre(Z) x Fourier(Theta) functions at the reference markers.
+
+    Returns ``basis`` of shape (n_markers, (degree[0] + 1) (2 degree[1] + 1)) and the markers
+    usable for fitting, shape (n_markers,) bool.
+    """
+    nz, nt = int(degree[0]), int(degree[1])
+    Z, T = mesh.z, mesh.theta
+    ok_ref = mesh.used & np.isfinite(Z)
+    z0 = 0.5 * (np.nanmax(Z[ok_ref]) + np.nanmin(Z[ok_ref]))
+    half = 0.5 * (np.nanmax(Z[ok_ref]) - np.nanmin(Z[ok_ref]))
+    leg = np.polynomial.legendre.legvander(np.nan_to_num((Z - z0) / half), nz)
+    four = [np.ones_like(T)] + [f(k * np.nan_to_num(T)) for k in range(1, nt + 1) for f in (np.cos, np.sin)]
+    return np.concatenate([leg * f[:, None] for f in four], axis=1), ok_ref
+
+
+def _displacements(mesh: SurfaceMesh, r, theta, z) -> list[np.ndarray]:
+    """Cylindrical displacement components (r - R, wrapped theta - Theta, z - Z), each (n_steps, n_markers)."""
+    return [r - mesh.r[None], wrap_angle(theta - mesh.theta[None]), z - mesh.z[None]]
+
+
+def _fit_basis(basis, ok_ref, d, weights=None):
+    """Weighted least-squares projection of every step of ``d`` (n_steps, n_markers) on ``basis``.
+
+    Returns the fitted values at every marker of the reference mesh (also where a step did not
+    observe it; NaN elsewhere), the weighted residual sum of squares and the number of observations
+    per step, shape (n_steps,).
+    """
+    ok = ok_ref[None] & np.isfinite(d)
+    w = np.ones_like(d) if weights is None else np.where(np.isfinite(weights), weights, 0.0)
+    sw = np.sqrt(np.where(ok, w, 0.0))
+    fit = np.full_like(d, np.nan)
+    rss = np.zeros(d.shape[0])
+    count = ok.sum(axis=1)
+    masks, inverse = np.unique(ok, axis=0, return_inverse=True)
+    for g, mask in enumerate(masks):  # steps sharing the same observed markers share one factorisation
+        steps = np.flatnonzero(inverse.ravel() == g)
+        if mask.sum() <= basis.shape[1]:
+            raise DegenerateDataError(
+                f"smoothing with {basis.shape[1]} basis functions needs more observed markers than that; steps "
+                f"{steps.tolist()} have {int(mask.sum())}")
+        if weights is None:
+            coef, *_ = np.linalg.lstsq(basis[mask], d[steps][:, mask].T, rcond=None)  # (n_basis, n_group)
+            fit[steps] = np.where(ok_ref, (basis @ coef).T, np.nan)
+        else:
+            for k in steps:
+                coef, *_ = np.linalg.lstsq(basis[mask] * sw[k, mask, None], d[k, mask] * sw[k, mask], rcond=None)
+                fit[k] = np.where(ok_ref, basis @ coef, np.nan)
+    rss = np.nansum(np.where(ok, w * (d - fit) ** 2, 0.0), axis=1)
+    return fit, rss, count
+
+
+def smooth_cylindrical(mesh: SurfaceMesh, r, theta, z, degree, weights: np.ndarray | None = None):
     """Least-squares smoothing of the displacement field of every step.
 
     Each cylindrical displacement component (r - R, theta - Theta, z - Z) of a step is replaced by
     its projection on Legendre polynomials of the reference Z (degree ``degree[0]``) times a
     Fourier series in Theta (``degree[1]`` harmonics), fitted to the observed markers. Noise
     averages out at the cost of a bias where the true field varies faster than the basis.
+    A marker of the reference mesh that a step did not observe gets the fitted field there, so that
+    its triangles still count in the balance (leaving them out biases the axial virtual work,
+    whose external part is the whole measured force, by the missing area: ~7 % on the default
+    simulated rig).
 
     Parameters
     ----------
     r, theta, z : ndarray, shape (n_steps, n_markers)
-    degree : (int, int)
+    degree : (int, int), or three such pairs (one per component r, theta, z; ``select_smoothing``)
+    weights : ndarray, shape (n_steps, n_markers), optional
+        Relative weights of the markers (1 / variance, e.g. from the reconstruction's reported
+        uncertainty); default equal.
 
     Returns
     -------
-    r, theta, z : ndarray, shape (n_steps, n_markers); NaN stays NaN.
+    r, theta, z : ndarray, shape (n_steps, n_markers); NaN only at markers outside the mesh.
     """
-    nz, nt = int(degree[0]), int(degree[1])
-    Z, T, R = mesh.z, mesh.theta, mesh.r
-    ok_ref = mesh.used & np.isfinite(Z)
-    z0 = 0.5 * (np.nanmax(Z[ok_ref]) + np.nanmin(Z[ok_ref]))
-    half = 0.5 * (np.nanmax(Z[ok_ref]) - np.nanmin(Z[ok_ref]))
-    leg = np.polynomial.legendre.legvander(np.nan_to_num((Z - z0) / half), nz)
-    four = [np.ones_like(T)] + [f(k * np.nan_to_num(T)) for k in range(1, nt + 1) for f in (np.cos, np.sin)]
-    basis = np.concatenate([leg * f[:, None] for f in four], axis=1)  # (n_markers, n_basis)
+    degrees = per_component_degrees(degree)
     out = []
-    for comp, refv, wrap in ((r, R, False), (theta, T, True), (z, Z, False)):
-        d = comp - refv[None]
-        if wrap:
-            d = wrap_angle(d)
-        sm = np.full_like(d, np.nan)
-        for k in range(d.shape[0]):
-            ok = ok_ref & np.isfinite(d[k])
-            if ok.sum() <= basis.shape[1]:
-                raise DegenerateDataError(
-                    f"smoothing with {basis.shape[1]} basis functions needs more observed markers than that; step {k} "
-                    f"has {int(ok.sum())}")
-            coef, *_ = np.linalg.lstsq(basis[ok], d[k, ok], rcond=None)
-            sm[k] = np.where(ok, basis @ coef, np.nan)
-        out.append(refv[None] + sm)
+    for d, refv, deg in zip(_displacements(mesh, r, theta, z), (mesh.r, mesh.theta, mesh.z), degrees):
+        basis, ok_ref = smoothing_basis(mesh, deg)
+        fit, _, _ = _fit_basis(basis, ok_ref, d, weights)
+        out.append(refv[None] + fit)
     return out[0], out[1], out[2]
+
+
+def per_component_degrees(degree) -> tuple[tuple[int, int], ...]:
+    """``(nz, nt)`` or ``((nz, nt),) * 3`` -> three (nz, nt) pairs for the r, theta, z components."""
+    arr = np.asarray(degree, dtype=int)
+    if arr.shape == (2,):
+        arr = np.repeat(arr[None], 3, axis=0)
+    if arr.shape != (3, 2) or arr.min() < 0:
+        raise ValueError(f"smoothing must be (axial degree, harmonics) or three such pairs (r, theta, z), "
+                         f"non-negative; got {degree!r}")
+    return tuple((int(a), int(b)) for a, b in arr)
+
+
+def select_smoothing(mesh: SurfaceMesh, r, theta, z, *, weights: np.ndarray | None = None,
+                     candidates=AUTO_DEGREES) -> tuple[tuple[tuple[int, int], ...], np.ndarray]:
+    """Smoothing basis of each displacement component chosen from the data (generalised cross-validation).
+
+    For every candidate (axial degree, harmonics) and component the projection's GCV score
+    ``RSS / (n (1 - p / n)^2)`` (p basis functions, n observed markers) is summed over the steps;
+    one basis per component is kept for all steps, so the displacements stay in one space as the
+    load grows. Candidates with more than ``MAX_BASIS_FRACTION`` of the observed markers are skipped.
+
+    Returns
+    -------
+    degrees : three (nz, nt) pairs, for the r, theta, z components.
+    scores : ndarray, shape (n_candidates, 3); inf for skipped candidates.
+    """
+    disp = _displacements(mesh, r, theta, z)
+    n_obs = int(np.min(np.sum(np.isfinite(disp[0]) & mesh.used[None], axis=1)))
+    scores = np.full((len(candidates), 3), np.inf)
+    for i, deg in enumerate(candidates):
+        basis, ok_ref = smoothing_basis(mesh, deg)
+        p = basis.shape[1]
+        if p > MAX_BASIS_FRACTION * n_obs:
+            continue
+        for c, d in enumerate(disp):
+            _, rss, n = _fit_basis(basis, ok_ref, d, weights)
+            scores[i, c] = float(np.sum(rss / (n * (1.0 - p / n) ** 2)))
+    if not np.isfinite(scores).any():
+        raise DegenerateDataError(f"too few observed markers ({n_obs}) to choose a smoothing basis")
+    best = np.argmin(scores, axis=0)
+    return tuple(tuple(candidates[b]) for b in best), scores
 
 
 def marker_outliers(mesh: SurfaceMesh, r, theta, z, *, floor: float = 0.25, n_sigma: float = 8.0) -> np.ndarray:
@@ -275,11 +370,15 @@ def _inverse_first_row(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def surface_state(mesh: SurfaceMesh, aligned: np.ndarray, quadrature: int = 1,
-                  smoothing: tuple[int, int] | None = None, reject_outliers: bool = True) -> SurfaceState:
+                  smoothing: tuple | str | None = None, reject_outliers: bool = True,
+                  weights: np.ndarray | None = None) -> SurfaceState:
     """Cylindrical interpolation of the aligned positions ``(n_steps, n_markers, 3)``.
 
     ``smoothing=(axial degree, circumferential harmonics)`` smooths the displacement field first
-    (``smooth_cylindrical``); ``reject_outliers`` first sets mis-tracked markers (``marker_outliers``)
+    (``smooth_cylindrical``); ``"auto"`` chooses the basis of each component from the data
+    (``select_smoothing``) unless the markers look exact (estimated noise below ``EXACT_MARKERS``).
+    ``weights`` (n_steps, n_markers): relative marker weights (1 / variance) of the smoothing fit.
+    ``reject_outliers`` first sets mis-tracked markers (``marker_outliers``)
     to NaN in the steps where they disagree with their neighbours. Triangles that are inverted in a step (a noisy marker crossed an
     edge) are excluded from that step like unobserved ones.
     """
@@ -297,8 +396,9 @@ def surface_state(mesh: SurfaceMesh, aligned: np.ndarray, quadrature: int = 1,
             r, th, z = (np.where(outliers, np.nan, a) for a in (r, th, z))
     else:
         outliers = np.zeros(r.shape, bool)
+    smoothing = resolve_smoothing(mesh, r, th, z, smoothing, noise, weights)
     if smoothing is not None:
-        r, th, z = smooth_cylindrical(mesh, r, th, z, smoothing)
+        r, th, z = smooth_cylindrical(mesh, r, th, z, smoothing, weights)
     rv, thv, zv = r[:, tri], th[:, tri], z[:, tri]  # (n_steps, n_tri, 3)
     valid = np.all(np.isfinite(rv) & np.isfinite(thv) & np.isfinite(zv), axis=-1)
     # unwrap the current angles of each triangle relative to its first vertex
@@ -316,8 +416,27 @@ def surface_state(mesh: SurfaceMesh, aligned: np.ndarray, quadrature: int = 1,
         R=Rv @ bary.T, R_xi=_grad(Rv, geo.dinv),
         r=rv @ bary.T, r_xi=_grad(rv, geo.dinv),
         theta=thv @ bary.T, theta_xi=theta_xi, z_xi=z_xi,
-        valid=valid, outliers=outliers, noise=noise, r_markers=r, theta_markers=th, z_markers=z, axes=tuple(axes), bary=bary, qweight=qw, geometry=geo,
+        valid=valid, outliers=outliers, noise=noise, r_markers=r, theta_markers=th, z_markers=z, axes=tuple(axes),
+        bary=bary, qweight=qw, geometry=geo, smoothing=smoothing,
     )
+
+
+def resolve_smoothing(mesh: SurfaceMesh, r, theta, z, smoothing, noise, weights=None):
+    """The smoothing degrees to use: None, three (nz, nt) pairs, chosen from the data for ``"auto"``."""
+    if smoothing is None:
+        return None
+    if isinstance(smoothing, str):
+        if smoothing != "auto":
+            raise ValueError(f"smoothing must be None, 'auto' or (axial degree, harmonics); got {smoothing!r}")
+        level = float(np.nanmedian(noise))
+        if not level > EXACT_MARKERS:
+            log.info("estimated marker noise %.2g mm: markers look exact, not smoothing", level * 1e3)
+            return None
+        degrees, _ = select_smoothing(mesh, r, theta, z, weights=weights)
+        log.info("estimated marker noise %.2g mm: smoothing (axial degree, harmonics) r %s, theta %s, z %s "
+                 "chosen by cross-validation", level * 1e3, *degrees)
+        return degrees
+    return per_component_degrees(smoothing)
 
 
 def reference_frame(R_xi: np.ndarray, R_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -16,7 +16,7 @@ included), from the exact Jacobian of all parameters at the solution.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Mapping
 
 import numpy as np
@@ -41,10 +41,12 @@ RESOLUTION_LIMIT = 0.3
 LOG_RANGE = 12.0
 #: Estimated marker noise (m) above which unsmoothed data are flagged.
 NOISY_MARKERS = 0.02e-3
-#: Smoothing used by ``identify(..., smoothing="auto")`` when the markers look noisy.
-AUTO_SMOOTHING = (4, 2)
 #: RMS normalised gap below which the balance is considered exact (no further starts are tried).
 EXACT_GAP = 1e-5
+#: Fraction of the reference markers a loaded step must observe to enter the balance (``identify``).
+MIN_COVERAGE = 0.8
+#: Fraction of a step's triangles left out (unobserved markers) above which unsmoothed fits are flagged.
+MISSING_AREA = 0.01
 #: Relative cost difference within which two starts are taken to have found the same minimum; the
 #: remaining starts are then skipped (as they are after a first fit that ``_trusted`` accepts).
 AGREEING_STARTS = 1e-6
@@ -84,6 +86,14 @@ class IdentificationResult:
         Jacobian; for ``"nelder-mead"`` each is one cost.
     starts : tuple of dict
         Initial guesses tried.
+    uncertainty : uncertainty.Uncertainty or None
+        Bootstrap uncertainty (intervals, bias, model-error factor) when asked for
+        (``identify(..., uncertainty="bootstrap")``); ``stderr`` is then the bootstrap's.
+    smoothing : tuple or None
+        Smoothing degrees used by ``identify`` (three (axial degree, harmonics) pairs for r, theta, z).
+    steps : tuple of int or None
+        Indices of the input steps in the balance (``identify`` leaves out steps seen only in part);
+        the step axis of ``residuals``, ``ivw`` and ``evw``.
     """
 
     model: str
@@ -103,6 +113,9 @@ class IdentificationResult:
     message: str
     n_evaluations: int
     starts: tuple = field(default=())
+    uncertainty: object = None
+    smoothing: tuple | None = None
+    steps: tuple | None = None
 
     @property
     def residual_per_step(self) -> np.ndarray:
@@ -394,7 +407,7 @@ def _flags(model: Model, data: VFMData, tr: _Transform, x, params, stderr, resol
     if data.smoothing is None and data.marker_noise > NOISY_MARKERS:
         flags.append(f"the markers look noisy (about {data.marker_noise * 1e3:.2g} mm): per-triangle strains are "
                      "dominated by noise and the exponential laws by a few triangles; smooth the displacements "
-                     "(smoothing=(4, 2), --smooth 4,2) or measure better")
+                     "(smoothing='auto', --smooth auto) or measure better")
     if np.any(data.n_outliers):
         flags.append(f"{int(np.sum(data.n_outliers))} marker observations disagreed with their neighbours "
                      "(mis-tracked?) and were ignored")
@@ -460,6 +473,24 @@ def identify_prepared(
     )
 
 
+def drop_partial_steps(positions, pressure, axial_force):
+    """Leave out the loaded steps in which fewer than ``MIN_COVERAGE`` of the reference step's markers
+    were observed (a region out of view: smoothing would extrapolate into it and the balance would
+    miss its area). Returns the kept positions, pressure, force and the dropped step indices."""
+    x = np.asarray(positions, dtype=float)
+    if x.ndim != 3 or x.shape[0] < 3:
+        return positions, pressure, axial_force, []
+    seen = np.all(np.isfinite(x), axis=-1)
+    ref = seen[0]
+    coverage = (seen & ref[None]).sum(axis=1) / max(int(ref.sum()), 1)
+    keep = (coverage >= MIN_COVERAGE) | (coverage == 0)  # an empty step is an input error: prepare says so
+    keep[0] = True
+    if keep.all() or keep.sum() < 2:
+        return positions, pressure, axial_force, []
+    return (x[keep], np.asarray(pressure, float).reshape(-1)[keep], np.asarray(axial_force, float).reshape(-1)[keep],
+            np.flatnonzero(~keep).tolist())
+
+
 def identify(
     positions: np.ndarray,
     pressure: np.ndarray,
@@ -472,6 +503,8 @@ def identify(
     optimizer: str = "lsq",
     initial: Mapping[str, float] | None = None,
     n_starts: int = 3,
+    uncertainty: str = "gauss-newton",
+    uncertainty_options: Mapping | None = None,
     **prepare_options,
 ) -> IdentificationResult:
     """Identify constitutive parameters from marker positions, pressure and axial force.
@@ -492,22 +525,38 @@ def identify(
     ends : {"clamped", "free"}
     optimizer : {"lsq", "nelder-mead"}
     initial : mapping, optional
+    uncertainty : {"gauss-newton", "bootstrap"}
+        "bootstrap": standard errors and 95 % intervals from re-simulated measurements
+        (``uncertainty.bootstrap``; ~20 re-identifications) instead of the Gauss-Newton ones,
+        which are too small when the markers are noisy.
+    uncertainty_options : mapping, optional
+        Passed to ``uncertainty.bootstrap`` (marker_sigma, pressure_noise, force_noise, n_replicates, seed).
     prepare_options
         Passed to ``prepare`` (fields, mesh, n_layers, quadrature, clamp_radius, smoothing...).
-        ``smoothing="auto"`` smooths with ``AUTO_SMOOTHING`` only when the estimated marker noise
-        exceeds ``NOISY_MARKERS`` (0.02 mm).
+        ``smoothing="auto"`` smooths with a basis chosen from the data (generalised
+        cross-validation, ``kinematics.select_smoothing``) unless the markers look exact.
     """
-    smoothing = prepare_options.pop("smoothing", None)
-    auto = isinstance(smoothing, str)
-    if auto and smoothing != "auto":
-        raise ValueError(f"smoothing must be None, 'auto' or (axial degree, harmonics); got {smoothing!r}")
-    data = prepare(positions, pressure, axial_force, thickness=thickness, wall=wall, ends=ends,
-                   smoothing=None if auto else smoothing, **prepare_options)
-    if auto and data.marker_noise > NOISY_MARKERS:
-        log.info("estimated marker noise %.3g mm: smoothing the displacements with %s", data.marker_noise * 1e3,
-                 AUTO_SMOOTHING)
-        opts = dict(prepare_options)
-        opts["mesh"] = data.mesh
-        data = prepare(positions, pressure, axial_force, thickness=thickness, wall=wall, ends=ends,
-                       smoothing=AUTO_SMOOTHING, **opts)
-    return identify_prepared(data, model, initial=initial, optimizer=optimizer, n_starts=n_starts)
+    if uncertainty not in ("gauss-newton", "bootstrap"):
+        raise ValueError(f"uncertainty must be 'gauss-newton' or 'bootstrap'; got {uncertainty!r}")
+    n_input = np.shape(positions)[0]
+    positions, pressure, axial_force, dropped = drop_partial_steps(positions, pressure, axial_force)
+    data = prepare(positions, pressure, axial_force, thickness=thickness, wall=wall, ends=ends, **prepare_options)
+    result = replace(identify_prepared(data, model, initial=initial, optimizer=optimizer, n_starts=n_starts),
+                     smoothing=data.smoothing, steps=tuple(k for k in range(n_input) if k not in dropped))
+    if dropped:
+        result = replace(result, flags=result.flags + (
+            f"steps {dropped} were left out: the cameras saw less than {MIN_COVERAGE:.0%} of the reference markers "
+            "there (markers out of view), too little to fill in the rest of the surface",))
+    missing = 1.0 - data.n_valid_triangles[1:] / max(data.mesh.n_triangles, 1)
+    if data.smoothing is None and missing.size and missing.max() > MISSING_AREA:
+        result = replace(result, flags=result.flags + (
+            f"up to {missing.max():.0%} of the triangles of a step had an unobserved marker and were left out: the "
+            "axial balance (whose external work is the whole measured force) misses their share and the parameters "
+            "are biased; smooth the displacements (smoothing='auto', --smooth auto) to fill them in",))
+    if uncertainty == "bootstrap":
+        from .uncertainty import with_uncertainty
+
+        options = {k: v for k, v in prepare_options.items() if k not in ("mesh", "smoothing", "reject_outliers",
+                                                                          "marker_weights")}
+        result = with_uncertainty(result, data, positions, prepare_options=options, **dict(uncertainty_options or {}))
+    return result

@@ -77,6 +77,8 @@ class VFMData:
     marker_noise : float
         Estimated marker noise (m, median over steps; ``kinematics.marker_outliers``).
     smoothing : tuple or None
+        Smoothing degrees used: three (axial degree, harmonics) pairs for the r, theta, z
+        displacement components, or None.
     pressure, axial_force : ndarray, shape (n_steps,)
     """
 
@@ -173,8 +175,9 @@ def prepare(
     n_layers: int = 4,
     quadrature: int = 1,
     toward: np.ndarray | None = None,
-    smoothing: tuple[int, int] | None = None,
+    smoothing: tuple[int, int] | str | None = None,
     reject_outliers: bool = True,
+    marker_weights: np.ndarray | None = None,
 ) -> VFMData:
     """Build the virtual-work balance from measured data.
 
@@ -208,7 +211,12 @@ def prepare(
         World direction of the load-cell end (default +z).
     smoothing : (int, int), optional
         Smooth each step's displacement field on Legendre(Z) x Fourier(Theta) of these degrees
-        before differentiating (for noisy markers; see ``kinematics.smooth_cylindrical``).
+        before differentiating (for noisy markers; see ``kinematics.smooth_cylindrical``);
+        ``"auto"``: the basis of each component chosen from the data (``kinematics.select_smoothing``)
+        unless the markers look exact.
+    marker_weights : ndarray, shape (n_steps, n_markers), optional
+        Relative weights of the markers in the smoothing fit (1 / variance, e.g. from the
+        reconstruction's reported uncertainty); default equal.
     reject_outliers : bool
         Treat markers that disagree with their neighbours in a step (mis-tracked) as unobserved
         there (``kinematics.marker_outliers``); counts in ``VFMData.n_outliers``.
@@ -226,7 +234,7 @@ def prepare(
         fields = paper_fields(mesh)
     check_fields(fields, mesh)
     aligned, _, _ = align_steps(x, reference)
-    st = surface_state(mesh, aligned, quadrature, smoothing, reject_outliers)
+    st = surface_state(mesh, aligned, quadrature, smoothing, reject_outliers, marker_weights)
     if not st.valid.any(axis=1).all():
         bad = np.flatnonzero(~st.valid.any(axis=1)).tolist()
         raise DegenerateDataError(f"steps {bad} have no triangle with all three markers observed")
@@ -249,7 +257,7 @@ def prepare(
     return VFMData(c=c, work_density=work_density, evw=evw, pressure_work=pressure_work, end_work=end_work,
                    end_force=n_end, scale=scale, field_names=tuple(fields.names), wall=wall, ends=ends, mesh=mesh,
                    n_valid_triangles=n_valid, n_outliers=st.outliers.sum(axis=1),
-                   marker_noise=float(np.nanmedian(st.noise)), smoothing=smoothing, pressure=p, axial_force=f,
+                   marker_noise=float(np.nanmedian(st.noise)), smoothing=st.smoothing, pressure=p, axial_force=f,
                    thickness=e0)
 
 

@@ -158,7 +158,7 @@ def test_smooth_grammar_is_the_same_as_identify(tmp_path, capsys):
     """--smooth takes AXIAL,HARMONICS or auto, as 'vfmlab identify --smooth' does."""
     bare = make_session(tmp_path / "bare.h5", with_results=False)
     assert main(["reprocess", str(bare), "--smooth", "4,x"]) == 1
-    assert "--smooth must be 'auto' or two non-negative integers" in capsys.readouterr().err
+    assert "--smooth must be 'auto', 'none' or two non-negative integers" in capsys.readouterr().err
     assert main(["reprocess", str(bare), "--smooth", "auto", "--json"]) == 1  # no markers: fails, but parsed
     out = json.loads(capsys.readouterr().out)
     assert "no marker tracks" in out["outcomes"][0]["errors"][0]

@@ -43,7 +43,8 @@ def test_identify_json_and_stored_result(tmp_path, capsys, measures):
     out = capsys.readouterr().out
     assert rc == 0, out
     doc = json.loads(out)
-    assert set(doc) == {"model", "wall", "parameters", "stderr", "units", "cost", "converged", "flags", "result_group"}
+    assert set(doc) == {"model", "wall", "parameters", "stderr", "interval_95", "units", "cost", "converged", "flags",
+                        "result_group"}
     assert doc["units"] == {"beta": "Pa", "alpha": "1"}  # SI, the unit of every parameter said
     # membrane form on membrane data; 'total' readings are corrected with the reference lumen radius
     assert doc["parameters"]["beta"] == pytest.approx(1.5e3, rel=5e-3)
@@ -51,6 +52,11 @@ def test_identify_json_and_stored_result(tmp_path, capsys, measures):
         res = s.result(doc["result_group"])
     assert list(res["arrays"]["parameter_names"]) == ["beta", "alpha"]
     assert res["attrs"]["model"] == "delfino"
+    # exact data: the bootstrap interval is narrow and holds the truth
+    for name, truth in (("beta", 1.5e3), ("alpha", 4.6)):
+        lo, hi = doc["interval_95"][name]
+        assert lo <= doc["parameters"][name] <= hi and hi - lo < 0.02 * truth
+    assert np.all(res["arrays"]["interval_low"] <= res["arrays"]["parameters"])
 
 
 def test_identify_table(tmp_path, capsys):

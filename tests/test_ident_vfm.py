@@ -175,9 +175,12 @@ def test_smoothing_tames_marker_noise():
     assert raw.marker_noise == pytest.approx(0.05e-3, rel=0.15)
     assert any("markers look noisy" in fl for fl in identify_prepared(raw, "fung").flags)
     auto = identify(noisy, p, f, thickness=E0, model="fung", ends="free", smoothing="auto")
-    assert auto.parameters == smooth.parameters
+    # homogeneous data: cross-validation picks a low-order basis for every component
+    chosen = prepare(noisy, p, f, thickness=E0, ends="free", smoothing="auto").smoothing
+    assert chosen is not None and all(nz <= 2 and nt <= 2 for nz, nt in chosen), chosen
     for name in ("beta", "alpha11", "alpha22"):
         assert smooth.parameters[name] == pytest.approx(PAPER["fung"][name], rel=0.05), smooth.parameters
+        assert auto.parameters[name] == pytest.approx(PAPER["fung"][name], rel=0.05), auto.parameters
     # exact homogeneous data lie in the smoothing basis: smoothing then changes nothing
     exact = identify(pos, p, f, thickness=E0, model="fung", ends="free", smoothing=(4, 2))
     assert exact.parameters["beta"] == pytest.approx(PAPER["fung"]["beta"], rel=1e-6)

@@ -141,7 +141,7 @@ def test_pause_abort_or_quit_always_vents(tmp_path, monkeypatch, answer, status,
     if answer == "quit":  # resumable: reopen and finish; every step exactly once
         # the quitting process normally exits; here it lives on, so tell the reader its writer is gone
         import acquisition.session as session_mod
-        monkeypatch.setattr(session_mod, "_writer_alive", lambda pid, host: False)
+        monkeypatch.setattr(session_mod, "_writer_alive", lambda pid, host, *identity: False)
         w = SessionWriter.resume(tmp_path / "s.h5")
         rig2 = FakeRig()
         cams2 = _cams(rig2)
@@ -209,9 +209,10 @@ def test_instrument_fault_pauses_then_resumes(tmp_path):
 def test_safety_limit_aborts(tmp_path):
     runner, rig, cams, _ = _runner(tmp_path, safety=SafetyLimits(max_force=0.5))
     assert runner.run() == "aborted"  # 120 mmHg -> 1.6 N > 0.5 N
+    assert runner.resumable and rig.modes[-1] == "vent"
     with open_session(tmp_path / "s.h5") as s:
-        assert s.status == "aborted"
-        assert any("exceeds the safety limit" in e["message"] for e in s.events())
+        assert s.status == "interrupted"  # vented, every completed step sound: resumable
+        assert any("exceeds the safety limit" in e["message"] and "resumable" in e["message"] for e in s.events())
 
 
 def test_unstable_pressure_times_out_and_manual_mode(tmp_path):

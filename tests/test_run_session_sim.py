@@ -176,7 +176,7 @@ def test_cli_reports_bad_files_before_anything_moves(tmp_path, capsys):
     bad.write_text(FAST.replace("150]", "250]"))
     rc = main(["run", str(bad), "--specimen", str(SPECIMEN), "--out", str(tmp_path / "x.h5"), "--sim", "--yes"])
     err = capsys.readouterr().err
-    assert rc == 1 and "bad.toml: block #1 .pressures: 250.0 mmHg is above the rig's safety limit" in err
+    assert rc == 2 and "bad.toml: block #1 .pressures: 250.0 mmHg is above the rig's safety limit" in err
     assert not (tmp_path / "x.h5").exists()
     rc = main(["run", str(ROOT / "examples" / "paper-protocol.toml"), "--specimen", str(SPECIMEN),
                "--out", str(tmp_path / "y.h5"), "--yes"])
@@ -196,7 +196,7 @@ def _interrupted_session(path, monkeypatch, pressure_identity):
                              protocol_text=FAST, rig={"config_text": DEFAULT_SIM_RIG},
                              instruments={"pressure": {"identity": pressure_identity}})
     w.close(status="running")  # as if the process had died
-    monkeypatch.setattr(session_mod, "_writer_alive", lambda pid, host: False)
+    monkeypatch.setattr(session_mod, "_writer_alive", lambda pid, host, *identity: False)
 
 
 def test_resume_rechecks_instrument_identity(tmp_path, monkeypatch, capsys):

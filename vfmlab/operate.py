@@ -25,7 +25,8 @@ from acquisition.cameras import CameraError
 from acquisition.protocol import (MMHG, ConfigError, Protocol, RigConfig, SpecimenFile, load_protocol, load_rig,
                                   load_specimen, parse_protocol, parse_rig)
 from acquisition.runner import AutoOperator, RunnerState, SessionRunner, completed_steps
-from acquisition.session import CameraSpec, SessionError, SessionWriter, SpecimenInfo, open_session
+from acquisition.session import (CameraSpec, SessionError, SessionWriter, SpecimenInfo, incomplete_leftover,
+                                open_session)
 from vfmlab.bench import Bench, BenchError, open_bench
 from vfmlab.display import fixed
 from vfmlab.live import LiveView, TerminalOperator, format_duration
@@ -40,7 +41,12 @@ DEFAULT_SIM_RIG = resources.files("vfmlab.data").joinpath("sim-rig.toml").read_t
 
 
 class OperateError(RuntimeError):
-    """A user-facing failure (bad file, missing instrument, identity mismatch); exit code 1."""
+    """A user-facing failure (bad file, missing instrument, identity mismatch); exit code 1,
+    or 2 (``exit_code``) for bad input the user must change."""
+
+    def __init__(self, message: str, exit_code: int = 1):
+        super().__init__(message)
+        self.exit_code = exit_code
 
 
 @dataclass
@@ -49,6 +55,13 @@ class Outcome:
     path: Path
     n_steps: int
     elapsed_s: float
+    reason: str = ""  # why an aborted or failed run stopped ('' for complete or an operator's quit)
+    resumable: bool = False
+
+    @property
+    def failed(self) -> bool:
+        """Exit code 1: aborted, or stopped by a fault (disk full) although resumable."""
+        return self.status == "aborted" or bool(self.reason)
 
 
 def _sim_bench(rig: RigConfig, specimen: SpecimenFile, protocol: Protocol, sim_speed: float):
@@ -152,9 +165,13 @@ def run_session(protocol_path: str, specimen_path: str, out: str, *, rig_path: s
         protocol = load_protocol(protocol_path, rig)
         specimen = load_specimen(specimen_path)
     except ConfigError as exc:
-        raise OperateError(str(exc)) from None
+        raise OperateError(str(exc), exit_code=2) from None
     out_path = Path(out)
-    if out_path.exists():
+    replace_leftover = incomplete_leftover(out_path)
+    if replace_leftover:
+        console.print(f"{esc(str(out_path))}: replacing an incomplete file ({out_path.stat().st_size} bytes, no "
+                      "data) left by a run killed while it created it")
+    elif out_path.exists():
         raise OperateError(f"{out_path}: file exists; refusing to overwrite a session (choose another --out, "
                            f"or 'vfmlab resume {out_path}' to continue it)")
     pc = protocol.preconditioning
@@ -183,7 +200,7 @@ def run_session(protocol_path: str, specimen_path: str, out: str, *, rig_path: s
                 out_path, SpecimenInfo(specimen.specimen_id, specimen.radius, specimen.length, specimen.thickness,
                                        specimen.notes),
                 cameras=specs, protocol_text=protocol.text, rig=bench.rig_record(), instruments=bench.instruments(),
-                load_cell_measures=rig.load_cell.measures)
+                load_cell_measures=rig.load_cell.measures, overwrite=replace_leftover)
         except (SessionError, OSError) as exc:
             raise OperateError(str(exc)) from None
         runner = _execute(runner_kwargs, protocol, writer, bench, console, yes, 0, True, True, detector,
@@ -195,6 +212,9 @@ def resume_session(path: str, *, rig_path: str | None = None, sim: bool = False,
                    sim_speed: float = 1.0, console: Console, detector: Callable[[np.ndarray], int] | None = None,
                    observer: Callable[[RunnerState, Bench], None] | None = None, **runner_kwargs: Any) -> Outcome:
     """``vfmlab resume``: continue an interrupted session from its last completed step."""
+    if incomplete_leftover(path):
+        raise OperateError(f"{path}: holds no data ({Path(path).stat().st_size} bytes): a run was killed while it "
+                           f"created the file; start the test again with 'vfmlab run ... --out {path}'")
     try:
         with open_session(path) as s:
             status = s.status
@@ -216,10 +236,11 @@ def resume_session(path: str, *, rig_path: str | None = None, sim: bool = False,
             if not text:
                 raise OperateError(f"{path}: the session does not hold its rig file; give --rig RIG.toml")
             rig = parse_rig(text, text=text, source=f"{Path(path).name}:rig")
+            _confirm_stored_devices(rig, path, yes, console)
         sim = sim or rig.simulated  # the session knows it was recorded on the simulated rig
         protocol = parse_protocol(protocol_text, text=protocol_text, source=f"{Path(path).name}:protocol", rig=rig)
     except ConfigError as exc:
-        raise OperateError(str(exc)) from None
+        raise OperateError(str(exc), exit_code=2) from None
     specimen = SpecimenFile(info.specimen_id, info.radius, info.length, info.thickness, info.notes)
     done_pre = "preconditioning_done" in kinds or start > 0
     done_cal = "calibration_done" in kinds or "preconditioning" in kinds or start > 0
@@ -254,6 +275,34 @@ def resume_session(path: str, *, rig_path: str | None = None, sim: bool = False,
     return _report(runner, Path(path), console)
 
 
+def device_endpoints(rig: RigConfig) -> list[str]:
+    """The real devices a rig file would open: serial ports and camera sources (simulated ones excluded)."""
+    out = [f"{role} port {port.port}" for role, port in (("pressure", rig.pressure), ("load cell", rig.load_cell))
+           if port.port != "sim"]
+    for cam in rig.cameras:
+        if cam.backend != "sim":
+            source = ", ".join(f"{k}={v}" for k, v in sorted(cam.settings.items())
+                               if k in ("device", "index", "url", "path", "serial", "source"))
+            out.append(f"camera {cam.name} ({cam.backend}{': ' + source if source else ''})")
+    return out
+
+
+def _confirm_stored_devices(rig: RigConfig, path: str, yes: bool, console: Console) -> None:
+    """A session file is data from anywhere: never let it pick serial ports or video sources unasked."""
+    devices = device_endpoints(rig)
+    if not devices:
+        return
+    listing = "; ".join(devices)
+    if yes:
+        raise OperateError(f"{path}: the rig settings stored in the session would open {listing}. A session file "
+                           "is not trusted to choose devices: resume with --rig RIG.toml (this machine's rig file)",
+                           exit_code=2)
+    console.print(f"The rig settings stored in {esc(str(path))} would open: {esc(listing)}. "
+                  "They come from the session file, not from a rig file of this machine.")
+    if TerminalOperator(console).choose("Use these devices?", ["no", "yes"]) != "yes":
+        raise OperateError("resume cancelled: give --rig RIG.toml (this machine's rig file)", exit_code=2)
+
+
 def _report(runner: SessionRunner, path: Path, console: Console) -> Outcome:
     with open_session(path) as s:
         n = s.n_steps
@@ -261,9 +310,12 @@ def _report(runner: SessionRunner, path: Path, console: Console) -> Outcome:
     style = {"complete": "green", "aborted": "red", "interrupted": "yellow"}[status]
     console.print(f"[bold {style}]Session {status}[/]: {esc(str(path))} ({n} step rows, "
                   f"{format_duration(runner.state.elapsed_s)})")
-    if status == "interrupted":
+    if runner.stop_reason:
+        console.print(f"Reason: {esc(runner.stop_reason)}")
+    if status == "interrupted" or runner.resumable:
         console.print(f"Continue with: vfmlab resume {esc(str(path))}")
-    return Outcome(status, path, n, runner.state.elapsed_s)
+    return Outcome(status, path, n, runner.state.elapsed_s, runner.stop_reason,
+                   status == "interrupted" or runner.resumable)
 
 
 def detector_from_reconstruction() -> Callable[[np.ndarray], int] | None:

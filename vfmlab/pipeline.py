@@ -11,6 +11,7 @@ Errors: :class:`StageError` with one readable sentence (session path first).
 from __future__ import annotations
 
 import inspect
+import json
 import logging
 import os
 from collections.abc import Callable
@@ -21,6 +22,12 @@ import numpy as np
 from acquisition.session import SessionError, open_session, write_result
 
 log = logging.getLogger(__name__)
+
+#: Standard deviation of a pressure reading used for the parameter uncertainty (Pa): ~0.02 mmHg,
+#: a controller-grade transducer averaged over the dwell.
+PRESSURE_NOISE = 3.0
+#: Standard deviation of a load-cell reading used for the parameter uncertainty (N).
+FORCE_NOISE = 0.002
 
 __all__ = ["STAGES", "StageError", "StageUnavailable", "identify_session", "identify_stored", "load_identification_inputs",
            "reconstruct_session", "reconstruct_stored", "session_calibrated_cameras", "session_step_rows"]
@@ -40,7 +47,8 @@ def load_identification_inputs(session, markers: str | None = None) -> dict[str,
     Returns positions (n_steps, n_markers, 3) m (NaN where not visible), pressure (n_steps,) Pa,
     force (n_steps,) N (wall force: a "total" load-cell reading is corrected by + p pi r_i^2 with
     the reference lumen radius r_i = radius - thickness, decision 0003), thickness m, rows
-    (n_steps,) rows of the step table, markers_result name and notes (corrections applied).
+    (n_steps,) rows of the step table, markers_result name, notes (corrections applied) and
+    uncertainty (n_steps, n_markers) m, the reconstruction's reported marker uncertainty (or None).
     """
     names = session.results("markers")
     if markers is not None and markers not in names:
@@ -68,13 +76,16 @@ def load_identification_inputs(session, markers: str | None = None) -> dict[str,
         r_i = specimen.radius - specimen.thickness
         force = force + pressure * np.pi * r_i**2
         notes.append(f"load cell measures total force: wall force = total + p*pi*r_i^2 with r_i = {r_i * 1e3:.3f} mm")
+    uncertainty = np.asarray(arrays["uncertainty"], float) if "uncertainty" in arrays else None
+    if uncertainty is not None and uncertainty.shape != positions.shape[:2]:
+        uncertainty = None
     return {"positions": positions, "pressure": pressure, "force": force, "thickness": float(specimen.thickness),
-            "markers_result": result["name"], "rows": rows, "notes": notes}
+            "markers_result": result["name"], "rows": rows, "notes": notes, "uncertainty": uncertainty}
 
 
 def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str = "membrane", ends: str = "clamped",
-                    optimizer: str = "lsq", smoothing: str | tuple[int, int] | None = None, markers: str | None = None,
-                    invoked_by: str = "pipeline") -> tuple[str, Any, dict[str, Any]]:
+                    optimizer: str = "lsq", smoothing: str | tuple[int, int] | None = "auto", markers: str | None = None,
+                    uncertainty: str = "bootstrap", invoked_by: str = "pipeline") -> tuple[str, Any, dict[str, Any]]:
     """Identify ``model`` from the session's marker tracks with the VFM and store an "identification" result.
 
     Parameters
@@ -85,8 +96,12 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
     ends : "clamped" | "free".
     optimizer : "lsq" | "nelder-mead".
     smoothing : (axial Legendre degree, circumferential harmonics) to smooth the measured
-        displacements first, "auto" (smooth only when the estimated marker noise is large), or None.
+        displacements first, "auto" (the basis chosen from the data; none when the markers look
+        exact), or None. The standard errors and 95 % intervals come from a parametric bootstrap
+        (``identification.uncertainty``) with the sensor noise of ``PRESSURE_NOISE``/``FORCE_NOISE``.
     markers : markers result to use (default: the latest).
+    uncertainty : "bootstrap" (default, intervals that cover the truth; ~16 re-identifications) or
+        "gauss-newton" (fast, too small on noisy data).
     invoked_by : recorded in the result's attributes (e.g. "identify", "reprocess").
 
     Returns
@@ -113,7 +128,10 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
         raise StageError(str(exc)) from None
     try:
         result = identify(data["positions"], data["pressure"], data["force"], thickness=data["thickness"],
-                          model=model, wall=wall, ends=ends, optimizer=optimizer, smoothing=smoothing)
+                          model=model, wall=wall, ends=ends, optimizer=optimizer, smoothing=smoothing,
+                          uncertainty=uncertainty, uncertainty_options={
+                              "marker_sigma": data["uncertainty"], "pressure_noise": PRESSURE_NOISE,
+                              "force_noise": FORCE_NOISE} if uncertainty == "bootstrap" else None)
     except (IdentificationError, ValueError) as exc:
         raise StageError(f"{path}: cannot identify {model}: {exc}") from None
     names = list(result.parameters)
@@ -125,20 +143,32 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
         "ivw": result.ivw,
         "evw": result.evw,
         "residuals": result.residuals,
-        "step_index": data["rows"],
+        "step_index": data["rows"] if result.steps is None else data["rows"][list(result.steps)],
     }
+    if result.uncertainty is not None:
+        arrays["interval_low"] = np.array([result.uncertainty.interval[n][0] for n in names])
+        arrays["interval_high"] = np.array([result.uncertainty.interval[n][1] for n in names])
+        arrays["bootstrap_bias"] = np.array([result.uncertainty.bias[n] for n in names])
     settings = {"model": model, "wall": wall, "ends": ends, "optimizer": optimizer, "smoothing": smoothing,
                 "markers_result": data["markers_result"], "thickness": data["thickness"],
                 "force_correction": data["notes"]}
     attrs = {"model": model, "wall": wall, "cost": result.cost, "converged": result.converged,
              "flags": list(result.flags), "message": result.message, "n_evaluations": result.n_evaluations,
-             "field_names": list(result.field_names), "invoked_by": invoked_by}
+             "field_names": list(result.field_names), "invoked_by": invoked_by,
+             "smoothing_used": json.dumps(data_smoothing(result)),
+             "uncertainty": "parametric bootstrap, 95 % intervals" if result.uncertainty is not None else "gauss-newton"}
     try:
         group = write_result(path, "identification", arrays, settings, attrs=attrs,
                              units={"ivw": "J", "evw": "J", "residuals": "1"})
     except SessionError as exc:
         raise StageError(str(exc)) from None
     return group, result, data
+
+
+def data_smoothing(result) -> list | None:
+    """The smoothing degrees a result was identified with (three [nz, nt] pairs), or None."""
+    used = getattr(result, "smoothing", None)
+    return None if used is None else [list(map(int, d)) for d in used]
 
 
 def identify_session(path: str | os.PathLike, **options: Any) -> str:

@@ -80,7 +80,10 @@ def main(argv: list[str] | None = None) -> int:
     2 usage error, 130 interrupted by the user.
     """
     try:
-        cli.main(args=argv, prog_name="vfmlab", standalone_mode=False)
+        # With standalone_mode=False click *returns* the code of a command's Exit(n).
+        rv = cli.main(args=argv, prog_name="vfmlab", standalone_mode=False)
+        if isinstance(rv, int) and not isinstance(rv, bool):
+            return rv
     except click.exceptions.Exit as exc:
         return exc.exit_code
     except click.ClickException as exc:

@@ -40,12 +40,27 @@ def check_parent(path: str | os.PathLike, option: str = "--out") -> Path:
     return path
 
 
+def _session_note(path: Path) -> str:
+    """' being recorded right now (writer pid N)' when a live writer is recording it, else ''."""
+    try:
+        from acquisition.session import SessionError, open_session
+
+        with open_session(path) as s:
+            if s.status == "running":
+                return f" being recorded right now (writer pid {s.file['entry'].attrs.get('writer_pid', '?')})"
+    except (SessionError, OSError, KeyError):
+        pass
+    return ""
+
+
 def check_output_path(path: str | os.PathLike, *, force: bool, inputs: Iterable[str | os.PathLike] = (),
-                      option: str = "--out") -> Path:
+                      option: str = "--out", can_force: bool = True, leftover_ok: bool = False) -> Path:
     """Check that the file ``path`` may be written; returns it as a Path or raises CliError.
 
-    Refused: a missing parent folder, an existing folder, one of ``inputs``, an HDF5 (session) file;
-    an existing other file unless ``force``.
+    Refused: a missing parent folder, an existing folder, one of ``inputs``, an HDF5 (session) file
+    (two writers never share a file: a session being recorded is named as such); an existing other
+    file unless ``force``. ``can_force=False``: the command has no --force (the message does not
+    offer it). ``leftover_ok``: the few bytes a run killed while creating its file left may be replaced.
     """
     path = check_parent(path, option)
     if path.is_dir():
@@ -54,10 +69,17 @@ def check_output_path(path: str | os.PathLike, *, force: bool, inputs: Iterable[
         return path
     if any(source is not None and _same_file(path, Path(source)) for source in inputs):
         raise CliError(f"{option} {path}: is an input of this command; refusing to overwrite it")
+    if leftover_ok:
+        from acquisition.session import incomplete_leftover
+
+        if incomplete_leftover(path):
+            return path
     if _is_hdf5(path):
-        raise CliError(f"{option} {path}: is an HDF5 session file; vfmlab never overwrites a session")
+        raise CliError(f"{option} {path}: is an HDF5 session file{_session_note(path)}; vfmlab never overwrites "
+                       "a session, even with --force")
     if not force:
-        raise CliError(f"{option} {path}: file exists; pass --force to overwrite it")
+        raise CliError(f"{option} {path}: file exists; " + ("pass --force to overwrite it" if can_force
+                                                             else "choose another name"))
     return path
 
 

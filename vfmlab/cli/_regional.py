@@ -41,8 +41,6 @@ def run_regional(session_path, model, wall, ends, smoothing, regions, as_json) -
     from vfmlab.pipeline import StageError
     from vfmlab.regional import identify_regional_stored
 
-    if smoothing == "auto":
-        raise CliError("--regions needs explicit smoothing (--smooth AXIAL,HARMONICS) or none; got 'auto'")
     try:
         group, result, data = identify_regional_stored(session_path, n_bands=regions, model=model, wall=wall,
                                                        ends=ends, smoothing=smoothing, invoked_by="identify")

@@ -16,7 +16,7 @@ EPILOG = """
 \b
 Examples:
   vfmlab identify a1.h5                                   # Fung, membrane, clamped ends
-  vfmlab identify a1.h5 --model hgo --wall thick --smooth auto
+  vfmlab identify a1.h5 --model hgo --wall thick --smooth 4,2
   vfmlab identify a1.h5 --model delfino --json > delfino.json
   vfmlab identify a1.h5 --regions 4                       # beta per axial band (where is the wall weaker?)
 """
@@ -32,44 +32,41 @@ Examples:
               help="clamped: tube tied on cannulae beyond the markers (pressure on the unmeasured strip counted).")
 @click.option("--optimizer", type=click.Choice(["lsq", "nelder-mead"]), default="lsq", show_default=True,
               help="lsq: fast least squares with several starts; nelder-mead: the paper's simplex.")
-@click.option("--smooth", default=None, metavar="AXIAL,HARMONICS|auto",
-              help="Smooth the measured displacements (Legendre degree along the axis, Fourier harmonics around) "
-                   "before differentiating; e.g. 4,2 for noisy markers (>~0.02 mm); 'auto' smooths (4,2) only when "
-                   "the estimated marker noise exceeds 0.02 mm.")
+@click.option("--smooth", default="auto", show_default=True, metavar="auto|none|AXIAL,HARMONICS",
+              help="Smooth the measured displacements before differentiating. auto: the basis (Legendre degree "
+                   "along the axis, Fourier harmonics around) of each displacement component chosen from the data "
+                   "by cross-validation, no smoothing when the markers look exact; none: raw markers; e.g. 4,2: "
+                   "that basis.")
+@click.option("--uncertainty", type=click.Choice(["bootstrap", "gauss-newton"]), default="bootstrap",
+              show_default=True, help="bootstrap: standard errors and 95 % intervals from re-simulated measurements "
+                                      "(a few seconds); gauss-newton: instant, but too small on noisy markers.")
 @click.option("--regions", type=click.IntRange(1, 12), default=None, metavar="N",
               help="Identify the stress-like parameter (beta) per band of N equal axial bands, the others shared, "
                    "with standard errors and the bands that differ; stored as a 'regional' result.")
 @click.option("--json", "as_json", is_flag=True,
               help="Print the result as JSON for scripts (SI; the unit of each parameter under 'units').")
-def command(session_path, model, wall, ends, optimizer, smooth, regions, as_json):
+def command(session_path, model, wall, ends, optimizer, smooth, uncertainty, regions, as_json):
     """Identify MODEL parameters from the latest marker tracks of SESSION and store the result in it.
 
     Units: parameters in SI (Pa, rad); the table shows kPa and degrees.
     """
     from vfmlab.pipeline import StageError, identify_stored
 
-    smoothing = None
-    if smooth == "auto":
-        smoothing = "auto"
-    elif smooth:
-        try:
-            smoothing = tuple(int(v) for v in smooth.split(","))
-            if len(smoothing) != 2 or min(smoothing) < 0:
-                raise ValueError
-        except ValueError:
-            raise CliError(f"--smooth must be two non-negative integers AXIAL,HARMONICS like 4,2; got {smooth!r}")
+    smoothing = parse_smooth_option(smooth)
     if regions is not None:
         from vfmlab.cli._regional import run_regional
 
         return run_regional(session_path, model, wall, ends, smoothing, regions, as_json)
     try:
         group, result, data = identify_stored(session_path, model=model, wall=wall, ends=ends, optimizer=optimizer,
-                                              smoothing=smoothing, invoked_by="identify")
+                                              smoothing=smoothing, uncertainty=uncertainty, invoked_by="identify")
     except StageError as exc:
         raise CliError(str(exc)) from None
     names = list(result.parameters)
     if as_json:
         print_json({"model": model, "wall": wall, "parameters": result.parameters, "stderr": result.stderr,
+                    "interval_95": (None if result.uncertainty is None else
+                                    {k: list(v) for k, v in result.uncertainty.interval.items()}),
                     "units": {n: get_unit(model, n) for n in names},
                     "cost": result.cost, "converged": result.converged, "flags": list(result.flags),
                     "result_group": group})
@@ -80,11 +77,19 @@ def command(session_path, model, wall, ends, optimizer, smooth, regions, as_json
     table.add_column("parameter")
     table.add_column("value", justify="right")
     table.add_column("std. error", justify="right")
+    unc = result.uncertainty
+    if unc is not None:
+        table.add_column("95 % interval", justify="right")
     table.add_column("unit")
     for n in names:
         v, unit = display_quantity(result.parameters[n], get_unit(model, n))
         s, _ = display_quantity(result.stderr[n], get_unit(model, n))
-        table.add_row(esc(n), num(v, 4), num(s, 2), unit or "–")
+        interval = []
+        if unc is not None:
+            lo, _ = display_quantity(unc.interval[n][0], get_unit(model, n))
+            hi, _ = display_quantity(unc.interval[n][1], get_unit(model, n))
+            interval = [f"{num(lo, 4)} to {num(hi, 4)}"]
+        table.add_row(esc(n), num(v, 4), num(s, 2), *interval, unit or "–")
     console.print(table)
     console.print(f"cost {num(result.cost, 3)}, RMS gap per field "
                   + ", ".join(f"{esc(f)}: {g:.2%}" for f, g in zip(result.field_names, result.residual_per_field))
@@ -94,6 +99,22 @@ def command(session_path, model, wall, ends, optimizer, smooth, regions, as_json
     for flag in result.flags:
         console.print(f"[yellow]warning:[/] {esc(flag)}")
     console.print(f"stored as {esc(group)}")
+
+
+def parse_smooth_option(text: str | None):
+    """``--smooth`` text -> "auto", None ("none") or (axial degree, harmonics); CliError otherwise."""
+    if text is None or text.strip().lower() == "auto":
+        return "auto"
+    if text.strip().lower() == "none":
+        return None
+    try:
+        smoothing = tuple(int(v) for v in text.split(","))
+        if len(smoothing) != 2 or min(smoothing) < 0:
+            raise ValueError
+    except ValueError:
+        raise CliError(f"--smooth must be 'auto', 'none' or two non-negative integers AXIAL,HARMONICS like 4,2; "
+                       f"got {text!r}") from None
+    return smoothing
 
 
 def get_unit(model: str, name: str) -> str:

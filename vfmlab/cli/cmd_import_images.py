@@ -9,7 +9,7 @@ import numpy as np
 from rich.progress import Progress
 
 from vfmlab.cli._common import CliError, console, err_console, esc, print_json
-from vfmlab.cli._outputs import check_parent
+from vfmlab.cli._outputs import check_output_path
 from vfmlab.cli.cmd_reconstruct import load_calibration_file
 
 _IMAGE_SUFFIXES = {".png", ".tif", ".tiff", ".bmp", ".pgm", ".jpg", ".jpeg"}
@@ -117,7 +117,7 @@ def command(images_dir, calibration, polarity, calibration_units, loads_csv, out
     from reconstruction.calibration_io import cameras_to_arrays
     from reconstruction.pipeline import ReconstructionSettings, reconstruct_step
 
-    check_parent(out)
+    check_output_path(out, force=overwrite, inputs=[calibration, loads_csv])
     if not marker_diameter_mm > 0:
         raise CliError(f"--marker-diameter-mm must be positive; got {marker_diameter_mm}")
     for name, value in (("--thickness-mm", thickness_mm), ("--radius-mm", radius_mm), ("--length-mm", length_mm)):

@@ -11,7 +11,7 @@ from scipy.optimize import least_squares
 from acquisition.markers_csv import CsvFormatError, read_loads_csv, read_markers_csv
 from acquisition.session import SessionError, SessionWriter, SpecimenInfo, StepRecord, write_result
 from vfmlab.cli._common import CliError, console, esc, print_json
-from vfmlab.cli._outputs import check_parent
+from vfmlab.cli._outputs import check_output_path
 
 
 def estimate_geometry(reference: np.ndarray) -> tuple[float, float]:
@@ -68,7 +68,7 @@ def command(markers_csv, loads_csv, out, thickness_mm, radius_mm, length_mm, spe
             as_json):
     """Build a session from MARKERS_CSV (marker_id,step,x_m,y_m,z_m or x_mm,y_mm,z_mm) and LOADS_CSV
     (step,pressure_Pa|pressure_kPa|pressure_mmHg,axial_force_N,stretch). Step 0 is the reference."""
-    check_parent(out)
+    check_output_path(out, force=overwrite, inputs=[markers_csv, loads_csv])
     try:
         table = read_markers_csv(markers_csv)
         loads = read_loads_csv(loads_csv)

@@ -24,6 +24,9 @@ def _open(kind: str, port: str, baud: int, timeout: float):
         raise CliError(f"cannot open the {what} at {port!r}: {exc}") from exc
 
 
+_NAMES = {"pressure": "pressure transducer", "force": "load cell"}
+
+
 def _record(channel: str, sample, device_unit: str | None) -> dict:
     row = {"channel": channel, "seq": sample.seq, "t_monotonic": sample.t_monotonic, "t_wall": sample.t_wall,
            "time": _dt.datetime.fromtimestamp(sample.t_wall, _dt.timezone.utc).isoformat(timespec="milliseconds")}
@@ -116,20 +119,36 @@ def command(pressure_port, load_cell_port, rate, count, as_json, zero, timeout, 
                 raise CliError(f"zeroing the load cell failed: {exc}") from exc
             err_console.print("load cell zeroed (tared)")
         sampler = Sampler(devices.get("pressure"), devices.get("force"), rate_hz=rate)
-        _monitor(sampler, devices, count, as_json)
+        _monitor(sampler, devices, count, as_json, stall_s=max(STALL_S, 5 * timeout))
     finally:
         for dev in devices.values():
             dev.close()
 
 
-def _monitor(sampler, devices, count, as_json) -> None:
+#: With --count: give up when an instrument has delivered nothing new for this long, s.
+STALL_S = 5.0
+
+
+def _monitor(sampler, devices, count, as_json, stall_s: float = STALL_S) -> None:
     from acquisition.sampler import Sample
 
     printed = {ch: 0 for ch in sampler.channels}
     started = time.monotonic()
+    progress = {ch: (0, started) for ch in sampler.channels}  # (samples printed, when that changed)
 
     def done() -> bool:
-        return count is not None and all(n >= count for n in printed.values())
+        if count is None:
+            return False
+        now = time.monotonic()
+        for ch, n in printed.items():
+            if n != progress[ch][0]:
+                progress[ch] = (n, now)
+            elif n < count and now - progress[ch][1] > stall_s:
+                status = sampler.status(ch)
+                raise CliError(f"{_NAMES[ch]}: no reading for {now - progress[ch][1]:.0f} s ({status.state}"
+                               + (f": {status.message}" if status.message else "") + f"); printed {n} of "
+                               f"{count} samples. Check the cable and the port, then try again")
+        return all(n >= count for n in printed.values())
 
     def emit() -> None:
         for channel in sampler.channels:

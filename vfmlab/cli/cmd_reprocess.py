@@ -57,9 +57,8 @@ Examples:
               help="Boundary of the marked region (identify).")
 @click.option("--optimizer", type=click.Choice(["lsq", "nelder-mead"]), default="lsq", show_default=True,
               help="Optimiser (identify).")
-@click.option("--smooth", default=None, metavar="AXIAL,HARMONICS|auto",
-              help="Smooth the measured displacements before identifying (as 'vfmlab identify --smooth'): "
-                   "e.g. 4,2, or auto.")
+@click.option("--smooth", default="auto", show_default=True, metavar="auto|none|AXIAL,HARMONICS",
+              help="Smooth the measured displacements before identifying (as 'vfmlab identify --smooth').")
 @click.option("--set", "set_pairs", multiple=True, metavar="KEY=VALUE",
               help="Extra setting for the reconstruct stage (JSON value), repeatable.")
 @click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
@@ -78,23 +77,14 @@ def command(sessions, stages, models, walls, ends, optimizer, smooth, set_pairs,
     A session that fails (corrupt file, missing markers, failed fit) is reported and the others go on;
     the exit code is 1 if any failed.
     """
+    from vfmlab.cli.cmd_identify import parse_smooth_option
     from vfmlab.pipeline import STAGES
     from vfmlab.reprocess import plan_runs, reprocess, write_summary
 
     stage_list = _split(stages, "--stages", tuple(STAGES))
     if summary:
         check_output_path(summary, force=force, inputs=sessions, option="--summary")
-    smoothing = None
-    if smooth == "auto":
-        smoothing = "auto"
-    elif smooth:
-        try:
-            smoothing = [int(v) for v in smooth.split(",")]
-            if len(smoothing) != 2 or min(smoothing) < 0:
-                raise ValueError
-        except ValueError:
-            raise CliError(f"--smooth must be 'auto' or two non-negative integers AXIAL,HARMONICS like 4,2; "
-                           f"got {smooth!r}") from None
+    smoothing = parse_smooth_option(smooth)
     try:
         runs = plan_runs(stage_list, models=_split(models, "--model", ("fung", "delfino", "hgo", "neohookean")),
                          walls=_split(walls, "--wall", ("membrane", "thick")),

@@ -45,8 +45,10 @@ def command(session: str, rig: str | None, sim: bool, sim_speed: float, old_spee
                                  console=err_console if as_json else console,
                                  detector=detector_from_reconstruction() if detect else None)
     except OperateError as exc:
-        raise CliError(str(exc)) from None
+        error = CliError(str(exc))
+        error.exit_code = exc.exit_code
+        raise error from None
     if as_json:
         click.echo(outcome_json(outcome))
-    if outcome.status == "aborted":
+    if outcome.failed:
         raise click.exceptions.Exit(1)

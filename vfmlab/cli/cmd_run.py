@@ -7,7 +7,7 @@ import sys
 import click
 
 from vfmlab.cli._common import CliError, console, err_console
-from vfmlab.cli._outputs import check_parent
+from vfmlab.cli._outputs import check_output_path
 
 EPILOG = """
 \b
@@ -18,7 +18,8 @@ Examples:
 Ctrl-C pauses at the next safe point and offers: resume, retake the last step, quit (resume later
 with 'vfmlab resume'), abort. Abort and every other ending vent the pressure controller.
 Without a terminal on stdin (scripts, CI) nobody can answer the questions: pass --yes.
-Exit codes: 0 complete or quit (resumable), 1 aborted or a file/instrument error.
+Exit codes: 0 complete or quit (resumable), 1 aborted (safety limit: vented and resumable; operator:
+final), disk full (resumable once space is freed) or a file/instrument error, 2 bad input files.
 """
 
 
@@ -55,15 +56,17 @@ def command(protocol: str, specimen: str, out: str, rig: str | None, sim: bool, 
     from vfmlab.operate import OperateError, as_json as outcome_json, detector_from_reconstruction, run_session
 
     require_answers(yes)
-    check_parent(out)
+    check_output_path(out, force=False, inputs=[protocol, specimen, rig], can_force=False, leftover_ok=True)
     try:
         outcome = run_session(protocol, specimen, out, rig_path=rig, sim=sim, yes=yes,
                               sim_speed=old_speed if old_speed is not None else sim_speed,
                               console=err_console if as_json else console,
                               detector=detector_from_reconstruction() if detect else None)
     except OperateError as exc:
-        raise CliError(str(exc)) from None
+        error = CliError(str(exc))
+        error.exit_code = exc.exit_code
+        raise error from None
     if as_json:
         click.echo(outcome_json(outcome))
-    if outcome.status == "aborted":
+    if outcome.failed:
         raise click.exceptions.Exit(1)
