@@ -28,6 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
+from acquisition.errors import InputError
+
 __all__ = [
     "CsvFormatError",
     "MarkerTable",
@@ -48,7 +50,7 @@ _LOAD_COLUMNS = ("step", "axial_force_N", "stretch")
 COORDINATE_FORMATS = {"m": "{:.9f}", "mm": "{:.6f}"}  # 1 nm: far below any marker accuracy
 
 
-class CsvFormatError(ValueError):
+class CsvFormatError(InputError):
     """A CSV file does not follow the documented format; the message names line and column."""
 
 
@@ -121,11 +123,26 @@ def _number(path: Path, line: int, column: str, text: str, *, allow_empty: bool 
     return value
 
 
+MAX_STEP = 2**31 - 1  # step numbers are stored as 32-bit integers
+MAX_COORDINATE_MM = 1e5  # 100 m: beyond any rig; larger values are unit or format mistakes
+
+
 def _step(path: Path, line: int, text: str) -> int:
     value = _number(path, line, "step", text)
-    if value != int(value) or value < 0:
-        raise CsvFormatError(f"{path}, line {line}, column step: {text!r} is not a step number (0, 1, 2, ...)")
+    if value != int(value) or value < 0 or value > MAX_STEP:
+        raise CsvFormatError(f"{path}, line {line}, column step: {text!r} is not a step number "
+                             f"(0, 1, 2, ... up to {MAX_STEP})")
     return int(value)
+
+
+def _coordinate(path: Path, line: int, column: str, text: str, scale: float) -> float:
+    """A coordinate in metres (``scale``: metres per unit of the column)."""
+    value = _number(path, line, column, text, allow_empty=True) * scale
+    if abs(value) > MAX_COORDINATE_MM * 1e-3:
+        unit = column.rsplit("_", 1)[-1]
+        raise CsvFormatError(f"{path}, line {line}, column {column}: {text!r} {unit} is not a marker coordinate "
+                             f"(expected within {MAX_COORDINATE_MM * 1e-3:g} m of the origin; µm or nm given?)")
+    return value
 
 
 def read_markers_csv(path: str | os.PathLike) -> MarkerTable:
@@ -151,7 +168,7 @@ def read_markers_csv(path: str | os.PathLike) -> MarkerTable:
                 f"{path}, line {line}: duplicate marker {label!r} at step {step} (first on line {seen_at[label, step]})"
             )
         seen_at[label, step] = line
-        xyz = tuple(_number(path, line, c, row[c], allow_empty=True) * scale for c in columns)
+        xyz = tuple(_coordinate(path, line, c, row[c], scale) for c in columns)
         if any(math.isnan(v) for v in xyz) and not all(math.isnan(v) for v in xyz):
             raise CsvFormatError(f"{path}, line {line}: marker {label!r} has some coordinates missing; give all or none")
         index = labels.setdefault(label, len(labels))

@@ -322,6 +322,8 @@ class RigConfig:
     simulation: SimulationConfig = field(default_factory=SimulationConfig)
     text: str = field(default="", compare=False, repr=False)
     source: str = field(default="<rig>", compare=False, repr=False)
+    #: How this rig holds its specimens: "clamped" (tied on cannulae), "free", or "" (not said).
+    ends: str = ""
 
     @property
     def simulated(self) -> bool:
@@ -337,6 +339,12 @@ class SpecimenFile:
     length: float
     thickness: float
     notes: str = ""
+    #: How this specimen is held: "clamped" (tied on cannulae), "free", or "" (not said).
+    ends: str = ""
+
+
+#: Accepted values of the ``ends`` keys (rig ``[rig]`` table, specimen file).
+END_CONDITIONS = ("clamped", "free")
 
 
 def _human_duration(seconds: float) -> str:
@@ -681,8 +689,10 @@ def parse_rig(data: dict | str, text: str = "", source: str = "<rig>") -> RigCon
     top = _Table(data, source, "")
     meta = top.table("rig")
     name = Path(source).stem
+    ends = ""
     if meta is not None:
         name = meta.get("name", name, str)
+        ends = _ends(meta)
         meta.done()
     pressure = _port(top.table("pressure", required=True), is_load_cell=False)
     load_cell = _port(top.table("load_cell", required=True), is_load_cell=True)
@@ -726,7 +736,15 @@ def parse_rig(data: dict | str, text: str = "", source: str = "<rig>") -> RigCon
                                       t.integer("seed", simulation.seed))
         t.done()
     top.done()
-    return RigConfig(name, pressure, load_cell, tuple(cams), safety, simulation, text, source)
+    return RigConfig(name, pressure, load_cell, tuple(cams), safety, simulation, text, source, ends)
+
+
+def _ends(t: _Table) -> str:
+    """The optional ``ends`` key of a table: "clamped", "free" or "" when absent."""
+    ends = t.get("ends", "", str)
+    if ends and ends not in END_CONDITIONS:
+        t.fail("ends", f"expected one of {list(END_CONDITIONS)}; got {ends!r}")
+    return ends
 
 
 _PATH_KEYS = ("path", "file", "folder", "directory")
@@ -780,6 +798,7 @@ def parse_specimen(data: dict | str, source: str = "<specimen>") -> SpecimenFile
         t.fail("thickness_mm", f"wall thickness {dims[2] * 1e3:g} mm must be smaller than the radius "
                                f"{dims[0] * 1e3:g} mm")
     notes = t.get("notes", "", str)
+    ends = _ends(t)
     t.done()
     top.done()
-    return SpecimenFile(sid, dims[0], dims[1], dims[2], notes)
+    return SpecimenFile(sid, dims[0], dims[1], dims[2], notes, ends)

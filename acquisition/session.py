@@ -7,7 +7,8 @@ Layout (NeXus-like, documented in ``docs/session-format.md``)::
         status              "running" | "complete" | "aborted"   (readers report "interrupted"
                             when the writer that said "running" is gone)
         end_time
-        sample/             NXsample: name, radius, length, thickness (m), notes
+        sample/             NXsample: name, radius, length, thickness (m), notes, ends ("clamped" |
+                            "free", absent when unknown; @source says who said so)
         instrument/         NXinstrument: pressure/, load_cell/ (identity, settings JSON,
                             load_cell@measures), cameras/<name>/ (model, width, height),
                             rig_settings (JSON)
@@ -31,6 +32,7 @@ from __future__ import annotations
 import datetime as _dt
 import errno
 import fcntl
+import functools
 import shutil
 import hashlib
 import json
@@ -38,7 +40,7 @@ import logging
 import os
 import socket
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -46,12 +48,15 @@ from typing import Any
 import h5py
 import numpy as np
 
+from acquisition.errors import DamagedFileError, InputError, OperationError
 from acquisition.h5journal import JournalError, LockTimeout, journaled_h5, recover, wait_lock
 from acquisition.h5recover import clear_consistency_flags
 
 __all__ = [
     "SCHEMA_VERSION",
     "SessionError",
+    "DamagedSessionError",
+    "SessionWriteError",
     "SpecimenInfo",
     "CameraSpec",
     "StepRecord",
@@ -86,8 +91,16 @@ _LOG_CHUNK = 4096
 _STATUSES = ("running", "complete", "aborted", "interrupted")
 
 
-class SessionError(Exception):
-    """A session file is missing, unreadable, of another schema, or lacks something required."""
+class SessionError(InputError):
+    """A session file is missing, unreadable, of another schema, or lacks something required (exit code 2)."""
+
+
+class DamagedSessionError(SessionError, DamagedFileError):
+    """The session file opens but a group, dataset or attribute cannot be read (bit flips, truncation)."""
+
+
+class SessionWriteError(SessionError, OperationError):
+    """A session file could not be written (read-only medium, disk full, locked): a failed operation, exit code 1."""
 
 
 @dataclass(frozen=True)
@@ -99,8 +112,14 @@ class SpecimenInfo:
     length: float
     thickness: float
     notes: str = ""
+    #: How the specimen is held: "clamped" (tied on cannulae), "free", or "" when nobody said.
+    ends: str = ""
+    #: Where ``ends`` comes from (e.g. "specimen file", "rig file", "simulated specimen", "import option").
+    ends_source: str = ""
 
     def __post_init__(self) -> None:
+        if self.ends not in ("", "clamped", "free"):
+            raise ValueError(f"SpecimenInfo.ends must be 'clamped', 'free' or '' (unknown); got {self.ends!r}")
         for name in ("radius", "length", "thickness"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
@@ -260,6 +279,9 @@ class SessionWriter:
             sample[key] = float(getattr(specimen, key))
             sample[key].attrs["units"] = "m"
         sample["notes"] = specimen.notes
+        if specimen.ends:
+            sample["ends"] = specimen.ends
+            sample["ends"].attrs["source"] = specimen.ends_source
 
         inst = entry.create_group("instrument")
         inst.attrs["NX_class"] = "NXinstrument"
@@ -627,8 +649,44 @@ def _writer_alive(pid: int, host: str, boot_id: str = "", start_ticks: int = -1)
         return True
 
 
+# What h5py raises when a dataset or attribute of a file that opened cannot be read (bit flips,
+# a truncated copy, a foreign writer): metadata checksum errors surface as KeyError or RuntimeError,
+# undecodable data as OSError, malformed content as ValueError/TypeError/IndexError.
+_READ_FAULTS = (OSError, KeyError, RuntimeError, ValueError, TypeError, IndexError, AttributeError)
+
+
+def _reads(what: str) -> Callable:
+    """Decorate a :class:`Session` reader: a read fault becomes a :class:`DamagedSessionError` naming ``what``.
+
+    ``what`` names the part of the file read, e.g. ``"the step table (/entry/steps)"``; it may use the
+    reader's positional arguments as ``{0}``, ``{1}``.
+    """
+    def decorate(method: Callable) -> Callable:
+        @functools.wraps(method)
+        def guarded(self: Session, *args: Any, **kwargs: Any) -> Any:
+            try:
+                return method(self, *args, **kwargs)
+            except SessionError:
+                raise
+            except _READ_FAULTS as exc:
+                raise damaged_error(self.path, what.format(*args), exc) from None
+        return guarded
+    return decorate
+
+
+def damaged_error(path: Path, what: str, exc: BaseException) -> DamagedSessionError:
+    """The one-line error for a part of a session file that cannot be read, with the way to see the rest."""
+    reason = str(exc).strip().strip("'\"") or type(exc).__name__
+    return DamagedSessionError(f"{path}: {what} is damaged and cannot be read ({reason}); "
+                               f"'vfmlab info {path}' lists what is still readable")
+
+
 class Session:
-    """A validated, read-only view of a session file. Obtain with :func:`open_session`."""
+    """A validated, read-only view of a session file. Obtain with :func:`open_session`.
+
+    Every reader raises :class:`DamagedSessionError` (naming the part of the file) when the file
+    opened but that part cannot be read; the other parts stay readable.
+    """
 
     def __init__(self, h5file: h5py.File, path: Path):
         self._f = h5file
@@ -642,15 +700,18 @@ class Session:
         return self._f
 
     @property
+    @_reads("the schema version (/@vfmlab_schema_version)")
     def schema_version(self) -> str:
         return str(_decode(self._f.attrs["vfmlab_schema_version"]))
 
     @property
+    @_reads("the session status (/entry/status)")
     def recorded_status(self) -> str:
         """The status the writer last recorded: running | complete | aborted | interrupted."""
         return str(_read(self._entry["status"]))
 
     @property
+    @_reads("the session status (/entry/status)")
     def status(self) -> str:
         """complete | aborted | interrupted (recorded, or the writer died while running) | running."""
         status = self.recorded_status
@@ -664,37 +725,47 @@ class Session:
         return status
 
     @property
+    @_reads("the start time (/entry@start_time)")
     def start_time(self) -> str:
         return str(_decode(self._entry.attrs.get("start_time", "")))
 
     @property
+    @_reads("the software version (/entry@software_version)")
     def software_version(self) -> str:
         return str(_decode(self._entry.attrs.get("software_version", "")))
 
     @property
+    @_reads("the specimen geometry (/entry/sample)")
     def specimen(self) -> SpecimenInfo:
         s = self._entry["sample"]
+        ends = str(_read(s["ends"])) if "ends" in s else ""
         return SpecimenInfo(
             specimen_id=str(_read(s["name"])),
             radius=float(s["radius"][()]),
             length=float(s["length"][()]),
             thickness=float(s["thickness"][()]),
             notes=str(_read(s["notes"])),
+            ends=ends if ends in ("clamped", "free") else "",  # an unreadable value counts as unknown
+            ends_source=str(_decode(s["ends"].attrs.get("source", ""))) if ends in ("clamped", "free") else "",
         )
 
     @property
+    @_reads("the protocol (/entry/protocol/data)")
     def protocol_text(self) -> str:
         return str(_read(self._entry["protocol/data"]))
 
     @property
+    @_reads("the protocol checksum (/entry/protocol@sha256)")
     def protocol_sha256(self) -> str:
         return str(_decode(self._entry["protocol"].attrs.get("sha256", "")))
 
     @property
+    @_reads("the load-cell setting (/entry/instrument/load_cell@measures)")
     def load_cell_measures(self) -> str:
         return str(_decode(self._entry["instrument/load_cell"].attrs.get("measures", "wall")))
 
     @property
+    @_reads("the instrument records (/entry/instrument)")
     def instruments(self) -> dict[str, dict[str, Any]]:
         out = {}
         for role in ("pressure", "load_cell"):
@@ -706,10 +777,12 @@ class Session:
         return out
 
     @property
+    @_reads("the rig settings (/entry/instrument/rig_settings)")
     def rig_settings(self) -> dict[str, Any]:
         return json.loads(str(_read(self._entry["instrument/rig_settings"])) or "{}")
 
     @property
+    @_reads("the camera records (/entry/instrument/cameras)")
     def cameras(self) -> list[CameraSpec]:
         out = []
         for name, g in self._entry["instrument/cameras"].items():
@@ -719,17 +792,27 @@ class Session:
         return out
 
     @property
+    @_reads("the step images (/entry/steps/images)")
+    def image_cameras(self) -> dict[str, tuple[int, int]]:
+        """Cameras with step images and their frame size ``(height, width)`` px."""
+        images = self._entry["steps"].get("images")
+        return {} if images is None else {name: tuple(int(n) for n in ds.shape[1:3]) for name, ds in images.items()}
+
+    @property
+    @_reads("the camera records (/entry/instrument/cameras)")
     def camera_names(self) -> list[str]:
         return list(self._entry["instrument/cameras"].keys())
 
     # -- steps, images, logs ---------------------------------------------------------------
     @property
+    @_reads("the step table (/entry/steps)")
     def n_steps(self) -> int:
         """Complete step rows (a writer killed mid-append may have left a longer column)."""
         steps = self._entry["steps"]
         return int(min(steps[name].shape[0] for name in _STEP_COLUMNS))
 
     @property
+    @_reads("the step table (/entry/steps)")
     def steps(self) -> dict[str, np.ndarray]:
         """The step table: ``(n_steps,)`` arrays per column, plus ``active`` (not superseded)."""
         g = self._entry["steps"]
@@ -741,6 +824,7 @@ class Session:
         table["active"] = active
         return table
 
+    @_reads("the image of camera {0!r} at step row {1} (/entry/steps/images/{0})")
     def image(self, camera: str, step: int) -> np.ndarray:
         """Frame of ``camera`` at step row ``step``, shape (H, W)."""
         images = self._entry["steps/images"]
@@ -750,6 +834,7 @@ class Session:
             raise SessionError(f"{self.path}: step {step} out of range 0..{self.n_steps - 1}")
         return images[camera][step]
 
+    @_reads("the calibration images of camera {0!r} (/entry/calibration/images/{0})")
     def calibration_images(self, camera: str) -> np.ndarray:
         """Calibration-board frames of ``camera``, shape (n_views, H, W)."""
         return self._entry["calibration/images"][camera][()]
@@ -758,6 +843,10 @@ class Session:
         """The continuous log of "pressure" (Pa) or "force" (N): time, t_monotonic, value, raw, seq."""
         if channel not in _LOG_CHANNELS:
             raise ValueError(f"channel must be one of {sorted(_LOG_CHANNELS)}; got {channel!r}")
+        return self._log(channel)
+
+    @_reads("the {0} log (/entry/log/{0})")
+    def _log(self, channel: str) -> dict[str, np.ndarray]:
         g = self._entry["log"][channel]
         n = min(g[k].shape[0] for k in ("time", "monotonic_time", "value", "raw", "seq"))
         return {
@@ -768,13 +857,18 @@ class Session:
             "seq": g["seq"][:n],
         }
 
+    @_reads("the event log (/entry/events)")
     def events(self) -> list[dict[str, Any]]:
-        g = self._entry["events"]
+        """Events (time s, kind, message), oldest first; kind "warning" holds plausibility warnings (decision 0007)."""
+        g = self._entry.get("events")
+        if g is None:
+            return []
         n = min(g[k].shape[0] for k in ("time", "kind", "message"))
         times, kinds, messages = g["time"][:n], _decode(g["kind"][:n]), _decode(g["message"][:n])
         return [{"time": float(t), "kind": str(k), "message": str(m)} for t, k, m in zip(times, kinds, messages)]
 
     # -- derived results ---------------------------------------------------------------------
+    @_reads("the list of derived results (/entry/results)")
     def results(self, kind: str | None = None) -> list[str]:
         """Names of derived result groups (e.g. "markers_001"), oldest first, optionally of one kind."""
         res = self._entry.get("results")
@@ -787,10 +881,13 @@ class Session:
 
     def result(self, name: str) -> dict[str, Any]:
         """One result: ``{"name", "kind", "arrays": {...}, "parameters": {...}, "attrs": {...}, "units": {...}}``."""
-        res = self._entry["results"]
-        if name not in res:
+        if name not in self.results():
             raise SessionError(f"{self.path}: no result {name!r}; results are {self.results()}")
-        g = res[name]
+        return self._result(name)
+
+    @_reads("the result {0!r} (/entry/results/{0})")
+    def _result(self, name: str) -> dict[str, Any]:
+        g = self._entry["results"][name]
         arrays, units = {}, {}
         for key, ds in g.items():
             if isinstance(ds, h5py.Dataset):
@@ -802,6 +899,7 @@ class Session:
             if isinstance(value, str) and key.endswith("_json"):
                 attrs[key[:-5]] = json.loads(value)
                 del attrs[key]
+        _check_result_arrays(str(attrs.get("kind", "")), arrays)
         return {
             "name": name,
             "kind": str(attrs.get("kind", "")),
@@ -827,6 +925,26 @@ class Session:
         self.close()
 
 
+def _check_result_arrays(kind: str, arrays: Mapping[str, Any]) -> None:
+    """Shapes the readers of a result rely on; ValueError (reported as damage) when they do not hold."""
+    if kind == "markers":
+        if "positions" not in arrays:
+            raise ValueError("a markers result must hold 'positions'; it has " + str(sorted(arrays)))
+        pos = np.asarray(arrays["positions"])
+        if pos.ndim != 3 or pos.shape[2] != 3 or pos.dtype.kind not in "fiu":
+            raise ValueError(f"positions must be numbers of shape (n_steps, n_markers, 3); found {pos.dtype.name} "
+                             f"of shape {pos.shape}")
+        for key, shape in (("visible", pos.shape[:2]), ("step_index", pos.shape[:1]), ("step_number", pos.shape[:1])):
+            if key in arrays and np.shape(arrays[key]) != shape:
+                raise ValueError(f"{key} must have shape {shape} to match positions; found {np.shape(arrays[key])}")
+    elif kind == "identification" and "parameters" in arrays:
+        values, names = np.asarray(arrays["parameters"]), np.asarray(arrays.get("parameter_names", []))
+        if values.ndim != 1 or values.dtype.kind not in "fiu" or ("parameter_names" in arrays
+                                                                  and names.shape != values.shape):
+            raise ValueError(f"parameters must be numbers of shape (n_parameters,) matching parameter_names; found "
+                             f"{values.dtype.name} of shape {values.shape} for {names.size} names")
+
+
 def _h5_open_read(path: Path) -> h5py.File:
     try:
         return _h5_open_read_once(path)
@@ -848,6 +966,74 @@ def _h5_open_read_once(path: Path) -> h5py.File:
             # A live SWMR writer, or one killed mid-session: SWMR readers see a consistent file.
             return h5py.File(path, "r", libver="latest", swmr=True)
         raise
+
+
+PREFLIGHT_TIMEOUT = 20.0  # s; walking the structure of a sound session takes well under a second
+
+
+def _walk_structure(path: Path) -> None:
+    """Read every object header and attribute of the file (not the data)."""
+    with _h5_open_read(path) as f:
+        def visit(_name: str, obj: Any) -> None:
+            for key in obj.attrs:
+                obj.attrs[key]
+        for key in f.attrs:
+            f.attrs[key]
+        f.visititems(visit)
+
+
+def _preflight(path: Path, timeout: float = PREFLIGHT_TIMEOUT) -> None:
+    """Walk the file's structure in a child process first: HDF5 can loop without end (holding the
+    interpreter) on some corrupted headers, which no exception or signal can interrupt.
+
+    A child that does not finish within ``timeout`` s is killed and the file reported as damaged;
+    every other outcome (including errors, which the parent reports with context) passes.
+    """
+    if not hasattr(os, "fork"):  # pragma: no cover - Windows: no preflight
+        return
+    import signal
+    import threading
+
+    # Ctrl-C during fork() would be raised inside logging's at-fork hook and lost: hold it until after.
+    main_thread = threading.current_thread() is threading.main_thread()
+    if main_thread:
+        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        pid = os.fork()
+        if pid == 0:  # the child: never returns into the caller's code
+            code = 0
+            try:
+                _walk_structure(path)
+            except BaseException:  # noqa: BLE001 - the parent reports errors itself
+                code = 3
+            os._exit(code)
+    finally:
+        if main_thread:
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    if _wait_child(pid, timeout):
+        return
+    raise DamagedSessionError(f"{path}: damaged session file: HDF5 does not finish reading its structure "
+                              f"(gave up after {timeout:g} s)")
+
+
+def _wait_child(pid: int, timeout: float) -> bool:
+    """Wait up to ``timeout`` s for child ``pid``; True if it ended, else it is killed. Killed on any exception too."""
+    import time
+
+    deadline = time.monotonic() + timeout
+    try:
+        while time.monotonic() < deadline:
+            done, _ = os.waitpid(pid, os.WNOHANG)
+            if done:
+                return True
+            time.sleep(0.005)
+    except BaseException:
+        os.kill(pid, 9)
+        os.waitpid(pid, 0)
+        raise
+    os.kill(pid, 9)
+    os.waitpid(pid, 0)
+    return False
 
 
 def open_session(path: str | os.PathLike) -> Session:
@@ -872,6 +1058,7 @@ def open_session(path: str | os.PathLike) -> Session:
         head = fh.read(8)
     if head != b"\x89HDF\r\n\x1a\n":
         raise SessionError(f"{path}: not a session file (not HDF5: the file does not start with the HDF5 signature)")
+    _preflight(path)
     try:
         f = _h5_open_read(path)
     except OSError as exc:
@@ -884,9 +1071,10 @@ def open_session(path: str | os.PathLike) -> Session:
     except SessionError:
         f.close()
         raise
-    except (OSError, KeyError, ValueError) as exc:
+    except _READ_FAULTS as exc:
         f.close()
-        raise SessionError(f"{path}: damaged session file ({exc})") from None
+        raise DamagedSessionError(f"{path}: damaged session file: its required structure cannot be read ({exc})") \
+            from None
     return Session(f, path)
 
 
@@ -894,11 +1082,15 @@ def _validate(f: h5py.File, path: Path) -> None:
     version = f.attrs.get("vfmlab_schema_version")
     if version is None:
         raise SessionError(f"{path}: not a vfmlab session (no 'vfmlab_schema_version' attribute on the root group)")
-    version = str(_decode(version))
+    version = _decode(version)
+    if not isinstance(version, str):
+        raise SessionError(f"{path}: the schema version (/@vfmlab_schema_version) must be a string like "
+                           f"{SCHEMA_VERSION!r}; found {type(version).__name__} {version} (not written by vfmlab?)")
     try:
-        major = int(version.split(".")[0])
+        major, _minor = (int(part) for part in version.split("."))
     except ValueError:
-        raise SessionError(f"{path}: unreadable schema version {version!r}") from None
+        raise SessionError(f"{path}: the schema version (/@vfmlab_schema_version) must look like "
+                           f"{SCHEMA_VERSION!r}; found {version!r}") from None
     supported = int(SCHEMA_VERSION.split(".")[0])
     if major > supported:
         raise SessionError(

@@ -21,7 +21,8 @@ from scipy.spatial import Delaunay, cKDTree
 
 from .errors import MeshError
 
-__all__ = ["Axis", "SurfaceMesh", "fit_axis", "to_cylindrical", "build_mesh", "to_trimesh", "wrap_angle"]
+__all__ = ["Axis", "DUPLICATE_FRACTION", "SLIVER_QUALITY", "SurfaceMesh", "build_mesh", "describe_dropped", "fit_axis",
+           "to_cylindrical", "to_trimesh", "wrap_angle"]
 
 log = logging.getLogger(__name__)
 
@@ -184,8 +185,10 @@ class SurfaceMesh:
         Innermost axial positions of the bottom / top boundary markers (m): every bottom boundary
         marker has z <= z_bottom and every top one z >= z_top.
     dropped : dict
-        Counts of what was removed: ``nan_markers``, ``duplicate_markers``, ``boundary_slivers``,
-        ``interior_slivers``, and the number of interior ``holes``.
+        What was removed: counts ``nan_markers``, ``duplicate_markers``, ``sliver_markers`` (obtuse
+        corners of slivers), ``boundary_slivers``, ``interior_slivers``, the number of interior
+        ``holes``; and ``spacing`` (median nearest-neighbour distance, m), ``duplicate_tolerance`` (m),
+        ``sliver_quality``. ``describe_dropped`` says it in words.
     """
 
     axis: Axis
@@ -233,14 +236,115 @@ def _on_boundary(tri: np.ndarray) -> np.ndarray:
     return (counts[inv.ravel()] == 1).reshape(3, -1).any(axis=0)
 
 
+#: Markers closer than this fraction of the median nearest-neighbour distance to another marker are
+#: near-duplicates: one of the pair is dropped (measured: docs/identification.md, "Mesh hygiene").
+DUPLICATE_FRACTION = 0.35
+#: Interior triangles of quality below this lose the marker at their obtuse corner, and the surface is
+#: re-meshed (measured: docs/identification.md, "Mesh hygiene").
+SLIVER_QUALITY = 0.3
+#: Re-meshing rounds at most (each drops the obtuse corners of the slivers left).
+MAX_REMESH = 8
+
+
+def _near_duplicates(points: np.ndarray, tolerance: float) -> np.ndarray:
+    """Which rows of ``points`` (n, 3) lie within ``tolerance`` of an earlier kept row: (n,) bool."""
+    tree = cKDTree(points)
+    drop = np.zeros(len(points), bool)
+    for i, j in sorted(tree.query_pairs(tolerance)):
+        if not drop[i]:
+            drop[j] = True
+    return drop
+
+
+def _triangulate(s: np.ndarray, z: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Seam-closing Delaunay of the unrolled points (s = R theta, z), each shape (n,).
+
+    Returns local triangles (n_tri, 3) counter-clockwise (indices into s), their quality (n_tri,)
+    (-1 for hull triangles spanning the ends) and the replicated 2-D points (3 n, 2).
+    """
+    period = 2.0 * np.pi * radius
+    pts2 = np.concatenate([np.column_stack([s + k * period, z]) for k in (-1, 0, 1)])
+    try:
+        dl = Delaunay(pts2)
+    except Exception as exc:  # scipy raises QhullError on flat/degenerate input
+        raise MeshError(f"Delaunay triangulation failed: {exc}") from exc
+    simp = dl.simplices
+    centroid_s = pts2[simp, 0].mean(axis=1)
+    simp = simp[(centroid_s >= -np.pi * radius) & (centroid_s < np.pi * radius)]
+    quality = _quality(pts2, simp)
+    simp = np.where((quality < 0)[:, None], simp[:, [0, 2, 1]], simp)  # make counter-clockwise
+    quality = np.abs(quality)
+    span = np.ptp(pts2[simp, 0], axis=1) / radius
+    quality = np.where(span > 0.5 * np.pi, -1.0, quality)  # hull triangles spanning the ends
+    return simp, quality, pts2
+
+
+def _peel(local: np.ndarray, quality: np.ndarray, min_quality: float) -> tuple[np.ndarray, int]:
+    """Peel triangles of quality below ``min_quality`` off the ends, repeatedly: (alive (n_tri,) bool, count)."""
+    alive = np.ones(len(local), bool)
+    n_peeled = 0
+    while True:
+        on_bnd = np.zeros(len(local), bool)
+        on_bnd[alive] = _on_boundary(local[alive])
+        peel = alive & on_bnd & (quality < min_quality)
+        if not peel.any():
+            return alive, n_peeled
+        alive &= ~peel
+        n_peeled += int(peel.sum())
+
+
+def _obtuse_corners(pts2: np.ndarray, simp: np.ndarray) -> np.ndarray:
+    """Vertex (into ``pts2``) at the largest angle of each triangle ``simp`` (n_tri, 3): shape (n_tri,)."""
+    p = pts2[simp]  # (t, 3, 2)
+    opposite = np.roll(p, -1, axis=1) - np.roll(p, 1, axis=1)  # edge opposite each vertex
+    longest = np.argmax((opposite**2).sum(-1), axis=1)  # the largest angle faces the longest edge
+    return simp[np.arange(len(simp)), longest]
+
+
+def _clean_triangulation(s, z, radius, min_quality, sliver_quality):
+    """Triangulate, dropping the obtuse corner of interior slivers and re-meshing until none is left.
+
+    Returns (kept (n,) bool, local triangles (n_tri, 3), quality (n_tri,), alive (n_tri,) bool after
+    peeling the ends at ``sliver_quality``, boundary triangles peeled, markers dropped).
+    """
+    kept = np.ones(len(s), bool)
+    n_corner = 0
+    for _ in range(MAX_REMESH + 1):
+        sel = np.flatnonzero(kept)
+        simp, quality, pts2 = _triangulate(s[sel], z[sel], radius)
+        local = simp % len(sel)
+        alive, n_peeled = _peel(local, quality, max(min_quality, sliver_quality))
+        bad = alive & (quality >= 0) & (quality < sliver_quality)  # (hull triangles spanning the ends: < 0)
+        if not bad.any() or n_corner >= _MAX_CORNER_FRACTION * len(s):
+            break
+        corners = np.unique(_obtuse_corners(pts2, simp[bad]) % len(sel))
+        kept[sel[corners]] = False
+        n_corner += len(corners)
+        if kept.sum() < MIN_MARKERS:
+            raise MeshError(f"meshing needs at least {MIN_MARKERS} markers; only {int(kept.sum())} are left after "
+                            "dropping the corners of sliver triangles")
+    return kept, local, quality, alive, n_peeled, n_corner
+
+
+#: At most this fraction of the markers is dropped as sliver corners (beyond it the cloud is too irregular).
+_MAX_CORNER_FRACTION = 0.15
+
+
 def build_mesh(
     reference: np.ndarray,
     *,
     toward: np.ndarray | None = None,
     min_quality: float = 0.02,
     duplicate_tolerance: float | None = None,
+    duplicate_fraction: float = DUPLICATE_FRACTION,
+    sliver_quality: float = SLIVER_QUALITY,
 ) -> SurfaceMesh:
     """Triangulate the reference marker cloud of a tubular specimen.
+
+    Hygiene: near-duplicate markers are dropped, then the surface is meshed; every interior
+    triangle of quality below ``sliver_quality`` loses the marker at its obtuse corner and the
+    surface is re-meshed (until none is left); thin triangles at the two ends are peeled off.
+    Counts in ``SurfaceMesh.dropped`` (:func:`describe_dropped` says them in words).
 
     Parameters
     ----------
@@ -249,11 +353,16 @@ def build_mesh(
     toward : ndarray, shape (3,), optional
         World direction of the load-cell end (default +z).
     min_quality : float
-        Triangles with quality ``4 sqrt(3) A / sum(l^2)`` (1 = equilateral) below this are slivers
-        and are removed (peeled from the ends, and removed as small holes inside).
+        Triangles with quality ``4 sqrt(3) A / sum(l^2)`` (1 = equilateral) below this left after the
+        clean-up are removed (as small holes).
     duplicate_tolerance : float, optional
-        Markers closer than this (m) to an earlier marker are dropped (default 5 % of the median
-        nearest-neighbour spacing).
+        Markers closer than this (m) to an earlier marker are dropped (default ``duplicate_fraction``
+        of the median nearest-neighbour distance).
+    duplicate_fraction : float
+        ``DUPLICATE_FRACTION`` (0.35); 0.05 with ``sliver_quality=0`` is the pre-issue-10 mesh.
+    sliver_quality : float
+        Quality below which a triangle is a sliver (``SLIVER_QUALITY``, 0.3); 0 keeps every marker
+        (only ``min_quality`` applies, the pre-issue-10 behaviour).
 
     Returns
     -------
@@ -270,57 +379,46 @@ def build_mesh(
     r, theta, z = to_cylindrical(ref, axis)
     idx = np.flatnonzero(finite)
 
-    # Near-duplicate markers (in 3-D): keep the first of each close pair.
-    tree = cKDTree(ref[idx])
-    d_nn, _ = tree.query(ref[idx], k=2)
+    d_nn, _ = cKDTree(ref[idx]).query(ref[idx], k=2)
     spacing = float(np.median(d_nn[:, 1]))
-    tol = 0.05 * spacing if duplicate_tolerance is None else float(duplicate_tolerance)
-    drop = np.zeros(len(idx), bool)
-    for i, j in sorted(tree.query_pairs(tol)):
-        if not drop[i]:
-            drop[j] = True
+    tol = duplicate_fraction * spacing if duplicate_tolerance is None else float(duplicate_tolerance)
+    drop = _near_duplicates(ref[idx], tol)
     n_dup = int(drop.sum())
     idx = idx[~drop]
     if len(idx) < MIN_MARKERS:
         raise MeshError(f"meshing needs at least {MIN_MARKERS} distinct markers; got {len(idx)}")
 
-    # Delaunay on the unrolled surface, replicated across the seam.
-    s = axis.radius * theta[idx]
-    period = 2.0 * np.pi * axis.radius
-    pts2 = np.concatenate([np.column_stack([s + k * period, z[idx]]) for k in (-1, 0, 1)])
-    try:
-        dl = Delaunay(pts2)
-    except Exception as exc:  # scipy raises QhullError on flat/degenerate input
-        raise MeshError(f"Delaunay triangulation failed: {exc}") from exc
-    simp = dl.simplices
-    centroid_s = pts2[simp, 0].mean(axis=1)
-    keep = (centroid_s >= -np.pi * axis.radius) & (centroid_s < np.pi * axis.radius)
-    simp = simp[keep]
-    quality = _quality(pts2, simp)
-    simp = np.where((quality < 0)[:, None], simp[:, [0, 2, 1]], simp)  # make counter-clockwise
-    quality = np.abs(quality)
-    span = np.ptp(pts2[simp, 0], axis=1) / axis.radius
-    quality = np.where(span > 0.5 * np.pi, -1.0, quality)  # hull triangles spanning the ends
-    local = simp % len(idx)
-
-    # Remove slivers: peel bad triangles off the ends, then drop interior ones (small holes).
-    alive = np.ones(len(local), bool)
-    n_boundary = 0
-    while True:
-        on_bnd = np.zeros(len(local), bool)
-        on_bnd[alive] = _on_boundary(local[alive])
-        peel = alive & on_bnd & ((quality < min_quality) | (quality < 0))
-        if not peel.any():
-            break
-        alive &= ~peel
-        n_boundary += int(peel.sum())
-    interior = alive & ((quality < min_quality) | (quality < 0))
+    kept, local, quality, alive, n_boundary, n_corner = _clean_triangulation(
+        axis.radius * theta[idx], z[idx], axis.radius, min_quality, sliver_quality)
+    idx = idx[kept]
+    interior = alive & (quality < min_quality)
     alive &= ~interior
     tri = idx[local[alive]]
     if len(tri) == 0:
         raise MeshError("no usable triangle left after removing slivers")
+    bottom_edges, top_edges, n_holes = _end_loops(tri, theta, z, n)
+    z_bottom = float(z[np.unique(bottom_edges)].max())
+    z_top = float(z[np.unique(top_edges)].min())
+    if not z_top > z_bottom:
+        raise MeshError(f"the two ends overlap axially (bottom boundary up to z={z_bottom}, top from z={z_top})")
+    used = np.zeros(n, bool)
+    used[tri.ravel()] = True
+    dropped = {"nan_markers": int(n - finite.sum()), "duplicate_markers": n_dup, "sliver_markers": int(n_corner),
+               "boundary_slivers": n_boundary, "interior_slivers": int(interior.sum()), "holes": int(n_holes),
+               "spacing": spacing, "duplicate_tolerance": tol,
+               "duplicate_fraction": tol / spacing if spacing > 0 else float("nan"),
+               "sliver_quality": float(sliver_quality)}
+    log.info("surface mesh: %d triangles on %d markers; %s", len(tri), int(used.sum()), describe_dropped(dropped))
+    return SurfaceMesh(axis=axis, triangles=tri, r=np.where(finite, r, np.nan), theta=np.where(finite, theta, np.nan),
+                       z=np.where(finite, z, np.nan), used=used, bottom_edges=bottom_edges, top_edges=top_edges,
+                       z_bottom=z_bottom, z_top=z_top, dropped=dropped)
 
-    # End loops: components of the boundary-edge graph whose angular winding is +/- 2 pi.
+
+def _end_loops(tri: np.ndarray, theta: np.ndarray, z: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, int]:
+    """Bottom and top boundary loops (oriented edges) and the number of interior holes.
+
+    End loops are the components of the boundary-edge graph whose angular winding is +/- 2 pi.
+    """
     bnd = _boundary_edges(tri)
     graph = coo_matrix((np.ones(len(bnd)), (bnd[:, 0], bnd[:, 1])), shape=(n, n))
     _, labels = connected_components(graph, directed=False)
@@ -339,31 +437,27 @@ def build_mesh(
             "boundary loop(s) that go around the tube (expected 2)"
         )
     loops.sort(key=lambda item: item[0])
-    bottom_edges, top_edges = bnd[loops[0][1]], bnd[loops[1][1]]
-    z_bottom = float(z[np.unique(bottom_edges)].max())
-    z_top = float(z[np.unique(top_edges)].min())
-    if not z_top > z_bottom:
-        raise MeshError(f"the two ends overlap axially (bottom boundary up to z={z_bottom}, top from z={z_top})")
-    used = np.zeros(n, bool)
-    used[tri.ravel()] = True
-    dropped = {
-        "nan_markers": int(n - finite.sum()),
-        "duplicate_markers": n_dup,
-        "boundary_slivers": n_boundary,
-        "interior_slivers": int(interior.sum()),
-        "holes": int(n_holes),
-    }
-    words = {"nan_markers": "markers without a position", "duplicate_markers": "duplicate markers",
-             "boundary_slivers": "sliver triangles at the ends", "interior_slivers": "sliver triangles inside",
-             "holes": "holes"}
-    left_out = ", ".join(f"{v} {words[k]}" for k, v in dropped.items() if v) or "nothing"
-    if n_dup or interior.any() or n_holes:
-        log.warning("surface mesh: %d triangles on %d markers; left out %s", len(tri), int(used.sum()), left_out)
-    else:
-        log.info("surface mesh: %d triangles on %d markers; left out %s", len(tri), int(used.sum()), left_out)
-    return SurfaceMesh(axis=axis, triangles=tri, r=np.where(finite, r, np.nan), theta=np.where(finite, theta, np.nan),
-                       z=np.where(finite, z, np.nan), used=used, bottom_edges=bottom_edges, top_edges=top_edges,
-                       z_bottom=z_bottom, z_top=z_top, dropped=dropped)
+    return bnd[loops[0][1]], bnd[loops[1][1]], int(n_holes)
+
+
+def describe_dropped(dropped: dict) -> str:
+    """What the mesh hygiene dropped, in words (from ``SurfaceMesh.dropped``)."""
+    parts = []
+    if dropped.get("nan_markers"):
+        parts.append(f"{dropped['nan_markers']} marker(s) not seen in the reference step")
+    if dropped.get("duplicate_markers"):
+        parts.append(f"{dropped['duplicate_markers']} near-duplicate marker(s) (closer than "
+                     f"{dropped.get('duplicate_tolerance', np.nan) * 1e3:.2g} mm to another, "
+                     f"{dropped.get('duplicate_fraction', DUPLICATE_FRACTION):.2g} x the median spacing)")
+    if dropped.get("sliver_markers"):
+        parts.append(f"{dropped['sliver_markers']} marker(s) at the obtuse corner of sliver triangles "
+                     f"(quality < {dropped.get('sliver_quality', SLIVER_QUALITY):g}), then re-meshed")
+    if dropped.get("boundary_slivers"):
+        parts.append(f"{dropped['boundary_slivers']} thin triangle(s) peeled off the two ends")
+    if dropped.get("interior_slivers") or dropped.get("holes"):
+        parts.append(f"{dropped.get('interior_slivers', 0)} degenerate triangle(s) left out"
+                     + (f" ({dropped['holes']} hole(s) in the mesh)" if dropped.get("holes") else ""))
+    return "mesh dropped " + "; ".join(parts) if parts else "mesh dropped nothing"
 
 
 def to_trimesh(mesh: SurfaceMesh, positions: np.ndarray | None = None):

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field, replace
-from typing import Mapping
+from typing import Any, Mapping
 
 import numpy as np
 from scipy.optimize import least_squares, lsq_linear, minimize
@@ -94,6 +94,8 @@ class IdentificationResult:
     steps : tuple of int or None
         Indices of the input steps in the balance (``identify`` leaves out steps seen only in part);
         the step axis of ``residuals``, ``ivw`` and ``evw``.
+    data : VFMData or None
+        The virtual-work data fitted (set by ``identify``; ``identification.checks`` uses it).
     """
 
     model: str
@@ -116,6 +118,7 @@ class IdentificationResult:
     uncertainty: object = None
     smoothing: tuple | None = None
     steps: tuple | None = None
+    data: Any = field(default=None, repr=False, compare=False)  # the VFMData fitted (set by ``identify``)
 
     @property
     def residual_per_step(self) -> np.ndarray:
@@ -542,7 +545,7 @@ def identify(
     positions, pressure, axial_force, dropped = drop_partial_steps(positions, pressure, axial_force)
     data = prepare(positions, pressure, axial_force, thickness=thickness, wall=wall, ends=ends, **prepare_options)
     result = replace(identify_prepared(data, model, initial=initial, optimizer=optimizer, n_starts=n_starts),
-                     smoothing=data.smoothing, steps=tuple(k for k in range(n_input) if k not in dropped))
+                     smoothing=data.smoothing, data=data, steps=tuple(k for k in range(n_input) if k not in dropped))
     if dropped:
         result = replace(result, flags=result.flags + (
             f"steps {dropped} were left out: the cameras saw less than {MIN_COVERAGE:.0%} of the reference markers "

@@ -80,6 +80,9 @@ class VFMData:
         Smoothing degrees used: three (axial degree, harmonics) pairs for the r, theta, z
         displacement components, or None.
     pressure, axial_force : ndarray, shape (n_steps,)
+    strip_force : ndarray, shape (n_steps,)
+        ``p (A_loop - A_clamp)`` (N): what ``ends="clamped"`` adds to the load-cell force for the
+        pressure on the unmeasured strip next to the clamp (used whatever ``ends``, by the checks).
     """
 
     c: np.ndarray
@@ -100,6 +103,7 @@ class VFMData:
     pressure: np.ndarray
     axial_force: np.ndarray
     thickness: float
+    strip_force: np.ndarray | None = None
     #: parameter-independent intermediates of the cost (seeded virtual strains), filled on first use
     cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
@@ -243,8 +247,9 @@ def prepare(
     # External work: pressure on the loaded surface (markers for membrane, lumen for thick)
     loaded = surface if wall == "membrane" else _layer(wg, 0.0)
     pressure_work = p[None] * _pressure_work_per_pascal(wg, loaded)
-    n_end = end_force(f, p, _top_loop_area(mesh, st, wg.jac, wall, e0),
-                      _clamp_area(mesh, ends, wall, e0, clamp_radius))
+    loop_area = _top_loop_area(mesh, st, wg.jac, wall, e0)
+    n_end = end_force(f, p, loop_area, _clamp_area(mesh, ends, wall, e0, clamp_radius))
+    strip_force = end_force(f, p, loop_area, _clamp_area(mesh, "clamped", wall, e0, clamp_radius)) - f
     end_work = fields.load_end[:, None] * n_end[None]
     evw = pressure_work + end_work
     scale = np.sqrt(np.mean(evw**2, axis=1))
@@ -258,7 +263,7 @@ def prepare(
                    end_force=n_end, scale=scale, field_names=tuple(fields.names), wall=wall, ends=ends, mesh=mesh,
                    n_valid_triangles=n_valid, n_outliers=st.outliers.sum(axis=1),
                    marker_noise=float(np.nanmedian(st.noise)), smoothing=st.smoothing, pressure=p, axial_force=f,
-                   thickness=e0)
+                   thickness=e0, strip_force=strip_force)
 
 
 #: Meshes of recently seen reference configurations (a reprocessing run meshes the same markers again).

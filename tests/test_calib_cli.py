@@ -66,14 +66,14 @@ def test_calibrate_session_stores_result(tmp_path, capsys):
 
 
 def test_calibrate_errors(tmp_path, capsys):
-    assert main(["calibrate"]) == 1
+    assert main(["calibrate"]) == 2
     assert "SESSION" in capsys.readouterr().err
-    assert main(["calibrate", "--images", str(tmp_path)]) == 1
+    assert main(["calibrate", "--images", str(tmp_path)]) == 2
     assert "camera sub-folders" in capsys.readouterr().err
-    assert main(["calibrate", "--images", str(tmp_path), "--squares", "8by6"]) == 1
+    assert main(["calibrate", "--images", str(tmp_path), "--squares", "8by6"]) == 2
     assert "--squares" in capsys.readouterr().err
     (tmp_path / "camA").mkdir()
-    assert main(["calibrate", "--images", str(tmp_path), "-o", str(tmp_path / "c.json")]) == 1
+    assert main(["calibrate", "--images", str(tmp_path), "-o", str(tmp_path / "c.json")]) == 2
     assert ".toml" in capsys.readouterr().err
 
 
@@ -112,5 +112,5 @@ def test_import_aniposelib_into_session_and_convert(tmp_path, capsys):
     path2 = tmp_path / "s2.h5"
     with SessionWriter.create(path2, SpecimenInfo("t", 0.01, 0.035, 0.001), cameras=[CameraSpec("other", "sim", 640, 480)]):
         pass
-    assert main(["calibrate", str(path2), "--import", str(src)]) == 1
+    assert main(["calibrate", str(path2), "--import", str(src)]) == 2
     assert "'other'" in capsys.readouterr().err

@@ -96,6 +96,6 @@ def test_export_ply_reads_back_with_trimesh(session, tmp_path):
 
 def test_export_errors(tmp_path, capsys):
     bare = make_session(tmp_path / "bare.h5", with_results=False)
-    assert main(["export", str(bare)]) == 1
+    assert main(["export", str(bare)]) == 2
     assert "no marker tracks yet" in capsys.readouterr().err
-    assert main(["export", str(tmp_path / "nope.h5")]) == 1
+    assert main(["export", str(tmp_path / "nope.h5")]) == 2

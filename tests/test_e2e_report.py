@@ -66,7 +66,7 @@ def test_report_cli(tmp_path, capsys):
     assert main(["report", str(session), "-o", str(tmp_path / "cli")]) == 0
     assert "report.html" in capsys.readouterr().out
     assert (tmp_path / "cli" / "report.html").exists()
-    assert main(["report", str(tmp_path / "missing.h5")]) == 1
+    assert main(["report", str(tmp_path / "missing.h5")]) == 2
     assert "no such file" in capsys.readouterr().err
 
 

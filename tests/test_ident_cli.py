@@ -43,8 +43,9 @@ def test_identify_json_and_stored_result(tmp_path, capsys, measures):
     out = capsys.readouterr().out
     assert rc == 0, out
     doc = json.loads(out)
-    assert set(doc) == {"model", "wall", "parameters", "stderr", "interval_95", "units", "cost", "converged", "flags",
-                        "result_group"}
+    assert set(doc) == {"model", "wall", "ends", "ends_source", "parameters", "stderr", "interval_95", "units", "cost",
+                        "converged", "flags", "result_group"}
+    assert doc["ends"] == "free" and doc["ends_source"] == "--ends option"
     assert doc["units"] == {"beta": "Pa", "alpha": "1"}  # SI, the unit of every parameter said
     # membrane form on membrane data; 'total' readings are corrected with the reference lumen radius
     assert doc["parameters"]["beta"] == pytest.approx(1.5e3, rel=5e-3)
@@ -77,5 +78,5 @@ def test_identify_degenerate_sessions_exit_nonzero(tmp_path, capsys, kwargs, mat
     path = _session(tmp_path, **kwargs)
     rc = main(["identify", str(path), "--model", "delfino"])
     err = capsys.readouterr().err
-    assert rc == 1
+    assert rc == 2  # bad input (decision 0007)
     assert match in " ".join(err.split())

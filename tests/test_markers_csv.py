@@ -118,7 +118,7 @@ def test_cli_reports_csv_errors_without_traceback(tmp_path, capsys):
     loads.write_text("step,pressure_bar,axial_force_N,stretch\n0,1,1,1\n")
     rc = main(["import-markers", str(markers), str(loads), "--thickness-mm", "1.3", "-o", str(tmp_path / "s.h5")])
     err = capsys.readouterr().err
-    assert rc == 1
+    assert rc == 2
     assert "pressure_bar" in err and "Traceback" not in err
     assert not (tmp_path / "s.h5").exists()
 
@@ -127,14 +127,14 @@ def test_cli_missing_loads_for_a_step(tmp_path, capsys):
     markers, loads = _write_inputs(tmp_path)
     loads.write_text("step,pressure_Pa,axial_force_N,stretch\n0,0,0,1\n1,10,1,1\n")
     rc = main(["import-markers", str(markers), str(loads), "--thickness-mm", "1.3", "-o", str(tmp_path / "s.h5")])
-    assert rc == 1
+    assert rc == 2
     assert "no loads for step(s) [2, 3]" in capsys.readouterr().err
 
 
 def test_info_on_bad_file_is_one_message(tmp_path, capsys):
     bad = tmp_path / "bad.h5"
     bad.write_bytes(b"not hdf5 at all")
-    assert main(["info", str(bad)]) == 1
+    assert main(["info", str(bad)]) == 2
     err = capsys.readouterr().err
     assert "not HDF5" in err and "Traceback" not in err
 

@@ -162,7 +162,7 @@ def test_cli_errors(rendered, tmp_path, capsys):
     from vfmlab.cli import main
 
     rc = main(["reconstruct", str(tmp_path / "missing.h5")])
-    assert rc == 1
+    assert rc == 2  # bad input (decision 0007)
     rc = main(["import-images", str(tmp_path), "--calibration", str(tmp_path / "c.json"), "--loads",
                str(tmp_path / "l.csv"), "-o", str(tmp_path / "o.h5"), "--marker-diameter-mm", "0.4"])
-    assert rc == 1 and "--calibration must be a .toml" in capsys.readouterr().err
+    assert rc == 2 and "--calibration must be a .toml" in capsys.readouterr().err

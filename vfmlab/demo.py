@@ -138,10 +138,9 @@ def run_demo(out_dir: str | Path, *, console: Console, settings: DemoSettings = 
            lambda: _command(["calibrate", str(session), "--fix-k3"], "calibration"))
     _stage(console, 3, total, "Marker reconstruction and tracking", outcome, "reconstruct",
            lambda: _command(["reconstruct", str(session)], "reconstruction"))
-    ends = "clamped" if settings.clamped else "free"
     for k, model in enumerate(settings.models):
         _stage(console, 4 + k, total, f"Identification: {model} (VFM)", outcome, f"identify {model}",
-               lambda model=model: _command(["identify", str(session), "--model", model, "--ends", ends],
+               lambda model=model: _command(["identify", str(session), "--model", model],
                                             f"identification of {model}"))
     _stage(console, total, total, "Report", outcome, "report",
            lambda: _command(["report", str(session), "-o", str(report_dir)], "report"))

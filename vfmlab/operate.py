@@ -152,6 +152,28 @@ def _execute(runner_kwargs: dict[str, Any], protocol: Protocol, writer: SessionW
     return runner
 
 
+def specimen_ends(rig, specimen, sim: bool, console: Console | None = None) -> tuple[str, str]:
+    """How the specimen is held, and who says so: ``(ends, source)`` for the session record.
+
+    The simulated specimen's ``[simulation] clamped`` decides on ``--sim`` (it is what the
+    simulator does); otherwise the specimen file's ``ends``, else the rig file's ``[rig] ends``,
+    else ``("", "")`` (unknown: identification then assumes clamped and says so).
+    """
+    said = [(specimen.ends, "specimen file"), (getattr(rig, "ends", ""), "rig file")]
+    if sim:
+        ends = "clamped" if rig.simulation.clamped else "free"
+        source = f"simulated specimen, rig file simulation.clamped = {str(rig.simulation.clamped).lower()}"
+        for value, where in said:
+            if value and value != ends and console is not None:
+                console.print(f"[yellow]warning:[/] the {where} says ends = {value!r} but the simulated specimen is "
+                              f"{ends}; the session records {ends!r}")
+        return ends, source
+    for value, where in said:
+        if value:
+            return value, where
+    return "", ""
+
+
 def run_session(protocol_path: str, specimen_path: str, out: str, *, rig_path: str | None = None,
                 sim: bool = False, yes: bool = False, sim_speed: float = 1.0, console: Console,
                 detector: Callable[[np.ndarray], int] | None = None,
@@ -196,9 +218,10 @@ def run_session(protocol_path: str, specimen_path: str, out: str, *, rig_path: s
                                                            ["start", "cancel"]) == "start":
             raise OperateError("cancelled by the operator before the start; no file written")
         try:
+            ends, ends_source = specimen_ends(rig, specimen, sim, console)
             writer = SessionWriter.create(
                 out_path, SpecimenInfo(specimen.specimen_id, specimen.radius, specimen.length, specimen.thickness,
-                                       specimen.notes),
+                                       specimen.notes, ends, ends_source),
                 cameras=specs, protocol_text=protocol.text, rig=bench.rig_record(), instruments=bench.instruments(),
                 load_cell_measures=rig.load_cell.measures, overwrite=replace_leftover)
         except (SessionError, OSError) as exc:

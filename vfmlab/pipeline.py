@@ -15,10 +15,13 @@ import json
 import logging
 import os
 from collections.abc import Callable
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
+from acquisition.errors import ImplausibleInputError, InputError
+from acquisition.plausibility import check_identifiable
 from acquisition.session import SessionError, open_session, write_result
 
 log = logging.getLogger(__name__)
@@ -29,12 +32,13 @@ PRESSURE_NOISE = 3.0
 #: Standard deviation of a load-cell reading used for the parameter uncertainty (N).
 FORCE_NOISE = 0.002
 
-__all__ = ["STAGES", "StageError", "StageUnavailable", "identify_session", "identify_stored", "load_identification_inputs",
-           "reconstruct_session", "reconstruct_stored", "session_calibrated_cameras", "session_step_rows"]
+__all__ = ["STAGES", "StageError", "StageUnavailable", "identify_session", "identify_stored",
+           "load_identification_inputs", "reconstruct_session", "reconstruct_stored", "resolve_ends",
+           "session_calibrated_cameras", "session_step_rows"]
 
 
-class StageError(Exception):
-    """A stage could not run on a session (missing input, failed computation)."""
+class StageError(InputError):
+    """A stage could not run on a session's contents (missing or unusable input): exit code 2 (decision 0007)."""
 
 
 class StageUnavailable(StageError):
@@ -67,11 +71,15 @@ def load_identification_inputs(session, markers: str | None = None) -> dict[str,
     if rows.size != positions.shape[0] or (rows.size and (rows.max() >= session.n_steps or rows.min() < 0)):
         raise StageError(f"{session.path}: markers result {result['name']} refers to steps {rows.tolist()} but the "
                          f"session has {session.n_steps} steps")
+    try:
+        notes = check_identifiable(positions, source=f"{session.path}: {result['name']}")
+    except ImplausibleInputError as exc:
+        raise StageError(str(exc)) from None
     steps = session.steps
     pressure = np.asarray(steps["pressure"], float)[rows]
     force = np.asarray(steps["force"], float)[rows]
     specimen = session.specimen
-    notes = []
+    ends = {"ends": specimen.ends, "source": specimen.ends_source}
     if session.load_cell_measures == "total":
         r_i = specimen.radius - specimen.thickness
         force = force + pressure * np.pi * r_i**2
@@ -80,12 +88,47 @@ def load_identification_inputs(session, markers: str | None = None) -> dict[str,
     if uncertainty is not None and uncertainty.shape != positions.shape[:2]:
         uncertainty = None
     return {"positions": positions, "pressure": pressure, "force": force, "thickness": float(specimen.thickness),
+            "radius": float(specimen.radius), "length": float(specimen.length), "session_ends": ends,
             "markers_result": result["name"], "rows": rows, "notes": notes, "uncertainty": uncertainty}
 
 
-def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str = "membrane", ends: str = "clamped",
+#: End condition assumed when neither the session nor the user says: real specimens are tied on cannulae.
+ASSUMED_ENDS = "clamped"
+
+
+def resolve_ends(session_ends: dict[str, str], requested: str | None) -> tuple[str, str, list[str], list[str]]:
+    """The end condition to identify with, where it comes from, notes and warnings.
+
+    Parameters
+    ----------
+    session_ends : ``{"ends": "clamped" | "free" | "", "source": str}`` as recorded in the session.
+    requested : the user's ``--ends`` or None (use the session's).
+
+    Returns
+    -------
+    (ends, source, notes, warnings): ``source`` says who decided ("session (simulated specimen ...)",
+    "--ends option", "assumed"); a ``requested`` value against the session's record gives a warning.
+    """
+    recorded, where = session_ends.get("ends", ""), session_ends.get("source", "") or "session"
+    if requested is not None and requested not in ("clamped", "free"):
+        raise StageError(f"ends must be 'clamped', 'free' or None (the session's); got {requested!r}")
+    if requested is None:
+        if recorded:
+            return recorded, f"session ({where})", [f"end conditions {recorded}, as the session records ({where})"], []
+        note = (f"the session does not record the end conditions: assumed {ASSUMED_ENDS} (tube tied on cannulae); "
+                "give --ends free if the marked tube is uniform up to the load cell")
+        return ASSUMED_ENDS, "assumed", [], [note]
+    if recorded and recorded != requested:
+        return requested, "--ends option", [], [
+            f"--ends {requested} contradicts the session, which records {recorded} ends ({where}); the result uses "
+            f"{requested} as asked: check that this is what the specimen had"]
+    return requested, "--ends option", [], []
+
+
+def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str = "membrane", ends: str | None = None,
                     optimizer: str = "lsq", smoothing: str | tuple[int, int] | None = "auto", markers: str | None = None,
-                    uncertainty: str = "bootstrap", invoked_by: str = "pipeline") -> tuple[str, Any, dict[str, Any]]:
+                    uncertainty: str = "bootstrap", check: bool = True,
+                    invoked_by: str = "pipeline") -> tuple[str, Any, dict[str, Any]]:
     """Identify ``model`` from the session's marker tracks with the VFM and store an "identification" result.
 
     Parameters
@@ -93,7 +136,9 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
     path : session file.
     model : "fung" | "delfino" | "hgo" | "neohookean".
     wall : "membrane" | "thick".
-    ends : "clamped" | "free".
+    ends : "clamped" | "free", or None (default) for what the session records (assumed clamped,
+        with a warning, when it records nothing). A value against the session's record is used,
+        with a warning in the result's flags.
     optimizer : "lsq" | "nelder-mead".
     smoothing : (axial Legendre degree, circumferential harmonics) to smooth the measured
         displacements first, "auto" (the basis chosen from the data; none when the markers look
@@ -102,6 +147,8 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
     markers : markers result to use (default: the latest).
     uncertainty : "bootstrap" (default, intervals that cover the truth; ~16 re-identifications) or
         "gauss-newton" (fast, too small on noisy data).
+    check : run the setting checks (``identification.checks``: end conditions and wall form
+        against the data's own evidence) and add their warnings to the flags.
     invoked_by : recorded in the result's attributes (e.g. "identify", "reprocess").
 
     Returns
@@ -111,6 +158,7 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
     """
     try:
         from identification import IdentificationError, identify
+        from identification.mesh import describe_dropped
     except ImportError as exc:  # pragma: no cover - the identification package ships with vfmlab
         raise StageUnavailable(f"the identification package is not available: {exc}") from None
     if smoothing is not None and smoothing != "auto":
@@ -126,6 +174,9 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
             data = load_identification_inputs(session, markers)
     except SessionError as exc:
         raise StageError(str(exc)) from None
+    ends, ends_source, ends_notes, warnings = resolve_ends(data["session_ends"], ends)
+    force_notes = list(data["notes"])
+    data["notes"] = force_notes + ends_notes
     try:
         result = identify(data["positions"], data["pressure"], data["force"], thickness=data["thickness"],
                           model=model, wall=wall, ends=ends, optimizer=optimizer, smoothing=smoothing,
@@ -134,6 +185,27 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
                               "force_noise": FORCE_NOISE} if uncertainty == "bootstrap" else None)
     except (IdentificationError, ValueError) as exc:
         raise StageError(f"{path}: cannot identify {model}: {exc}") from None
+    used = data["positions"] if result.steps is None else data["positions"][list(result.steps)]
+    checks = _check_setup(result, used) if check else None
+    result = replace(result, flags=tuple(warnings) + tuple(result.flags) + (checks.flags if checks else ()))
+    if result.data is not None:
+        data["notes"].append(describe_dropped(result.data.mesh.dropped))
+    settings = {"model": model, "wall": wall, "ends": ends, "ends_source": ends_source, "optimizer": optimizer,
+                "smoothing": smoothing, "markers_result": data["markers_result"], "thickness": data["thickness"],
+                "force_correction": force_notes}
+    arrays, attrs = _result_record(result, data["rows"], checks)
+    attrs.update({"model": model, "wall": wall, "invoked_by": invoked_by, "notes": data["notes"]})
+    data["settings"] = settings
+    try:
+        group = write_result(path, "identification", arrays, settings, attrs=attrs,
+                             units={"ivw": "J", "evw": "J", "residuals": "1"})
+    except SessionError as exc:
+        raise StageError(str(exc)) from None
+    return group, result, data
+
+
+def _result_record(result, rows, checks) -> tuple[dict, dict]:
+    """Arrays and attributes of an "identification" result (plus what the setting checks measured)."""
     names = list(result.parameters)
     arrays = {
         "parameters": np.array([result.parameters[n] for n in names]),
@@ -143,26 +215,31 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
         "ivw": result.ivw,
         "evw": result.evw,
         "residuals": result.residuals,
-        "step_index": data["rows"] if result.steps is None else data["rows"][list(result.steps)],
+        "step_index": rows if result.steps is None else rows[list(result.steps)],
     }
     if result.uncertainty is not None:
         arrays["interval_low"] = np.array([result.uncertainty.interval[n][0] for n in names])
         arrays["interval_high"] = np.array([result.uncertainty.interval[n][1] for n in names])
         arrays["bootstrap_bias"] = np.array([result.uncertainty.bias[n] for n in names])
-    settings = {"model": model, "wall": wall, "ends": ends, "optimizer": optimizer, "smoothing": smoothing,
-                "markers_result": data["markers_result"], "thickness": data["thickness"],
-                "force_correction": data["notes"]}
-    attrs = {"model": model, "wall": wall, "cost": result.cost, "converged": result.converged,
-             "flags": list(result.flags), "message": result.message, "n_evaluations": result.n_evaluations,
-             "field_names": list(result.field_names), "invoked_by": invoked_by,
-             "smoothing_used": json.dumps(data_smoothing(result)),
+    attrs = {"cost": result.cost, "converged": result.converged, "flags": list(result.flags),
+             "message": result.message, "n_evaluations": result.n_evaluations,
+             "field_names": list(result.field_names), "smoothing_used": json.dumps(data_smoothing(result)),
              "uncertainty": "parametric bootstrap, 95 % intervals" if result.uncertainty is not None else "gauss-newton"}
+    if checks is not None:
+        attrs.update({"check_taper": list(checks.taper), "check_gap": checks.gap,
+                      "check_gap_other_ends": checks.gap_other_ends, "check_gap_other_wall": checks.gap_other_wall})
+    return arrays, attrs
+
+
+def _check_setup(result, positions):
+    """``identification.checks.check_setup``, or None if it cannot run on this result."""
+    from identification.checks import check_setup
+
     try:
-        group = write_result(path, "identification", arrays, settings, attrs=attrs,
-                             units={"ivw": "J", "evw": "J", "residuals": "1"})
-    except SessionError as exc:
-        raise StageError(str(exc)) from None
-    return group, result, data
+        return check_setup(result, positions)
+    except (ValueError, ArithmeticError) as exc:
+        log.warning("setting checks skipped: %s", exc)
+        return None
 
 
 def data_smoothing(result) -> list | None:
@@ -208,6 +285,21 @@ def session_calibrated_cameras(session) -> tuple[list, str]:
     return cams, f"session result {calib['name']}"
 
 
+def check_camera_images(session, cameras: list) -> None:
+    """Every calibrated camera has step images in the session, of the size it was calibrated at."""
+    frames = session.image_cameras
+    missing = [c.name for c in cameras if c.name not in frames]
+    if missing:
+        raise StageError(f"{session.path}: calibrated camera(s) {missing} have no images in the session "
+                         f"(cameras with images: {sorted(frames)}); calibrate the cameras that took the images")
+    for cam in cameras:
+        size = getattr(cam, "image_size", None)
+        if size is not None and tuple(int(v) for v in size) != frames[cam.name][::-1]:
+            height, width = frames[cam.name]
+            raise StageError(f"{session.path}: camera {cam.name!r} was calibrated at {int(size[0])}x{int(size[1])} px "
+                             f"but its images are {width}x{height} px; calibrate at the images' size")
+
+
 def reconstruct_stored(path: str | os.PathLike, *, cameras: list | None = None, calibration_source: str = "",
                        marker_diameter_mm: float | None = None, normals: str = "local", epipolar_px: float = 2.0,
                        max_reprojection_px: float = 1.5, include_superseded: bool = False, frame: str = "specimen",
@@ -240,6 +332,7 @@ def reconstruct_stored(path: str | os.PathLike, *, cameras: list | None = None, 
     with session as s:
         if cameras is None:
             cameras, calibration_source = session_calibrated_cameras(s)
+        check_camera_images(s, cameras)
         rows = session_step_rows(s, include_superseded)
         if rows.size == 0:
             raise StageError(f"{path}: no steps to reconstruct")

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from acquisition.session import SessionError, open_session, write_result
-from vfmlab.pipeline import StageError, load_identification_inputs
+from vfmlab.pipeline import StageError, load_identification_inputs, resolve_ends
 
 __all__ = ["identify_regional_stored"]
 
@@ -39,7 +39,7 @@ def _result_arrays(model, result, rd, rows) -> tuple[dict, dict]:
 
 
 def identify_regional_stored(path: str | os.PathLike, *, n_bands: int, model: str = "fung", wall: str = "membrane",
-                             ends: str = "clamped", smoothing: tuple[int, int] | None = None,
+                             ends: str | None = None, smoothing: tuple[int, int] | None = None,
                              markers: str | None = None, invoked_by: str = "pipeline") -> tuple[str, Any, dict]:
     """Identify per-band profiles of ``model``'s stress-like parameters from the session; store a "regional" result.
 
@@ -47,7 +47,7 @@ def identify_regional_stored(path: str | os.PathLike, *, n_bands: int, model: st
     ----------
     path : session file.
     n_bands : number of equal axial bands between the measured ends.
-    model, wall, ends, smoothing, markers, invoked_by : as ``pipeline.identify_stored``.
+    model, wall, ends, smoothing, markers, invoked_by : as ``pipeline.identify_stored`` (ends None: the session's).
 
     Returns
     -------
@@ -61,6 +61,8 @@ def identify_regional_stored(path: str | os.PathLike, *, n_bands: int, model: st
             data = load_identification_inputs(session, markers)
     except SessionError as exc:
         raise StageError(str(exc)) from None
+    ends, ends_source, ends_notes, ends_warnings = resolve_ends(data["session_ends"], ends)
+    data["notes"] = list(data["notes"]) + ends_notes + ends_warnings
     try:
         rd = prepare_regional(data["positions"], data["pressure"], data["force"], thickness=data["thickness"],
                               n_bands=n_bands, wall=wall, ends=ends, smoothing=smoothing)
@@ -68,7 +70,7 @@ def identify_regional_stored(path: str | os.PathLike, *, n_bands: int, model: st
     except (IdentificationError, ValueError) as exc:
         raise StageError(f"{path}: cannot identify regional {model} with {n_bands} bands: {exc}") from None
     arrays, units = _result_arrays(get_model(model), result, rd, data["rows"])
-    settings = {"model": model, "wall": wall, "ends": ends, "n_bands": int(n_bands), "smoothing": smoothing,
+    settings = {"model": model, "wall": wall, "ends": ends, "ends_source": ends_source, "n_bands": int(n_bands), "smoothing": smoothing,
                 "markers_result": data["markers_result"], "thickness": data["thickness"],
                 "force_correction": data["notes"]}
     attrs = {"model": model, "wall": wall, "cost": result.cost, "converged": result.converged,

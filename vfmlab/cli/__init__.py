@@ -11,10 +11,15 @@ import importlib
 import importlib.util
 import logging
 import sys
+import warnings
 
 import click
 
 from vfmlab import __version__
+
+# Exit codes (decision 0007); the same numbers as acquisition.errors.EXIT_*, which this module
+# does not import up front so that ``vfmlab --help`` stays fast.
+EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 
 # name -> (module, one-line help). Order is the order shown in --help.
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -74,28 +79,135 @@ def cli(verbose: int) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the console script; returns the process exit code.
+    """Entry point of the console script; returns the process exit code (decision 0007).
 
-    Exit codes: 0 success, 1 a failure the command explains (bad input, device fault),
-    2 usage error, 130 interrupted by the user.
+    Exit codes: 0 success, 1 a failed operation (device fault, unwritable file, computation that
+    failed), 2 bad input (usage, malformed/damaged/implausible file or value), 130 interrupted by
+    the user (Ctrl-C). Every error is one line on stderr, never a traceback (``-vv`` logs it).
+    Warnings from NumPy and other libraries never reach the user: they are logged at debug level.
     """
-    try:
-        # With standalone_mode=False click *returns* the code of a command's Exit(n).
-        rv = cli.main(args=argv, prog_name="vfmlab", standalone_mode=False)
-        if isinstance(rv, int) and not isinstance(rv, bool):
-            return rv
-    except click.exceptions.Exit as exc:
+    with warnings.catch_warnings(), _InterruptGuard() as interrupt:
+        warnings.simplefilter("default")
+        warnings.showwarning = _log_library_warning
+        try:
+            # With standalone_mode=False click *returns* the code of a command's Exit(n).
+            rv = cli.main(args=argv, prog_name="vfmlab", standalone_mode=False)
+        except BaseException as exc:  # noqa: BLE001 - the one place exceptions become exit codes
+            return _report_exception(exc)
+        if interrupt.seen:  # a Ctrl-C whose KeyboardInterrupt a library swallowed: still an interruption
+            return _report_exception(KeyboardInterrupt())
+    if isinstance(rv, int) and not isinstance(rv, bool):
+        return rv
+    return EXIT_OK
+
+
+class _InterruptGuard:
+    """Remember Ctrl-C while a command runs, and keep Python's "Exception ignored" reports of a
+    KeyboardInterrupt raised where it cannot propagate (e.g. in an at-fork hook) off the screen."""
+
+    def __enter__(self) -> _InterruptGuard:
+        import signal
+        import threading
+
+        self.seen = False
+        self._previous_hook = sys.unraisablehook
+        sys.unraisablehook = self._unraisable
+        self._previous_handler = None
+        if threading.current_thread() is threading.main_thread() and \
+                signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+            self._previous_handler = signal.signal(signal.SIGINT, self._on_sigint)
+        return self
+
+    def _on_sigint(self, signum, frame) -> None:
+        self.seen = True
+        raise KeyboardInterrupt
+
+    def _unraisable(self, unraisable) -> None:
+        if isinstance(unraisable.exc_value, KeyboardInterrupt):
+            self.seen = True
+            return
+        self._previous_hook(unraisable)
+
+    def __exit__(self, *exc: object) -> None:
+        import signal
+
+        sys.unraisablehook = self._previous_hook
+        if self._previous_handler is not None:
+            signal.signal(signal.SIGINT, self._previous_handler)
+
+
+def exit_code_for(exc: BaseException) -> int:
+    """The exit code for an exception that ended a command: the one mapping (decision 0007)."""
+    if isinstance(exc, click.exceptions.Exit):
         return exc.exit_code
-    except click.ClickException as exc:
-        exc.show()
-        return exc.exit_code
-    except click.Abort:
-        click.echo("Aborted.", err=True)
-        return 130
-    except KeyboardInterrupt:
+    if isinstance(exc, SystemExit):
+        return exc.code if isinstance(exc.code, int) else EXIT_FAILED
+    for kind, code in _exit_codes():
+        if isinstance(exc, kind):
+            return exc.exit_code if isinstance(exc, click.ClickException) else code
+    return EXIT_FAILED
+
+
+def _exit_codes() -> tuple[tuple[type[BaseException], int], ...]:
+    """Exception type -> exit code. Order matters: first match wins (a SessionWriteError is both a
+    SessionError, i.e. an InputError, and an OperationError: a failed write)."""
+    from acquisition.errors import InputError, OperationError
+
+    return (
+        (KeyboardInterrupt, EXIT_INTERRUPTED),
+        (click.Abort, EXIT_INTERRUPTED),
+        (click.ClickException, EXIT_FAILED),  # its own exit_code: UsageError 2, CliError 1, CliInputError 2
+        (OperationError, EXIT_FAILED),
+        (InputError, EXIT_BAD_INPUT),
+        (OSError, EXIT_FAILED),
+    )
+
+
+def _report_exception(exc: BaseException) -> int:
+    """Print the one-line message for ``exc`` (none for a clean exit) and return its exit code."""
+    from acquisition.errors import InputError, OperationError
+    from vfmlab.cli._common import show_error
+
+    code = exit_code_for(exc)
+    if isinstance(exc, (click.exceptions.Exit, SystemExit)):
+        return code
+    if isinstance(exc, (KeyboardInterrupt, click.Abort)):
         click.echo("Interrupted.", err=True)
-        return 130
-    return 0
+    elif isinstance(exc, click.ClickException):
+        exc.show()
+    elif isinstance(exc, (InputError, OperationError)):
+        show_error(str(exc))
+    elif isinstance(exc, OSError):
+        show_error(describe_os_error(exc))
+    else:
+        logging.getLogger("vfmlab").debug("unexpected error", exc_info=exc)
+        show_error(f"internal error ({type(exc).__name__}: {exc}); this is a bug in vfmlab, please report it "
+                   "with the command that caused it (run with -vv for the details)")
+    return code
+
+
+def describe_os_error(exc: OSError) -> str:
+    """One sentence for a file-system error: the file first, then what the system said.
+
+    HDF5 reports as ``Unable to synchronously create file (unable to open file: name = 'x.h5',
+    errno = 30, error message = 'Read-only file system', ...)``: the name and errno are taken from it.
+    """
+    import os
+    import re
+
+    reason = exc.strerror or str(exc)
+    found = re.search(r"name = '([^']*)', errno = (\d+)", str(exc))
+    if exc.filename is None and found:
+        action = "cannot create" if "create" in str(exc) else "cannot open"
+        return f"{found.group(1)}: {action} the file: {os.strerror(int(found.group(2)))}"
+    if exc.filename is not None:
+        return f"{exc.filename}: {reason}"
+    return reason
+
+
+def _log_library_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """``warnings.showwarning`` for the CLI: library warnings go to the debug log, never to the user."""
+    logging.getLogger("vfmlab").debug("%s: %s (%s:%s)", category.__name__, message, filename, lineno)
 
 
 if __name__ == "__main__":  # pragma: no cover

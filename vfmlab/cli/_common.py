@@ -86,10 +86,28 @@ def esc(value: Any) -> str:
 
 
 class CliError(click.ClickException):
-    """An error the user can act on: printed as one message, exit code 1."""
+    """A failed operation the user can act on: printed as one message, exit code 1 (decision 0007)."""
+
+    exit_code = 1
 
     def show(self, file=None) -> None:  # noqa: D401 - click API
-        err_console.print(f"[bold red]Error:[/] {esc(self.message)}", markup=True)
+        show_error(self.message)
+
+
+class CliInputError(CliError):
+    """Bad input (an option, a file's content) found by a command: one message, exit code 2 (decision 0007)."""
+
+    exit_code = 2
+
+
+def show_error(message: str) -> None:
+    """Print ``message`` as the one-line error of the command, on stderr."""
+    err_console.print(f"[bold red]Error:[/] {esc(message)}", markup=True)
+
+
+def show_warning(message: str) -> None:
+    """Print ``message`` as a warning the user should read (unusual but accepted input), on stderr."""
+    err_console.print(f"[yellow]Warning:[/] {esc(message)}", markup=True)
 
 
 class _EchoHandler(logging.Handler):

@@ -10,7 +10,7 @@ import numpy as np
 from rich.progress import Progress
 from rich.table import Table
 
-from vfmlab.cli._common import CliError, console, err_console, esc, print_json
+from vfmlab.cli._common import CliError, CliInputError, console, err_console, esc, print_json
 from vfmlab.cli._outputs import check_output_path
 
 log = logging.getLogger(__name__)
@@ -21,14 +21,14 @@ _IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm"}
 def _folder_views(images_dir: Path) -> tuple[list[str], list[str], dict[str, dict[str, Path]]]:
     """Camera names, view stems and ``{camera: {stem: path}}`` from ``DIR/<camera>/<view>.<ext>``."""
     if not images_dir.is_dir():
-        raise CliError(f"--images: {images_dir} is not a folder (expected DIR/<camera>/<view>.png)")
+        raise CliInputError(f"--images: {images_dir} is not a folder (expected DIR/<camera>/<view>.png)")
     cams = sorted(p.name for p in images_dir.iterdir() if p.is_dir())
     if not cams:
-        raise CliError(f"--images: {images_dir} has no camera sub-folders (expected DIR/<camera>/<view>.png)")
+        raise CliInputError(f"--images: {images_dir} has no camera sub-folders (expected DIR/<camera>/<view>.png)")
     files = {c: {p.stem: p for p in sorted((images_dir / c).iterdir()) if p.suffix.lower() in _IMAGE_SUFFIXES} for c in cams}
     stems = sorted(set().union(*[set(f) for f in files.values()]))
     if not stems:
-        raise CliError(f"--images: no images ({', '.join(sorted(_IMAGE_SUFFIXES))}) under {images_dir}/<camera>/")
+        raise CliInputError(f"--images: no images ({', '.join(sorted(_IMAGE_SUFFIXES))}) under {images_dir}/<camera>/")
     return cams, stems, files
 
 
@@ -38,11 +38,11 @@ def _board_spec(board, squares, square_size_mm, marker_size_mm, dictionary, subp
     try:
         cols, rows = (int(v) for v in squares.lower().split("x"))
     except ValueError:
-        raise CliError(f"--squares must look like 8x6 (columns x rows); got {squares!r}") from None
+        raise CliInputError(f"--squares must look like 8x6 (columns x rows); got {squares!r}") from None
     try:
         return BoardSpec(board, cols, rows, square_size_mm * 1e-3, marker_size_mm * 1e-3, dictionary, subpix)
     except TargetError as exc:
-        raise CliError(str(exc)) from None
+        raise CliInputError(str(exc)) from None
 
 
 def _table(result) -> Table:
@@ -71,7 +71,7 @@ def _read_calibration(path: Path, file_units: str, body: str | None) -> tuple[li
         reader = cameras_from_toml if path.suffix.lower() == ".toml" else cameras_from_yaml
         return reader(path.read_text(), units=file_units)
     except (CalibrationFileError, UnicodeDecodeError, OSError) as exc:
-        raise CliError(f"--import {path}: {exc}") from None
+        raise CliInputError(f"--import {path}: {exc}") from None
 
 
 def _refine_on_body(folder: Path, cams: list, focal: str) -> tuple[list, dict]:
@@ -83,7 +83,7 @@ def _refine_on_body(folder: Path, cams: list, focal: str) -> tuple[list, dict]:
         err_console.print(r.message)
     bad = [r.camera.name for r in res if not r.well_posed]
     if bad:
-        raise CliError(f"--body: calibration of {bad} is ill-posed (focal length not determined by one view of this body); "
+        raise CliInputError(f"--body: calibration of {bad} is ill-posed (focal length not determined by one view of this body); "
                        "use --body fixed to keep the imported focal length")
     return [r.camera for r in res], {"units": "m", "rms_px": [r.rms for r in res],
                                      "body_calibration": f"{folder}/cal (focal {focal})"}
@@ -95,7 +95,7 @@ def _import(path: Path, file_units: str, session, store: bool, out, units: str, 
 
     cams, meta = _read_calibration(path, file_units, body)
     if out is not None and any(c.window is not None for c in cams):
-        raise CliError(f"-o {out}: TOML/YAML files hold no window (refraction); store the calibration in a session instead")
+        raise CliInputError(f"-o {out}: TOML/YAML files hold no window (refraction); store the calibration in a session instead")
     stored = None
     if session is not None and store:
         from acquisition.session import SessionError, write_result
@@ -107,10 +107,10 @@ def _import(path: Path, file_units: str, session, store: bool, out, units: str, 
         names = [c.name for c in cams]
         missing = [n for n in wanted if n not in names]
         if missing:
-            raise CliError(f"--import {path}: the session's cameras {missing} are not in the file (it has {names})")
+            raise CliInputError(f"--import {path}: the session's cameras {missing} are not in the file (it has {names})")
         bad = [c.name for c in cams if c.name in sizes and tuple(sizes[c.name]) != tuple(c.image_size)]
         if bad:
-            raise CliError(f"--import {path}: image size differs from the session's for cameras {bad}")
+            raise CliInputError(f"--import {path}: image size differs from the session's for cameras {bad}")
         cams = [next(c for c in cams if c.name == n) for n in wanted]
         rms = meta.get("rms_px")
         rms = np.asarray(rms, float) if isinstance(rms, list) and len(rms) == len(names) else None
@@ -203,16 +203,16 @@ def command(session, images_dir, board, squares, square_size_mm, marker_size_mm,
     from reconstruction.targets import detect_board
 
     if out is not None and out.suffix.lower() not in (".toml", ".yaml", ".yml"):
-        raise CliError(f"--out must end in .toml, .yaml or .yml; got {out.name!r}")
+        raise CliInputError(f"--out must end in .toml, .yaml or .yml; got {out.name!r}")
     if out is not None:
         check_output_path(out, force=force, inputs=[session, import_file])
     if import_file is not None:
         if images_dir is not None:
-            raise CliError("--import and --images exclude each other: calibrate from images or import a calibration")
+            raise CliInputError("--import and --images exclude each other: calibrate from images or import a calibration")
         _import(import_file, import_units, session, store, out, units, as_json, body)
         return
     if session is None and images_dir is None:
-        raise CliError("give a SESSION (its calibration images) or --images DIR")
+        raise CliInputError("give a SESSION (its calibration images) or --images DIR")
     spec = _board_spec(board, squares, square_size_mm, marker_size_mm, dictionary, subpix_window)
 
     detections: dict = {}
@@ -232,7 +232,7 @@ def command(session, images_dir, board, squares, square_size_mm, marker_size_mm,
                     else:
                         img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
                         if img is None:
-                            raise CliError(f"cannot read image {path}")
+                            raise CliInputError(f"cannot read image {path}")
                         sizes.setdefault(c, (img.shape[1], img.shape[0]))
                         dets.append(detect_board(img, spec))
                     progress.advance(task)
@@ -248,19 +248,19 @@ def command(session, images_dir, board, squares, square_size_mm, marker_size_mm,
                 for c in cams:
                     imgs = s.calibration_images(c)
                     if len(imgs) == 0:
-                        raise CliError(f"{session}: no calibration images for camera {c!r}; use --images DIR")
+                        raise CliInputError(f"{session}: no calibration images for camera {c!r}; use --images DIR")
                     sizes[c] = (imgs.shape[2], imgs.shape[1])
                     detections[c] = [detect_board(im, spec) for im in imgs]
                     progress.advance(task)
         source = f"{session} (calibration images)"
     for c in detections:
         if c not in sizes:
-            raise CliError(f"camera {c!r}: no readable images")
+            raise CliInputError(f"camera {c!r}: no readable images")
     names = list(detections)
     ref = 0
     if reference is not None:
         if reference not in names:
-            raise CliError(f"--reference must be one of {names}; got {reference!r}")
+            raise CliInputError(f"--reference must be one of {names}; got {reference!r}")
         ref = names.index(reference)
     found = {c: sum(len(d) > 0 for d in detections[c]) for c in names}
     log.info("board found per camera: %s", ", ".join(f"{c} in {n} views" for c, n in found.items()))

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from vfmlab.cli._common import CliError, console, esc, print_json
+from vfmlab.cli._common import CliError, CliInputError, console, esc, print_json
 from vfmlab.cli._outputs import check_output_dir
 from vfmlab.cli._sessions import cli_session, latest_markers
 
@@ -41,7 +41,7 @@ def command(session, out, fmt, markers_name, force, as_json):
     with cli_session(path) as s:
         if markers_name:
             if markers_name not in s.results("markers"):
-                raise CliError(f"{path}: no markers result {markers_name!r}; markers results are "
+                raise CliInputError(f"{path}: no markers result {markers_name!r}; markers results are "
                                f"{', '.join(s.results('markers')) or 'none'}")
             markers = s.result(markers_name)
         else:
@@ -52,8 +52,8 @@ def command(session, out, fmt, markers_name, force, as_json):
             latest[(r["attrs"].get("model"), r["attrs"].get("wall"))] = r
         try:
             fields = compute_fields(markers, s.steps, list(latest.values()))
-        except FieldsError as exc:
-            raise CliError(f"{path}: cannot build the surface fields from {markers['name']}: {exc}") from None
+        except (FieldsError, ValueError) as exc:  # MeshError is a ValueError
+            raise CliInputError(f"{path}: cannot build the surface fields from {markers['name']}: {exc}") from None
         specimen = s.specimen.specimen_id
     try:
         files = export_fields(fields, out_dir, fmt=fmt, specimen=specimen)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from vfmlab.cli._common import CliError, console, display_quantity, esc, num, print_json
+from vfmlab.cli._common import CliInputError, console, display_quantity, esc, num, print_json
 
 WALL_NOTE = {
     "membrane": "paper's plain membrane form (pressure on the marker surface)",
@@ -28,8 +28,11 @@ Examples:
               show_default=True, help="Constitutive model.")
 @click.option("--wall", type=click.Choice(["membrane", "thick"]), default="membrane", show_default=True,
               help="membrane: the paper's plain form; thick: markers on the outer surface, pressure on the lumen.")
-@click.option("--ends", type=click.Choice(["clamped", "free"]), default="clamped", show_default=True,
-              help="clamped: tube tied on cannulae beyond the markers (pressure on the unmeasured strip counted).")
+@click.option("--ends", type=click.Choice(["clamped", "free"]), default=None,
+              help="clamped: tube tied on cannulae beyond the markers (pressure on the unmeasured strip counted); "
+                   "free: uniform tube up to the load cell. Default: what the session records (assumed clamped, "
+                   "with a warning, if it records nothing); a value against the session's record is used with a "
+                   "warning.")
 @click.option("--optimizer", type=click.Choice(["lsq", "nelder-mead"]), default="lsq", show_default=True,
               help="lsq: fast least squares with several starts; nelder-mead: the paper's simplex.")
 @click.option("--smooth", default="auto", show_default=True, metavar="auto|none|AXIAL,HARMONICS",
@@ -50,21 +53,20 @@ def command(session_path, model, wall, ends, optimizer, smooth, uncertainty, reg
 
     Units: parameters in SI (Pa, rad); the table shows kPa and degrees.
     """
-    from vfmlab.pipeline import StageError, identify_stored
+    from vfmlab.pipeline import identify_stored
 
     smoothing = parse_smooth_option(smooth)
     if regions is not None:
         from vfmlab.cli._regional import run_regional
 
         return run_regional(session_path, model, wall, ends, smoothing, regions, as_json)
-    try:
-        group, result, data = identify_stored(session_path, model=model, wall=wall, ends=ends, optimizer=optimizer,
-                                              smoothing=smoothing, uncertainty=uncertainty, invoked_by="identify")
-    except StageError as exc:
-        raise CliError(str(exc)) from None
+    group, result, data = identify_stored(session_path, model=model, wall=wall, ends=ends, optimizer=optimizer,
+                                          smoothing=smoothing, uncertainty=uncertainty, invoked_by="identify")
     names = list(result.parameters)
     if as_json:
-        print_json({"model": model, "wall": wall, "parameters": result.parameters, "stderr": result.stderr,
+        settings = data.get("settings", {})
+        print_json({"model": model, "wall": wall, "ends": settings.get("ends"),
+                    "ends_source": settings.get("ends_source"), "parameters": result.parameters, "stderr": result.stderr,
                     "interval_95": (None if result.uncertainty is None else
                                     {k: list(v) for k, v in result.uncertainty.interval.items()}),
                     "units": {n: get_unit(model, n) for n in names},
@@ -102,7 +104,7 @@ def command(session_path, model, wall, ends, optimizer, smooth, uncertainty, reg
 
 
 def parse_smooth_option(text: str | None):
-    """``--smooth`` text -> "auto", None ("none") or (axial degree, harmonics); CliError otherwise."""
+    """``--smooth`` text -> "auto", None ("none") or (axial degree, harmonics); CliInputError otherwise."""
     if text is None or text.strip().lower() == "auto":
         return "auto"
     if text.strip().lower() == "none":
@@ -112,7 +114,7 @@ def parse_smooth_option(text: str | None):
         if len(smoothing) != 2 or min(smoothing) < 0:
             raise ValueError
     except ValueError:
-        raise CliError(f"--smooth must be 'auto', 'none' or two non-negative integers AXIAL,HARMONICS like 4,2; "
+        raise CliInputError(f"--smooth must be 'auto', 'none' or two non-negative integers AXIAL,HARMONICS like 4,2; "
                        f"got {text!r}") from None
     return smoothing
 

@@ -8,7 +8,7 @@ import click
 import numpy as np
 from rich.progress import Progress
 
-from vfmlab.cli._common import CliError, console, err_console, esc, print_json
+from vfmlab.cli._common import CliError, CliInputError, console, err_console, esc, print_json
 from vfmlab.cli._outputs import check_output_path
 from vfmlab.cli.cmd_reconstruct import load_calibration_file
 
@@ -18,11 +18,11 @@ _IMAGE_SUFFIXES = {".png", ".tif", ".tiff", ".bmp", ".pgm", ".jpg", ".jpeg"}
 def _scan(images_dir: Path, camera_names: list[str]) -> tuple[np.ndarray, dict[str, dict[int, Path]]]:
     """Step numbers present and ``{camera: {step: path}}`` from ``DIR/<camera>/<step>.<ext>``."""
     if not images_dir.is_dir():
-        raise CliError(f"IMAGES_DIR: {images_dir} is not a folder (expected IMAGES_DIR/<camera>/<step>.png)")
+        raise CliInputError(f"IMAGES_DIR: {images_dir} is not a folder (expected IMAGES_DIR/<camera>/<step>.png)")
     folders = sorted(p.name for p in images_dir.iterdir() if p.is_dir())
     missing = [c for c in camera_names if c not in folders]
     if missing:
-        raise CliError(
+        raise CliInputError(
             f"IMAGES_DIR: no folder for calibrated camera(s) {missing} in {images_dir} "
             f"(found {folders}; folder names must be the camera names of the calibration file)"
         )
@@ -35,15 +35,15 @@ def _scan(images_dir: Path, camera_names: list[str]) -> tuple[np.ndarray, dict[s
             try:
                 step = int(p.stem)
             except ValueError:
-                raise CliError(f"{p}: image names must be step numbers (0.png, 1.png, ...); got {p.name!r}") from None
+                raise CliInputError(f"{p}: image names must be step numbers (0.png, 1.png, ...); got {p.name!r}") from None
             if step in files[cam]:
-                raise CliError(f"{images_dir / cam}: two images for step {step}")
+                raise CliInputError(f"{images_dir / cam}: two images for step {step}")
             files[cam][step] = p
     steps = np.array(sorted(set().union(*[set(f) for f in files.values()])), dtype=int)
     if steps.size == 0:
-        raise CliError(f"IMAGES_DIR: no images under {images_dir}/<camera>/ ({', '.join(sorted(_IMAGE_SUFFIXES))})")
+        raise CliInputError(f"IMAGES_DIR: no images under {images_dir}/<camera>/ ({', '.join(sorted(_IMAGE_SUFFIXES))})")
     if steps[0] != 0:
-        raise CliError(f"IMAGES_DIR: no images for step 0 (the reference configuration); first step is {steps[0]}")
+        raise CliInputError(f"IMAGES_DIR: no images for step 0 (the reference configuration); first step is {steps[0]}")
     return steps, files
 
 
@@ -52,11 +52,11 @@ def _read(path: Path) -> np.ndarray:
 
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if img is None:
-        raise CliError(f"{path}: cannot read the image")
+        raise CliInputError(f"{path}: cannot read the image")
     if img.ndim == 3:
         img = cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY)
     if img.dtype not in (np.uint8, np.uint16):
-        raise CliError(f"{path}: expected an 8- or 16-bit grey image; got {img.dtype}")
+        raise CliInputError(f"{path}: expected an 8- or 16-bit grey image; got {img.dtype}")
     return img
 
 
@@ -106,40 +106,41 @@ Then: vfmlab reconstruct a1.h5
 @click.option("--notes", default="", help="Free-text notes about the specimen.")
 @click.option("--force-is", type=click.Choice(["wall", "total"]), default="wall", show_default=True,
               help="What axial_force_N is: force carried by the wall, or a total reading behind a pressurised cannula.")
+@click.option("--ends", type=click.Choice(["clamped", "free"]), default=None,
+              help="How the specimen was held: clamped (tied on cannulae) or free (uniform up to the load cell); "
+                   "recorded in the session for 'vfmlab identify' [default: not recorded; identify then assumes "
+                   "clamped and says so].")
 @click.option("--force", "overwrite", is_flag=True, help="Overwrite OUT if it exists.")
 @click.option("--json", "as_json", is_flag=True, help="Print what was imported as JSON (SI: m).")
-def command(images_dir, calibration, polarity, calibration_units, loads_csv, out, marker_diameter_mm, thickness_mm, radius_mm,
-            length_mm, specimen_id, notes, force_is, overwrite, as_json):
+def command(images_dir, calibration, polarity, calibration_units, loads_csv, out, marker_diameter_mm, thickness_mm,
+            radius_mm, length_mm, specimen_id, notes, force_is, ends, overwrite, as_json):
     """Build a session from IMAGES_DIR/<camera>/<step>.png (camera names as in the calibration file,
     step 0 = reference), the camera calibration and a loads CSV. Then run 'vfmlab reconstruct OUT'."""
-    from acquisition.markers_csv import CsvFormatError, read_loads_csv
+    from acquisition.markers_csv import read_loads_csv
     from acquisition.session import CameraSpec, SessionError, SessionWriter, SpecimenInfo, StepRecord, write_result
     from reconstruction.calibration_io import cameras_to_arrays
     from reconstruction.pipeline import ReconstructionSettings, reconstruct_step
 
     check_output_path(out, force=overwrite, inputs=[calibration, loads_csv])
     if not marker_diameter_mm > 0:
-        raise CliError(f"--marker-diameter-mm must be positive; got {marker_diameter_mm}")
+        raise CliInputError(f"--marker-diameter-mm must be positive; got {marker_diameter_mm}")
     for name, value in (("--thickness-mm", thickness_mm), ("--radius-mm", radius_mm), ("--length-mm", length_mm)):
         if value is not None and not value > 0:
-            raise CliError(f"{name} must be positive; got {value}")
+            raise CliInputError(f"{name} must be positive; got {value}")
     cams = load_calibration_file(calibration, calibration_units)
     names = [c.name for c in cams]
     steps, files = _scan(images_dir, names)
-    try:
-        loads = read_loads_csv(loads_csv)
-    except CsvFormatError as exc:
-        raise CliError(str(exc)) from None
+    loads = read_loads_csv(loads_csv)
     missing = sorted(set(steps.tolist()) - set(loads["step"].tolist()))
     if missing:
-        raise CliError(f"{loads_csv}: no loads for step(s) {missing} that have images in {images_dir}")
+        raise CliInputError(f"{loads_csv}: no loads for step(s) {missing} that have images in {images_dir}")
     rows = np.searchsorted(loads["step"], steps)
     first = {c: _read(files[c][0]) for c in names if 0 in files[c]}
     if len(first) < 2:
-        raise CliError(f"IMAGES_DIR: step 0 needs images from at least two cameras; found {sorted(first)}")
+        raise CliInputError(f"IMAGES_DIR: step 0 needs images from at least two cameras; found {sorted(first)}")
     for c in cams:
         if c.name in first and first[c.name].shape != (c.image_size[1], c.image_size[0]):
-            raise CliError(
+            raise CliInputError(
                 f"{files[c.name][0]}: image is {first[c.name].shape[1]}x{first[c.name].shape[0]} px but the "
                 f"calibration of {c.name} is for {c.image_size[0]}x{c.image_size[1]}"
             )
@@ -153,7 +154,7 @@ def command(images_dir, calibration, polarity, calibration_units, loads_csv, out
         settings = ReconstructionSettings(marker_diameter=marker_diameter_mm * 1e-3, detection={"polarity": polarity})
         pts, _ = reconstruct_step(first, cams, settings)
         if pts.centres.shape[0] < 8:
-            raise CliError("could not measure the specimen from the step-0 images (fewer than 8 markers "
+            raise CliInputError("could not measure the specimen from the step-0 images (fewer than 8 markers "
                            "reconstructed); give --radius-mm and --length-mm")
         cyl = fit_cylinder(pts.centres)
         _check_tube(cyl, pts.centres)
@@ -169,7 +170,8 @@ def command(images_dir, calibration, polarity, calibration_units, loads_csv, out
         notes_extra.append("thickness not given: 10 % of the radius assumed")
     try:
         specimen = SpecimenInfo(specimen_id or images_dir.name, radius_mm * 1e-3, length_mm * 1e-3,
-                                thickness_mm * 1e-3, "; ".join([notes] * bool(notes) + notes_extra))
+                                thickness_mm * 1e-3, "; ".join([notes] * bool(notes) + notes_extra),
+                                ends or "", "import option --ends" if ends else "")
     except ValueError as exc:
         raise CliError(str(exc)) from None
     specs = [CameraSpec(c.name, "imported", c.image_size[0], c.image_size[1], dtype) for c in cams]
@@ -191,7 +193,7 @@ def command(images_dir, calibration, polarity, calibration_units, loads_csv, out
                         else:
                             img = first[c.name] if s == 0 else _read(path)
                             if img.shape != (c.image_size[1], c.image_size[0]):
-                                raise CliError(f"{path}: image size {img.shape[::-1]} differs from the calibration")
+                                raise CliInputError(f"{path}: image size {img.shape[::-1]} differs from the calibration")
                         imgs[c.name] = img.astype(dtype, copy=False)
                     writer.add_step(StepRecord(
                         block=0, stretch=float(loads["stretch"][row]), target_pressure=float(loads["pressure"][row]),

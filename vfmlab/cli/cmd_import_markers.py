@@ -8,9 +8,12 @@ import click
 import numpy as np
 from scipy.optimize import least_squares
 
-from acquisition.markers_csv import CsvFormatError, read_loads_csv, read_markers_csv
+from acquisition.markers_csv import read_loads_csv, read_markers_csv
 from acquisition.session import SessionError, SessionWriter, SpecimenInfo, StepRecord, write_result
-from vfmlab.cli._common import CliError, console, esc, print_json
+from acquisition.errors import ImplausibleInputError
+from acquisition.plausibility import (check_cloud_scale, check_geometry, check_identifiable, check_loads,
+                                      check_marker_cloud)
+from vfmlab.cli._common import CliError, CliInputError, console, esc, print_json, show_warning
 from vfmlab.cli._outputs import check_output_path
 
 
@@ -42,6 +45,34 @@ def estimate_geometry(reference: np.ndarray) -> tuple[float, float]:
     return float(abs(best.x[5])), float(axial.max() - axial.min())
 
 
+def check_inputs(table, loads, rows, markers_csv, loads_csv, thickness_mm, radius_mm, length_mm
+                 ) -> tuple[float, float, list[str]]:
+    """Plausibility of the imported data (decision 0007): the reference radius and length (m) to record and
+    the warnings to store in the session (also shown now); ImplausibleInputError for refused values."""
+    for name, value in (("--thickness-mm", thickness_mm), ("--radius-mm", radius_mm), ("--length-mm", length_mm)):
+        if value is not None and not (np.isfinite(value) and value > 0):
+            raise CliInputError(f"{name} must be a positive length in mm; got {value}")
+    warnings = check_loads(loads["pressure"][rows], loads["axial_force"][rows], loads["stretch"][rows],
+                           source=str(loads_csv), steps=table.steps)
+    reference = table.positions[0]
+    check_marker_cloud(reference, source=str(markers_csv))
+    fitted_radius, fitted_length = estimate_geometry(reference)
+    if radius_mm:
+        check_marker_cloud(reference, source=str(markers_csv), radius=radius_mm * 1e-3, fitted_radius=fitted_radius)
+    else:
+        check_cloud_scale(fitted_radius, source=str(markers_csv))
+    radius = radius_mm * 1e-3 if radius_mm else fitted_radius
+    length = length_mm * 1e-3 if length_mm else fitted_length
+    warnings += check_geometry(radius, thickness_mm * 1e-3, length, source=str(markers_csv))
+    try:
+        warnings += check_identifiable(table.positions, source=str(markers_csv), steps=table.steps)
+    except ImplausibleInputError as exc:  # importing is fine; identifying will refuse
+        warnings.append(f"{exc}; 'vfmlab identify' will refuse this session")
+    for message in warnings:
+        show_warning(message)
+    return radius, length, warnings
+
+
 EPILOG = """
 \b
 Examples:
@@ -62,35 +93,36 @@ Then: vfmlab identify a1.h5
 @click.option("--notes", default="", help="Free-text notes about the specimen.")
 @click.option("--force-is", type=click.Choice(["wall", "total"]), default="wall", show_default=True,
               help="What axial_force_N is: force carried by the wall, or a total reading behind a pressurised cannula.")
+@click.option("--ends", type=click.Choice(["clamped", "free"]), default=None,
+              help="How the specimen was held: clamped (tied on cannulae) or free (uniform up to the load cell); "
+                   "recorded in the session for 'vfmlab identify' [default: not recorded; identify then assumes "
+                   "clamped and says so].")
 @click.option("--force", "overwrite", is_flag=True, help="Overwrite OUT if it exists.")
 @click.option("--json", "as_json", is_flag=True, help="Print what was imported as JSON (SI: m).")
-def command(markers_csv, loads_csv, out, thickness_mm, radius_mm, length_mm, specimen_id, notes, force_is, overwrite,
-            as_json):
+def command(markers_csv, loads_csv, out, thickness_mm, radius_mm, length_mm, specimen_id, notes, force_is, ends,
+            overwrite, as_json):
     """Build a session from MARKERS_CSV (marker_id,step,x_m,y_m,z_m or x_mm,y_mm,z_mm) and LOADS_CSV
     (step,pressure_Pa|pressure_kPa|pressure_mmHg,axial_force_N,stretch). Step 0 is the reference."""
     check_output_path(out, force=overwrite, inputs=[markers_csv, loads_csv])
-    try:
-        table = read_markers_csv(markers_csv)
-        loads = read_loads_csv(loads_csv)
-    except CsvFormatError as exc:
-        raise CliError(str(exc)) from None
+    table = read_markers_csv(markers_csv)
+    loads = read_loads_csv(loads_csv)
     missing = sorted(set(table.steps.tolist()) - set(loads["step"].tolist()))
     if missing:
-        raise CliError(f"{loads_csv}: no loads for step(s) {missing} that appear in {markers_csv}")
+        raise CliInputError(f"{loads_csv}: no loads for step(s) {missing} that appear in {markers_csv}")
     rows = np.searchsorted(loads["step"], table.steps)
-    if thickness_mm <= 0:
-        raise CliError(f"--thickness-mm must be positive; got {thickness_mm}")
-    fitted_radius, fitted_length = estimate_geometry(table.positions[0])
-    radius = radius_mm * 1e-3 if radius_mm else fitted_radius
-    length = length_mm * 1e-3 if length_mm else fitted_length
+    radius, length, warnings = check_inputs(table, loads, rows, markers_csv, loads_csv, thickness_mm, radius_mm,
+                                            length_mm)
     try:
-        specimen = SpecimenInfo(specimen_id or Path(markers_csv).stem, radius, length, thickness_mm * 1e-3, notes)
+        specimen = SpecimenInfo(specimen_id or Path(markers_csv).stem, radius, length, thickness_mm * 1e-3, notes,
+                                ends or "", "import option --ends" if ends else "")
     except ValueError as exc:
-        raise CliError(str(exc)) from None
+        raise CliInputError(str(exc)) from None
     rig = {"source": "import-markers", "markers_csv": str(markers_csv), "loads_csv": str(loads_csv)}
     try:
         with SessionWriter.create(out, specimen, protocol_text="", rig=rig, load_cell_measures=force_is,
                                   overwrite=overwrite) as writer:
+            for message in warnings:
+                writer.add_event("warning", message)
             for row in rows:
                 writer.add_step(StepRecord(
                     block=0, stretch=float(loads["stretch"][row]), target_pressure=float(loads["pressure"][row]),
@@ -111,10 +143,11 @@ def command(markers_csv, loads_csv, out, thickness_mm, radius_mm, length_mm, spe
     if as_json:
         print_json({"out": str(out), "result": name, "n_markers": len(table.labels), "n_steps": len(table.steps),
                     "radius_m": radius, "length_m": length, "thickness_m": thickness_mm * 1e-3,
-                    "load_cell_measures": force_is})
+                    "load_cell_measures": force_is, "ends": ends})
         return
     console.print(
         f"Imported {len(table.labels)} markers × {len(table.steps)} steps into [bold]{esc(out)}[/] "
         f"(result {esc(name)}; radius {radius * 1e3:.3f} mm, length {length * 1e3:.3f} mm, "
-        f"wall thickness {thickness_mm:.3f} mm, load cell measures {force_is} force)."
+        f"wall thickness {thickness_mm:.3f} mm, load cell measures {force_is} force, "
+        + (f"ends {ends})." if ends else "ends not recorded: identify will assume clamped unless --ends says).")
     )

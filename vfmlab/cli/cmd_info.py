@@ -1,45 +1,92 @@
-"""``vfmlab info``: a human (or JSON) summary of a session file."""
+"""``vfmlab info``: a human (or JSON) summary of a session file.
+
+On a damaged file, every part that can still be read is shown, the parts that cannot are listed
+under "damaged", and the command exits with code 2 (decision 0007).
+"""
 
 from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
 
 import click
 import numpy as np
 from rich.table import Table
 
 from acquisition.markers_csv import MMHG
-from vfmlab.cli._common import console, esc, fixed, num, print_json
+from acquisition.session import DamagedSessionError
+from vfmlab.cli._common import CliInputError, console, err_console, esc, fixed, num, print_json
 from vfmlab.cli._sessions import cli_session
 
 
-def summarise(s) -> dict:
-    """Everything ``info`` shows, as plain data."""
+def _part(damaged: list[str], read: Callable[[], Any], default: Any = None) -> Any:
+    """``read()``, or ``default`` with the reason appended to ``damaged`` when that part of the file is damaged."""
+    try:
+        return read()
+    except DamagedSessionError as exc:
+        damaged.append(str(exc).split(": ", 1)[-1].split("; 'vfmlab info")[0])
+        return default
+
+
+def _specimen(s) -> dict:
+    sp = s.specimen
+    return {"id": sp.specimen_id, "radius_m": sp.radius, "length_m": sp.length, "thickness_m": sp.thickness,
+            "notes": sp.notes}
+
+
+def _steps(s) -> dict:
     steps = s.steps
-    markers = s.latest("markers")
-    n_markers = int(markers["arrays"]["positions"].shape[1]) if markers else 0
-    results = []
-    for name in s.results():
-        r = s.result(name)
+    return {"n_steps": s.n_steps, "n_active_steps": int(steps["active"].sum()),
+            "stretches": sorted(set(np.round(steps["stretch"][np.isfinite(steps["stretch"])], 6).tolist())),
+            "max_pressure_Pa": float(np.nanmax(steps["pressure"])) if np.isfinite(steps["pressure"]).any() else None}
+
+
+def _results(s, damaged: list[str]) -> tuple[list[dict], int]:
+    results, n_markers = [], 0
+    for name in _part(damaged, s.results, []):
+        r = _part(damaged, lambda n=name: s.result(n))
+        if r is None:
+            results.append({"name": name, "kind": "damaged", "date": "", "version": ""})
+            continue
         results.append({"name": name, "kind": r["kind"], "date": r["attrs"].get("date", ""),
-                         "version": r["attrs"].get("version", "")})
-    return {
+                        "version": r["attrs"].get("version", "")})
+        positions = r["arrays"].get("positions") if r["kind"] == "markers" else None
+        if positions is not None and np.ndim(positions) == 3:
+            n_markers = int(positions.shape[1])
+    return results, n_markers
+
+
+def summarise(s) -> dict:
+    """Everything ``info`` shows, as plain data; unreadable parts are None and listed under "damaged"."""
+    damaged: list[str] = []
+    part = lambda read, default=None: _part(damaged, read, default)  # noqa: E731
+    steps = part(lambda: _steps(s), {"n_steps": None, "n_active_steps": None, "stretches": [],
+                                     "max_pressure_Pa": None})
+    results, n_markers = _results(s, damaged)
+    info = {
         "path": str(s.path),
-        "schema_version": s.schema_version,
-        "status": s.status,
-        "start_time": s.start_time,
-        "software_version": s.software_version,
-        "specimen": {"id": s.specimen.specimen_id, "radius_m": s.specimen.radius, "length_m": s.specimen.length,
-                     "thickness_m": s.specimen.thickness, "notes": s.specimen.notes},
-        "n_steps": s.n_steps,
-        "n_active_steps": int(steps["active"].sum()),
+        "schema_version": part(lambda: s.schema_version),
+        "status": part(lambda: s.status),
+        "start_time": part(lambda: s.start_time),
+        "software_version": part(lambda: s.software_version),
+        "specimen": part(lambda: _specimen(s)),
+        **steps,
         "n_markers": n_markers,
-        "stretches": sorted(set(np.round(steps["stretch"], 6).tolist())),
-        "max_pressure_Pa": float(np.nanmax(steps["pressure"])) if s.n_steps else None,
-        "instruments": s.instruments,
-        "load_cell_measures": s.load_cell_measures,
-        "cameras": [{"name": c.name, "model": c.model, "width": c.width, "height": c.height} for c in s.cameras],
-        "n_log_samples": {ch: int(len(s.log(ch)["value"])) for ch in ("pressure", "force")},
+        "instruments": part(lambda: s.instruments, {}),
+        "load_cell_measures": part(lambda: s.load_cell_measures),
+        "cameras": part(lambda: [{"name": c.name, "model": c.model, "width": c.width, "height": c.height}
+                                 for c in s.cameras], []),
+        "n_log_samples": {ch: part(lambda ch=ch: int(len(s.log(ch)["value"]))) for ch in ("pressure", "force")},
         "results": results,
     }
+    info["warnings"] = part(lambda: stored_warnings(s), [])
+    info["damaged"] = damaged
+    return info
+
+
+def stored_warnings(s) -> list[str]:
+    """Plausibility warnings stored in the session (events of kind "warning"), oldest first."""
+    return [e["message"] for e in s.events() if e["kind"] == "warning"]
 
 
 EPILOG = """
@@ -54,47 +101,63 @@ Examples:
 @click.argument("session", type=click.Path(dir_okay=False))
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON (SI units, unit in each key).")
 def command(session, as_json):
-    """Summarise SESSION: specimen, steps, instruments, status and derived results."""
+    """Summarise SESSION: specimen, steps, instruments, status and derived results.
+
+    On a damaged file, lists what is still readable and what is not, and exits with code 2."""
     with cli_session(session) as s:
         info = summarise(s)
     if as_json:
         print_json(info)
-        return
-    _print_summary(info)
+    else:
+        _print_summary(info)
+    if info["damaged"]:
+        raise CliInputError(f"{session}: damaged file: {len(info['damaged'])} part(s) cannot be read "
+                            f"({'; '.join(info['damaged'])}); everything else shown is readable")
 
 
 def _print_summary(info: dict) -> None:
-    sp = info["specimen"]
     console.print(f"[bold]{esc(info['path'])}[/]  schema {esc(info['schema_version'])}  "
                   f"status [bold]{esc(info['status'])}[/]  started {esc(_date(info['start_time']))}")
-    console.print(
-        f"Specimen {esc(sp['id'])}: radius {fixed(sp['radius_m'] * 1e3, 3)} mm, length {fixed(sp['length_m'] * 1e3, 3)} mm, "
-        f"wall thickness {fixed(sp['thickness_m'] * 1e3, 3)} mm" + (f"  ({esc(sp['notes'])})" if sp["notes"] else "")
-    )
+    sp = info["specimen"]
+    if sp is not None:
+        console.print(
+            f"Specimen {esc(sp['id'])}: radius {fixed(sp['radius_m'] * 1e3, 3)} mm, length "
+            f"{fixed(sp['length_m'] * 1e3, 3)} mm, wall thickness {fixed(sp['thickness_m'] * 1e3, 3)} mm"
+            + (f"  ({esc(sp['notes'])})" if sp["notes"] else ""))
     pmax = info["max_pressure_Pa"]
     stretches = ", ".join(num(v, 4) for v in info["stretches"]) or "none"
-    console.print(
-        f"Steps: {info['n_steps']} ({info['n_active_steps']} active), axial stretches L/L0 {stretches}, "
-        + (f"max pressure {fixed(pmax / MMHG, 1)} mmHg ({fixed(pmax / 1e3, 2)} kPa)" if pmax is not None else "no steps")
-    )
-    logs = ", ".join(f"{n} {ch}" for ch, n in info["n_log_samples"].items())
+    if info["n_steps"] is not None:
+        console.print(
+            f"Steps: {info['n_steps']} ({info['n_active_steps']} active), axial stretches L/L0 {stretches}, "
+            + (f"max pressure {fixed(pmax / MMHG, 1)} mmHg ({fixed(pmax / 1e3, 2)} kPa)" if pmax is not None
+               else "no pressures"))
+    logs = ", ".join(f"{n if n is not None else 'unreadable'} {ch}" for ch, n in info["n_log_samples"].items())
     console.print(f"Markers: {info['n_markers']}   instrument log: {logs} samples")
     for role, inst in info["instruments"].items():
         if inst.get("identity"):
             console.print(f"{role.replace('_', ' ').capitalize()}: {esc(inst['identity'])}")
-    console.print(f"Load cell measures: {esc(info['load_cell_measures'])} force")
+    if info["load_cell_measures"] is not None:
+        console.print(f"Load cell measures: {esc(info['load_cell_measures'])} force")
     if info["cameras"]:
         console.print("Cameras: " + ", ".join(f"{esc(c['name'])} ({esc(c['model'])}, {c['width']} × {c['height']} px)"
                                               for c in info["cameras"]))
-    if info["results"]:
-        table = Table(title="Derived results")
-        for col in ("name", "kind", "date (UTC)", "vfmlab version"):
-            table.add_column(col)
-        for r in info["results"]:
-            table.add_row(esc(r["name"]), esc(r["kind"]), esc(_date(r["date"])), esc(r["version"]))
-        console.print(table)
-    else:
+    _print_results(info["results"])
+    for message in info["warnings"]:
+        console.print(f"[yellow]Warning (stored in the session):[/] {esc(message)}")
+    for what in info["damaged"]:
+        err_console.print(f"[red]Damaged:[/] {esc(what)}")
+
+
+def _print_results(results: list[dict]) -> None:
+    if not results:
         console.print("No derived results yet.")
+        return
+    table = Table(title="Derived results")
+    for col in ("name", "kind", "date (UTC)", "vfmlab version"):
+        table.add_column(col)
+    for r in results:
+        table.add_row(esc(r["name"]), esc(r["kind"]), esc(_date(r["date"])), esc(r["version"]))
+    console.print(table)
 
 
 def _date(iso: str) -> str:

@@ -10,7 +10,7 @@ import numpy as np
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from vfmlab.cli._common import CliError, console, err_console, esc, print_json
+from vfmlab.cli._common import CliError, CliInputError, console, err_console, esc, print_json
 
 log = logging.getLogger(__name__)
 
@@ -27,16 +27,16 @@ def load_calibration_file(path: Path, units: str | None = None) -> list:
             raise CliError(f"--calibration {path}: {exc}") from None
     suffix = path.suffix.lower()
     if suffix not in (".toml", ".yaml", ".yml"):
-        raise CliError(f"--calibration must be a .toml (aniposelib) or .yaml/.yml (OpenCV) file or an OpenPTV folder; "
+        raise CliInputError(f"--calibration must be a .toml (aniposelib) or .yaml/.yml (OpenCV) file or an OpenPTV folder; "
                        f"got {path.name!r}")
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
-        raise CliError(f"--calibration: cannot read {path} ({exc.strerror})") from None
+        raise CliInputError(f"--calibration: cannot read {path} ({exc.strerror})") from None
     try:
         cams, _ = (cameras_from_toml if suffix == ".toml" else cameras_from_yaml)(text, units=units)
     except (CalibrationFileError, ValueError) as exc:
-        raise CliError(f"--calibration {path}: {exc}") from None
+        raise CliInputError(f"--calibration {path}: {exc}") from None
     return cams
 
 
@@ -49,14 +49,14 @@ def session_cameras(session, calibration: Path | None, units: str | None) -> tup
         try:
             return session_calibrated_cameras(session)
         except StageError as exc:
-            raise CliError(f"{exc} (or pass --calibration FILE)") from None
+            raise StageError(f"{exc} (or pass --calibration FILE)") from None
     cams, source = load_calibration_file(calibration, units), str(calibration)
     by_name = {c.name: c for c in cams}
     names = session.camera_names
     missing = [n for n in names if n not in by_name]
     used = [by_name[n] for n in names if n in by_name]
     if len(used) < 2:
-        raise CliError(
+        raise CliInputError(
             f"the calibration ({source}) covers cameras {sorted(by_name)} but the session has {names}: "
             "at least two session cameras must be calibrated"
         )
@@ -119,7 +119,7 @@ def command(session, marker_diameter_mm, calibration, calibration_units, frame, 
     result; markers not seen in a step are NaN there.
     """
     from vfmlab.cli._sessions import cli_session
-    from vfmlab.pipeline import StageError, reconstruct_stored
+    from vfmlab.pipeline import reconstruct_stored
 
     with cli_session(session) as s:
         cams, source = session_cameras(s, calibration, calibration_units)
@@ -132,14 +132,11 @@ def command(session, marker_diameter_mm, calibration, calibration_units, frame, 
                 tasks[stage] = progress.add_task(stage, total=n)
             progress.update(tasks[stage], completed=step + 1)
 
-        try:
-            stored, res, rows, names, source = reconstruct_stored(
-                session, cameras=cams, calibration_source=source, marker_diameter_mm=marker_diameter_mm,
-                normals=normals, epipolar_px=epipolar_px, max_reprojection_px=max_reprojection_px,
-                include_superseded=include_superseded, frame=frame, flip_axis=flip_axis, store=store,
-                progress=report, invoked_by="reconstruct")
-        except StageError as exc:
-            raise CliError(str(exc)) from None
+        stored, res, rows, names, source = reconstruct_stored(
+            session, cameras=cams, calibration_source=source, marker_diameter_mm=marker_diameter_mm,
+            normals=normals, epipolar_px=epipolar_px, max_reprojection_px=max_reprojection_px,
+            include_superseded=include_superseded, frame=frame, flip_axis=flip_axis, store=store,
+            progress=report, invoked_by="reconstruct")
     step_numbers = rows
     d = res.diagnostics
     summary = {

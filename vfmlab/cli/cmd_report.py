@@ -29,17 +29,14 @@ Examples:
 @click.option("--json", "as_json", is_flag=True, help="Print the files written as JSON.")
 def command(session, out, strain_scale, force, as_json):
     """Write a self-contained HTML report of SESSION (figures embedded) and the figures as PNG files."""
-    from vfmlab.report import ReportError, build_report
+    from vfmlab.report import build_report
 
     path = Path(session)
     out_dir = Path(out) if out else path.with_name(path.stem + "_report")
     check_output_dir(out_dir, force=force, inputs=[path])
     t0 = time.perf_counter()
-    try:
-        with (err_console if as_json else console).status("Building the report..."):
-            html = build_report(session, out_dir, strain_scale=strain_scale)
-    except ReportError as exc:
-        raise CliError(str(exc)) from None
+    with (err_console if as_json else console).status("Building the report..."):
+        html = build_report(session, out_dir, strain_scale=strain_scale)
     figures = sorted(Path(html).parent.glob("fig*.png"))
     if as_json:
         print_json({"report": str(html), "url": html.resolve().as_uri(), "figures": [str(f) for f in figures],

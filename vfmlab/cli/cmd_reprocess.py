@@ -53,8 +53,11 @@ Examples:
               help="Comma-separated models to identify: fung, delfino, hgo, neohookean.")
 @click.option("--wall", "walls", default="membrane", show_default=True,
               help="Wall formulation(s), comma-separated: membrane, thick.")
-@click.option("--ends", type=click.Choice(["clamped", "free"]), default="clamped", show_default=True,
-              help="Boundary of the marked region (identify).")
+@click.option("--ends", type=click.Choice(["clamped", "free"]), default=None,
+              help="clamped: tube tied on cannulae beyond the markers (pressure on the unmeasured strip counted); "
+                   "free: uniform tube up to the load cell. Default: what the session records (assumed clamped, "
+                   "with a warning, if it records nothing); a value against the session's record is used with a "
+                   "warning.")
 @click.option("--optimizer", type=click.Choice(["lsq", "nelder-mead"]), default="lsq", show_default=True,
               help="Optimiser (identify).")
 @click.option("--smooth", default="auto", show_default=True, metavar="auto|none|AXIAL,HARMONICS",

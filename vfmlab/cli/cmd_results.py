@@ -38,13 +38,7 @@ def command(session, kind, compare, as_json):
     from vfmlab.results import compare_results, list_results
 
     with cli_session(session) as s:
-        try:
-            if compare:
-                data = compare_results(s, *compare)
-            else:
-                data = list_results(s, kind)
-        except SessionError as exc:
-            raise CliError(str(exc)) from None
+        data = compare_results(s, *compare) if compare else list_results(s, kind)
     if as_json:
         print_json(data)
         return

@@ -14,7 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from acquisition.session import Session, open_session
+from acquisition.errors import InputError
+from acquisition.session import DamagedSessionError, Session, open_session
 from vfmlab import __version__
 from vfmlab.display import display_quantity, fixed, num, quantity, settings_text
 from vfmlab.fields import FieldsError, SurfaceFields, compute_fields, stress_strain_curves
@@ -41,8 +42,8 @@ nav ul{columns:2;font-size:.92em}
 """
 
 
-class ReportError(Exception):
-    """The report cannot be written (the session cannot be read or the output directory is unusable)."""
+class ReportError(InputError):
+    """The report cannot be written: the session cannot be read (exit code 2, decision 0007)."""
 
 
 @dataclass
@@ -98,9 +99,11 @@ class _Context:
     def __init__(self, session: Session):
         self.session = session
         self.steps = session.steps
-        self.markers = session.latest("markers")
-        self.calibration = session.latest("calibration")
-        self.idents = [session.result(n) for n in session.results("identification")]
+        self.damaged: list[str] = []
+        self.markers = self._read(lambda: session.latest("markers"))
+        self.calibration = self._read(lambda: session.latest("calibration"))
+        self.idents = [r for r in (self._read(lambda n=n: session.result(n)) for n in session.results("identification"))
+                       if r is not None]
         latest: dict[str, dict] = {}
         for r in self.idents:  # newest result per (model, wall)
             latest[(str(r["attrs"].get("model", "?")), str(r["attrs"].get("wall", "")))] = r
@@ -113,6 +116,15 @@ class _Context:
             except (FieldsError, ValueError, np.linalg.LinAlgError) as exc:
                 self.fields_error = str(exc)
                 log.warning("surface fields unavailable: %s", exc)
+
+    def _read(self, read: Callable[[], Any]) -> Any:
+        """A result, or None (and the reason logged and kept in ``damaged``) when it is damaged."""
+        try:
+            return read()
+        except DamagedSessionError as exc:
+            log.warning("%s", exc)
+            self.damaged.append(str(exc))
+            return None
 
     def no_fields(self) -> str:
         if self.markers is None:
@@ -131,6 +143,8 @@ def _sec_specimen(ctx: _Context, rep: _Report) -> str:
             ["notes", sp.notes or "–"], ["session status", s.status], ["started", s.start_time or "–"],
             ["recorded with", f"vfmlab {s.software_version or '?'} (schema {s.schema_version})"],
             ["steps captured", f"{s.n_steps} ({int(ctx.steps['active'].sum())} active)"]]
+    warnings = [e["message"] for e in s.events() if e["kind"] == "warning"]  # plausibility, decision 0007
+    rows += [["input warnings", w] for w in warnings] + [["damaged (left out)", d] for d in ctx.damaged]
     return _table(["property", "value"], rows)
 
 
@@ -473,7 +487,7 @@ def build_report(session_path: str | Path, out_dir: str | Path | None = None, *,
     try:
         out.mkdir(exist_ok=True)  # the CLI checked that its parent exists
     except OSError as exc:
-        raise ReportError(f"cannot create the report directory {out}: {exc}") from None
+        raise OSError(exc.errno, f"cannot create the report directory: {exc.strerror}", str(out)) from None
     try:
         session = open_session(session_path)
     except SessionError as exc:
@@ -493,7 +507,8 @@ def build_report(session_path: str | Path, out_dir: str | Path | None = None, *,
                 try:
                     body = fn(ctx, rep)
                 except Exception as exc:  # one broken section must not cost the whole report
-                    log.exception("report section %r failed", title)
+                    log.warning("report section %r failed: %s: %s", title, type(exc).__name__, exc)
+                    log.debug("report section %r failed", title, exc_info=exc)
                     body = f'<p class="failed">{SECTION_FAILED}: {html.escape(type(exc).__name__)}: ' \
                            f"{html.escape(str(exc))}</p>"
                 rep.sections.append((anchor, title, body))

@@ -1,0 +1,145 @@
+"""Issue 10 part A benchmarks: mesh hygiene, setting checks, finite-element ground truth (prints markdown tables).
+
+    OMP_NUM_THREADS=1 PYTHONPATH=. python benchmarks/bench_trust.py --part hygiene|checks|fe|all [--seeds N]
+
+hygiene : unsmoothed fits on independent closed-form tubes (tests/ident_synth.py, 300 uniformly random
+          markers, 0.01 mm noise on every marker of every step incl. the reference) for a grid of
+          (near-duplicate fraction of the median spacing, sliver quality) thresholds; worst and median errors.
+checks  : detection rates of the setting checks (identification/checks.py) on rig_sim clamped / free membrane
+          tubes and a free thick tube, each fitted with the right and the wrong end condition / wall form.
+fe      : felupe axisymmetric FE tubes (rig_sim/fe_tube.py), clamped and free, HGO and Delfino (Demiray),
+          identified with --wall thick and the right ends (and the wrong ones for comparison). FE solutions are
+          cached in benchmarks/.fe-cache/ (delete it to recompute).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))
+
+from identification import build_mesh, identify  # noqa: E402
+from identification.checks import check_setup  # noqa: E402
+from rig_sim.mechanics import MMHG, PAPER_PARAMETERS, simulate_test  # noqa: E402
+
+HYGIENE_GRID = [(0.05, 0.0), (0.2, 0.0), (0.35, 0.0), (0.05, 0.3), (0.2, 0.2), (0.35, 0.2), (0.35, 0.3), (0.5, 0.3),
+                (0.35, 0.4)]
+JUDGED = {"fung": ("beta", "alpha11", "alpha22"), "hgo": ("k1", "k2", "phi"), "delfino": ("beta", "alpha")}
+
+
+def _closed_form(model, seed, noise):
+    from ident_synth import PAPER, homogeneous, lam_t_for_pressures
+
+    ps = np.linspace(0, 20e3, 8)[1:]
+    lt = np.concatenate([[1.0], lam_t_for_pressures(model, PAPER[model], ps, 1.1)])
+    lz = np.concatenate([[1.0], np.full(len(ps), 1.1)])
+    pos, p, f = homogeneous(model, PAPER[model], lt, lz, n=300, seed=seed)
+    return pos + np.random.default_rng(1000 + seed).normal(0.0, noise, pos.shape), p, f, PAPER[model]
+
+
+def bench_hygiene(n_seeds, noise=0.01e-3):
+    from ident_synth import E0
+
+    print(f"\n### Mesh hygiene: unsmoothed fits, {noise * 1e3:g} mm noise on every marker, {n_seeds} seeds\n")
+    print("| duplicates < x spacing | slivers < quality | model | median error | worst error | fits off > 5 % "
+          "| markers dropped |")
+    print("|---|---|---|---|---|---|---|")
+    for dup, slq in HYGIENE_GRID:
+        for model in ("fung", "hgo"):
+            errs, drops = [], []
+            for seed in range(n_seeds):
+                pos, p, f, truth = _closed_form(model, seed, noise)
+                mesh = build_mesh(pos[0], duplicate_fraction=dup, sliver_quality=slq)
+                r = identify(pos, p, f, thickness=E0, model=model, ends="free", mesh=mesh)
+                errs.append([r.parameters[n] / truth[n] - 1 for n in JUDGED[model]])
+                drops.append(mesh.dropped["duplicate_markers"] + mesh.dropped["sliver_markers"])
+            e = np.abs(np.array(errs))
+            print(f"| {dup:g} | {slq:g} | {model} ({', '.join(JUDGED[model])}) | {np.median(e):.1%} | {e.max():.1%} "
+                  f"| {int(np.sum(e.max(axis=1) > 0.05))}/{n_seeds} | {np.mean(drops):.0f} |", flush=True)
+
+
+def bench_checks(n_seeds, noises=(0.0, 0.01e-3, 0.05e-3, 0.17e-3)):
+    print(f"\n### Setting checks: flagged fits out of {n_seeds} seeds per row (Fung, 300 markers, paper protocol)\n")
+    print("| truth | noise | fitted with | flagged: ends | flagged: wall | median max error (beta, a11, a22) |")
+    print("|---|---|---|---|---|---|")
+    cases = [("clamped membrane", True, "membrane"), ("free membrane", False, "membrane"),
+             ("free thick", False, "thick")]
+    for name, clamped, wall_true in cases:
+        ends_true = "clamped" if clamped else "free"
+        fits = [(ends_true, wall_true), ("free" if clamped else "clamped", wall_true)]
+        fits.append((ends_true, "thick" if wall_true == "membrane" else "membrane"))
+        for noise in noises:
+            rows = {fit: [0, 0, []] for fit in fits}
+            for seed in range(n_seeds):
+                sim = simulate_test("fung", PAPER_PARAMETERS["fung"], clamped=clamped, wall=wall_true,
+                                    noise_std=noise, seed=seed)
+                smoothing = (4, 2) if noise > 0.02e-3 else None
+                for ends, wall in fits:
+                    r = identify(sim.positions, sim.pressure, sim.axial_force, thickness=sim.thickness, model="fung",
+                                 ends=ends, wall=wall, smoothing=smoothing)
+                    c = check_setup(r, sim.positions)
+                    rows[(ends, wall)][0] += any("end conditions look" in f or "ends look" in f for f in c.flags)
+                    rows[(ends, wall)][1] += any("wall form looks wrong" in f for f in c.flags)
+                    rows[(ends, wall)][2].append(max(abs(r.parameters[n] / PAPER_PARAMETERS["fung"][n] - 1)
+                                                     for n in JUDGED["fung"]))
+            for (ends, wall), (n_ends, n_wall, err) in rows.items():
+                right = ends == ends_true and wall == wall_true
+                fit = f"{ends}/{wall}{' (right)' if right else ''}"
+                print(f"| {name} | {noise * 1e3:g} mm | {fit} | {n_ends}/{n_seeds} | {n_wall}/{n_seeds} "
+                      f"| {np.median(err):.1%} |", flush=True)
+
+
+def bench_fe(fine: bool):
+    from rig_sim.fe_tube import fe_markers, solve_fe_tube
+
+    cache = ROOT / "benchmarks" / ".fe-cache"
+    pressures = tuple(np.linspace(0, 150, 8)[1:] * MMHG)
+    mesh = {True: (80, 6), False: (8, 4)} if fine else {True: (40, 4), False: (8, 4)}
+    print("\n### FE ground truth (felupe, axisymmetric, L/L0 = 1.1, 7 levels 21-150 mmHg, 300 markers)\n")
+    print("| model | FE ends | mesh (axial x radial) | fitted with | RMS gap | errors |")
+    print("|---|---|---|---|---|---|")
+    for model in ("hgo", "delfino"):
+        truth = PAPER_PARAMETERS[model]
+        for clamped in (True, False):
+            t0 = time.perf_counter()
+            na, nr = mesh[clamped]
+            fe = solve_fe_tube(model, truth, pressures=pressures, stretch=1.1, clamped=clamped, n_axial=na,
+                               n_radial=nr, cache_dir=cache)
+            pos = fe_markers(fe, 300, seed=0)
+            ends_true = "clamped" if clamped else "free"
+            other = "free" if clamped else "clamped"
+            for ends, wall in ((ends_true, "thick"), (other, "thick"), (ends_true, "membrane")):
+                r = identify(pos, fe.pressure, fe.wall_force, thickness=fe.thickness, model=model, wall=wall,
+                             ends=ends)
+                gap = float(np.sqrt(np.mean(r.residuals**2)))
+                errs = ", ".join(f"{n} {r.parameters[n] / truth[n] - 1:+.2%}" for n in truth)
+                print(f"| {model} | {ends_true} | {na} x {nr} | {ends}/{wall} | {gap:.2%} | {errs} |", flush=True)
+            logging.getLogger(__name__).info("%s %s: %.0f s", model, ends_true, time.perf_counter() - t0)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--part", choices=["hygiene", "checks", "fe", "all"], default="all")
+    ap.add_argument("--seeds", type=int, default=10, help="noise seeds per row (hygiene, checks)")
+    ap.add_argument("--fine", action="store_true", help="finer FE mesh for the clamped tubes (80 x 6)")
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.ERROR)
+    if args.part in ("hygiene", "all"):
+        bench_hygiene(args.seeds)
+    if args.part in ("checks", "all"):
+        bench_checks(args.seeds)
+    if args.part in ("fe", "all"):
+        bench_fe(args.fine)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
