@@ -1,4 +1,5 @@
-"""identification.regional: parameters per axial band, against rig_sim's clamped tube with a material varying along Z."""
+"""identification.regional: parameters per axial band, against rig_sim's clamped tube with a material varying along
+Z."""
 
 import numpy as np
 import pytest

@@ -70,7 +70,8 @@ def identify_regional_stored(path: str | os.PathLike, *, n_bands: int, model: st
     except (IdentificationError, ValueError) as exc:
         raise StageError(f"{path}: cannot identify regional {model} with {n_bands} bands: {exc}") from None
     arrays, units = _result_arrays(get_model(model), result, rd, data["rows"])
-    settings = {"model": model, "wall": wall, "ends": ends, "ends_source": ends_source, "n_bands": int(n_bands), "smoothing": smoothing,
+    settings = {"model": model, "wall": wall, "ends": ends, "ends_source": ends_source, "n_bands": int(n_bands),
+                "smoothing": smoothing,
                 "markers_result": data["markers_result"], "thickness": data["thickness"],
                 "force_correction": data["notes"]}
     attrs = {"model": model, "wall": wall, "cost": result.cost, "converged": result.converged,

@@ -12,7 +12,8 @@ def _json(group, result, model_units):
         "profiles": {n: v.tolist() for n, v in result.profiles.items()},
         "stderr": {n: v.tolist() for n, v in result.stderr.items()},
         "z_score": {n: v.tolist() for n, v in result.z_score.items()},
-        "differs": result.differs.tolist(), "parameters": result.parameters, "parameter_stderr": result.parameter_stderr,
+        "differs": result.differs.tolist(), "parameters": result.parameters,
+        "parameter_stderr": result.parameter_stderr,
         "homogeneous": result.homogeneous.parameters, "units": model_units, "cost": result.cost,
         "converged": result.converged, "flags": list(result.flags), "result_group": group})
 
