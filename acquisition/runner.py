@@ -243,6 +243,9 @@ class SessionRunner:
         Counts markers in a frame for the live view.
     on_update : callable(RunnerState), optional
         Called at every tick (the live view).
+    on_step_captured : callable(row, images {camera: (H, W)}, StepRecord), optional
+        Called after each step is written (e.g. to reconstruct it in the background); it must
+        return at once. An exception from it is logged and never stops the test.
     tick_s : float
         Polling period of the waits and the log drain, s.
     capture_retries : int
@@ -256,7 +259,8 @@ class SessionRunner:
                  cameras: Sequence[Camera], operator: Operator, pressure_mode: str = "controller",
                  stage: Callable[[float], None] | None = None, safety: SafetyLimits | None = None,
                  detector: Callable[[np.ndarray], int] | None = None,
-                 on_update: Callable[[RunnerState], None] | None = None, tick_s: float = 0.05,
+                 on_update: Callable[[RunnerState], None] | None = None,
+                 on_step_captured: Callable[[int, dict, Any], None] | None = None, tick_s: float = 0.05,
                  capture_retries: int = 2, retry_delay_s: float = 0.5,
                  clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep,
                  free_space: Callable[[], float] | None = None):
@@ -270,7 +274,7 @@ class SessionRunner:
         self.cameras = list(cameras)
         self.operator, self.pressure_mode, self.stage = operator, pressure_mode, stage
         self.safety = safety or SafetyLimits()
-        self.detector, self.on_update = detector, on_update
+        self.detector, self.on_update, self.on_step_captured = detector, on_update, on_step_captured
         self.tick_s, self.clock, self.sleep = tick_s, clock, sleep
         self.state = RunnerState(n_steps=protocol.n_steps)
         self._pause_requested = False
@@ -402,6 +406,11 @@ class SessionRunner:
         self._step_times.append(self.clock())
         if block >= 0 and supersedes < 0:
             self.state.steps_done += 1
+        if self.on_step_captured is not None:
+            try:
+                self.on_step_captured(row, images, record)
+            except Exception as exc:  # noqa: BLE001 - an observer of the steps must never stop the test
+                log.warning("step %d: on_step_captured failed: %s", row, exc)
         if self.detector is not None:
             self.state.markers = {name: int(self.detector(f.pixels)) for name, f in frames.items()}
         what = f"retake of step row {supersedes}" if supersedes >= 0 else "step"

@@ -33,6 +33,7 @@ import datetime as _dt
 import errno
 import fcntl
 import functools
+import re
 import shutil
 import hashlib
 import json
@@ -155,6 +156,16 @@ class StepRecord:
     supersedes: int = -1
 
 
+def _create_h5(tmp: Path, path: Path) -> h5py.File:
+    """A new HDF5 file at ``tmp``; a failure names ``path`` (what the user asked for), not the temporary name."""
+    try:
+        return h5py.File(tmp, "w", libver="latest")
+    except OSError as exc:
+        found = re.search(r"errno = (\d+)", str(exc))
+        code = int(found.group(1)) if found else (exc.errno or errno.EIO)
+        raise OSError(code, f"cannot create the file: {os.strerror(code)}", str(path)) from None
+
+
 def _now_iso() -> str:
     return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="milliseconds")
 
@@ -241,7 +252,7 @@ class SessionWriter:
         # Built under a temporary name and renamed into place: a kill during creation never
         # leaves a partial file at ``path`` that would block run and resume.
         tmp = path.with_name(f".{path.name}.creating-{os.getpid()}")
-        f = h5py.File(tmp, "w", libver="latest")
+        f = _create_h5(tmp, path)
         try:
             cls._build(f, specimen, cameras, protocol_text, rig or {}, instruments or {}, load_cell_measures)
             f.flush()
@@ -1153,9 +1164,9 @@ def write_result(
         with journaled_h5(path, prepare=prepare) as f:
             name = _write_result_group(f, kind, arrays, parameters, attrs, units)
     except LockTimeout as exc:
-        raise SessionError(str(exc)) from None
+        raise SessionWriteError(str(exc)) from None
     except OSError as exc:
-        raise SessionError(_write_failure(path, exc)) from None
+        raise SessionWriteError(_write_failure(path, exc)) from None
     log.info("wrote result %s to %s", name, path)
     return name
 

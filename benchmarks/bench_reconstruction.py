@@ -1,27 +1,52 @@
 """Benchmark of the marker reconstruction on rendered images (rig_sim).
 
-1. Time per step for 6 cameras x 2448 x 2048 px and 300 markers: detection, correspondence,
-   triangulation, tracking and the marker-centre offset, median over repeats.
-2. 3-D error and completeness against ground truth versus sensor noise and defocus blur
-   (true calibration, reference step + one inflated step).
+1. ``--part timing``: time per step for 6 cameras x 2448 x 2048 px and 300 markers: detection
+   (serial / threads / processes, whole images / guided by the tracker), correspondence,
+   triangulation, tracking and the marker-centre offset, median over repeats, all in one run; and
+   the reference: reading the images from HDF5 plus one threshold / connected-components pass.
+2. ``--part rendered``: the end-to-end figures of tests/test_recon_rendered.py, before (serial
+   whole-image detection) and after (threads, guided detection).
+3. ``--part accuracy``: 3-D error and completeness against ground truth versus sensor noise and
+   defocus blur (true calibration, reference step + one inflated step).
 
 Run:  OMP_NUM_THREADS=1 PYTHONPATH=. python benchmarks/bench_reconstruction.py [--quick] [--repeats 5]
+      [--part timing|rendered|accuracy|all]
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import sys
+import tempfile
 import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
 
+import cv2
+import h5py
 import numpy as np
 from scipy.spatial import cKDTree
 
-from reconstruction.correspondence import observed_pixels
-from reconstruction.pipeline import ReconstructionSettings, detect_all, points_from_detections, track_series
-from reconstruction.surface import marker_surface_points, surface_normals
-from reconstruction.tracking import match_step
-from reconstruction.triangulation import triangulate
-from rig_sim import SensorModel, camera_ring, deform_cylinder, random_marker_layout, render_markers
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+
+from reconstruction.correspondence import observed_pixels  # noqa: E402
+from reconstruction.detection import detect_markers  # noqa: E402
+from reconstruction.pipeline import (  # noqa: E402
+    ReconstructionSettings,
+    SeriesTracker,
+    convergence_point,
+    detect_all,
+    detect_step,
+    expected_diameter_px,
+    points_from_detections,
+    reconstruct_series,
+    track_series,
+)
+from reconstruction.surface import marker_surface_points, surface_normals  # noqa: E402
+from reconstruction.tracking import match_step  # noqa: E402
+from reconstruction.triangulation import triangulate  # noqa: E402
+from rig_sim import SensorModel, camera_ring, deform_cylinder, random_marker_layout, render_markers  # noqa: E402
 
 
 def _frames(cams, sensor=SensorModel(), n_steps=2, seed=0):
@@ -33,39 +58,147 @@ def _frames(cams, sensor=SensorModel(), n_steps=2, seed=0):
             for k in range(n_steps)]
 
 
+CPU = {}  # wall-time median -> CPU-time median of the same calls (this process, all threads)
+
+
 def _median_time(fn, repeats):
-    times = []
+    times, cpus = [], []
     out = None
     for _ in range(repeats):
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         out = fn()
         times.append(time.perf_counter() - t)
-    return float(np.median(times)), out
+        cpus.append(time.process_time() - c)
+    wall = float(np.median(times))
+    CPU[wall] = float(np.median(cpus))
+    return wall, out
+
+
+def _write_h5(path, cams, images):
+    """The step's images stored as a session stores them (one gzip-1 chunk per frame)."""
+    with h5py.File(path, "w") as f:
+        for cam, img in zip(cams, images):
+            f.create_dataset(cam.name, data=img[None], chunks=(1, *img.shape), compression="gzip", compression_opts=1)
+
+
+def _read_h5(path, cams):
+    with h5py.File(path, "r") as f:
+        return {c.name: f[c.name][0] for c in cams}
+
+
+def _threshold_cc(images):
+    """The floor of any detection: one global threshold and one connected-components pass per image."""
+    for img in images.values():
+        _, mask = cv2.threshold(img, 0, 1, cv2.THRESH_BINARY_INV | cv2.THRESH_OTSU)
+        cv2.connectedComponentsWithStats(mask, connectivity=8)
+
+
+def _detect_one(args):
+    img, kw = args
+    return detect_markers(img, **kw)
+
+
+def _process_pool_detect(pool, images, cams, settings):
+    target = convergence_point(cams)
+    jobs = []
+    for c in cams:
+        d = expected_diameter_px(c, settings.marker_diameter, target)
+        jobs.append((images[c.name], {"diameter_range": (max(0.45 * d, 2.0), max(1.7 * d, 4.0))}))
+    return list(pool.map(_detect_one, jobs))
 
 
 def timing(size, repeats):
     cams = camera_ring(6, image_size=size, seed=3)
-    frames = _frames(cams)
-    settings = ReconstructionSettings(marker_diameter=0.4e-3, specimen_radius=0.010)
+    frames = _frames(cams, n_steps=3)
+    serial = ReconstructionSettings(marker_diameter=0.4e-3, specimen_radius=0.010, workers=1, guided_detection=False)
+    after = ReconstructionSettings(marker_diameter=0.4e-3, specimen_radius=0.010)
+    threads = ReconstructionSettings(marker_diameter=0.4e-3, specimen_radius=0.010, guided_detection=False)
     imgs = [{c.name: im for c, im in zip(cams, fr.images)} for fr in frames]
-    t_det, found = _median_time(lambda: detect_all(imgs[1], cams, settings), repeats)
+    # tracker after the reference and the first loaded step: step 2 is the timed one
+    tracker = SeriesTracker(cams, after)
+    for k in range(2):
+        found = detect_step(imgs[k], cams, after, tracker if k else None)
+        tracker.add([d.centres for d in found], quality=[d.quality for d in found], found=found)
+    step = imgs[2]
+    with tempfile.TemporaryDirectory() as tmp:
+        h5 = Path(tmp) / "step.h5"
+        _write_h5(h5, cams, frames[2].images)
+        t_read, _ = _median_time(lambda: _read_h5(h5, cams), repeats)
+        t_floor, _ = _median_time(lambda: _threshold_cc(_read_h5(h5, cams)), repeats)
+    t_serial, found = _median_time(lambda: detect_all(step, cams, serial), repeats)
+    t_threads, _ = _median_time(lambda: detect_all(step, cams, threads), repeats)
+    with ProcessPoolExecutor(max_workers=2) as pool:
+        _process_pool_detect(pool, step, cams, serial)  # start the workers
+        t_procs, _ = _median_time(lambda: _process_pool_detect(pool, step, cams, serial), repeats)
+    t_guided, guided = _median_time(lambda: detect_step(step, cams, after, tracker), repeats)
     dets = [d.centres for d in found]
-    ref = points_from_detections([d.centres for d in detect_all(imgs[0], cams, settings)], cams, settings)
-    t_corr, step = _median_time(lambda: points_from_detections(dets, cams, settings), repeats)
-    px = observed_pixels(step.detections, step.observations)
+    ref = points_from_detections([d.centres for d in detect_all(imgs[0], cams, serial)], cams, serial)
+    t_corr, pts = _median_time(lambda: points_from_detections(dets, cams, serial), repeats)
+    px = observed_pixels(pts.detections, pts.observations)
     t_tri, _ = _median_time(lambda: triangulate(px, cams), repeats)
-    t_trk, _ = _median_time(lambda: match_step(ref.centres, step.centres), repeats)
-    t_srf, _ = _median_time(lambda: marker_surface_points(step.centres, 0.2e-3, surface_normals(step.centres)), repeats)
-    n_det = sum(len(d) for d in dets)
-    print(f"\n## Time per step: 6 cameras x {size[0]}x{size[1]} px, 300 markers "
-          f"({n_det} detections, {step.centres.shape[0]} points), median of {repeats}\n")
-    print("| stage | time [ms] |\n|---|---|")
-    rows = [("detection (6 images)", t_det), ("correspondence (incl. candidate triangulation, bootstrap)", t_corr),
+    t_trk, _ = _median_time(lambda: match_step(ref.centres, pts.centres), repeats)
+    t_srf, _ = _median_time(lambda: marker_surface_points(pts.centres, 0.2e-3, surface_normals(pts.centres)), repeats)
+    rest = t_corr + t_tri + t_trk + t_srf
+    print(f"\n## Time per step: 6 cameras x {size[0]}x{size[1]} px, 300 markers (a loaded step after the reference; "
+          f"{sum(len(d) for d in dets)} detections full-image, {sum(len(d) for d in guided)} guided, "
+          f"{pts.centres.shape[0]} points), median of {repeats}, all rows in one run\n")
+    print("| stage | wall time [ms] | CPU time [ms] |\n|---|---|---|")
+    rows = [("detection, serial, whole images (before)", t_serial),
+            ("detection, 2 threads, whole images", t_threads),
+            ("detection, 2 processes (persistent pool, images pickled), whole images", t_procs),
+            ("detection, 2 threads, guided by the tracker (after)", t_guided),
+            ("correspondence (incl. candidate triangulation, bootstrap)", t_corr),
             ("triangulation (final N-view DLT + Gauss-Newton + covariance)", t_tri), ("tracking (match_step)", t_trk),
-            ("marker-centre offset (normals + offset)", t_srf)]
+            ("marker-centre offset (normals + offset)", t_srf),
+            ("**total before** (serial whole-image detection + the rest)", t_serial + rest),
+            ("**total after** (threads + guided detection + the rest)", t_guided + rest),
+            ("reference: read the 6 images from HDF5 (gzip 1, as a session)", t_read),
+            ("reference: read + one Otsu threshold + connected components per image, serial", t_floor)]
     for name, t in rows:
-        print(f"| {name} | {t * 1e3:.0f} |")
-    print(f"| **total** | **{sum(t for _, t in rows) * 1e3:.0f}** |")
+        cpu = CPU.get(t, sum(CPU.get(x, np.nan) for x in (t_corr, t_tri, t_trk, t_srf)) +
+                      CPU.get(t_serial if "before" in name else t_guided, np.nan))
+        print(f"| {name} | {t * 1e3:.0f} | {cpu * 1e3:.0f} |")
+    print(f"\n(process pool: CPU time of the parent only.) Load average at the end: {os.getloadavg()[0]:.1f} "
+          f"on {os.cpu_count()} cores.")
+    print(f"\nratio total after / reference (read + threshold + components): {(t_guided + rest) / t_floor:.2f}; "
+          f"detection speed-up: threads {t_serial / t_threads:.2f}x, processes {t_serial / t_procs:.2f}x, "
+          f"threads + guided {t_serial / t_guided:.2f}x")
+
+
+def rendered(n_steps=8):
+    """The end-to-end figures of tests/test_recon_rendered.py (estimated calibration, 1224 x 1024, glare,
+    debris, a hidden marker, a missing camera), before (serial whole-image detection) and after."""
+    from _recon_rendered import rendered_scene
+
+    cams, calib, frames, images, (R, t) = rendered_scene(n_steps)
+    print("\n## Rendered end to end (tests/test_recon_rendered.py: estimated calibration, 6 cameras 1224x1024, "
+          "300 markers, 8 steps, glare/debris, a hidden marker, camera 4 missing in step 5)\n")
+    print("| detection | time, 8 steps [s] | 3-D RMS [um] | max [um] | completeness, worst step except 5 [%] | "
+          "step 5 [%] | swaps | wrong ids |\n|---|---|---|---|---|---|---|---|")
+    for label, settings in (("serial, whole images (before)", ReconstructionSettings(
+            marker_diameter=0.4e-3, specimen_radius=0.010, workers=1, guided_detection=False)),
+            ("2 threads, guided (after)", ReconstructionSettings(marker_diameter=0.4e-3, specimen_radius=0.010))):
+        t0 = time.perf_counter()
+        res = reconstruct_series(images, calib.cameras, settings)
+        dt = time.perf_counter() - t0
+        centres = res.centres @ R.T + t
+        truth = np.array([f.truth.sphere_centres for f in frames])
+        gt = cKDTree(truth[0]).query(centres[0])[1]
+        errs, comp, wrong = [], [], 0
+        for k in range(n_steps):
+            v = res.visible[k]
+            fin = np.flatnonzero(np.isfinite(truth[k]).all(1))
+            nearest = fin[cKDTree(truth[k][fin]).query(centres[k, v])[1]]
+            wrong += int((nearest != gt[v]).sum())
+            seen2 = frames[k].truth.visible.sum(axis=0) >= 2
+            right = np.zeros(truth.shape[1], bool)
+            right[gt[v][nearest == gt[v]]] = True
+            comp.append(right[seen2].mean())
+            errs.append(np.linalg.norm(centres[k, v] - truth[k][gt[v]], axis=1))
+        e = np.concatenate(errs)
+        print(f"| {label} | {dt:.1f} | {np.sqrt(np.mean(e**2)) * 1e6:.2f} | {e.max() * 1e6:.1f} | "
+              f"{100 * min(c for k, c in enumerate(comp) if k != 5):.1f} | {100 * comp[5]:.1f} | "
+              f"{int(res.diagnostics['swaps'].sum())} | {wrong} |", flush=True)
 
 
 def accuracy(size, noise_levels, blurs):
@@ -113,11 +246,14 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="half resolution, fewer repeats and configurations")
     ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--skip-accuracy", action="store_true")
+    ap.add_argument("--part", choices=("timing", "rendered", "accuracy", "all"), default="all")
     args = ap.parse_args()
     size = (1224, 1024) if args.quick else (2448, 2048)
-    timing(size, 2 if args.quick else args.repeats)
-    if not args.skip_accuracy:
+    if args.part in ("timing", "all"):
+        timing(size, 2 if args.quick else args.repeats)
+    if args.part in ("rendered", "all"):
+        rendered()
+    if args.part in ("accuracy", "all"):
         noise = [(12000, 6)] if args.quick else [(30000, 3), (12000, 6), (3000, 12)]
         blurs = [0.8] if args.quick else [0.5, 1.2, 2.5]
         accuracy(size, noise, blurs)

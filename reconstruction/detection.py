@@ -20,15 +20,15 @@ Pixel coordinates are OpenCV's (x right, y down, origin at the centre of the top
 from __future__ import annotations
 
 import logging
-import warnings
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import cv2
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.special import erfc
 
-__all__ = ["Detections", "REJECT_DTYPE", "REJECT_REASONS", "detect_markers"]
+__all__ = ["Detections", "REJECT_DTYPE", "REJECT_REASONS", "detect_markers", "detect_markers_near"]
 
 log = logging.getLogger(__name__)
 
@@ -59,6 +59,9 @@ class Detections:
         Rejected candidates with ``reason`` in ``REJECT_REASONS``.
     noise : float
         Robust estimate of the image noise, grey levels.
+    threshold : float
+        Candidate threshold on the black top-hat, grey levels (with ``noise``: the image's
+        ``levels`` for :func:`detect_markers_near`).
     """
 
     centres: np.ndarray
@@ -68,6 +71,7 @@ class Detections:
     precision: np.ndarray
     rejects: np.ndarray
     noise: float
+    threshold: float = float("nan")
 
     def __len__(self) -> int:
         return int(self.centres.shape[0])
@@ -77,11 +81,11 @@ class Detections:
         return {r: int(np.count_nonzero(self.rejects["reason"] == r)) for r in REJECT_REASONS}
 
 
-def _empty(noise: float, rejects: np.ndarray | None = None) -> Detections:
+def _empty(noise: float, rejects: np.ndarray | None = None, threshold: float = float("nan")) -> Detections:
     z = np.zeros(0)
     return Detections(
         np.zeros((0, 2)), z, z.copy(), z.copy(), z.copy(),
-        np.zeros(0, REJECT_DTYPE) if rejects is None else rejects, float(noise),
+        np.zeros(0, REJECT_DTYPE) if rejects is None else rejects, float(noise), float(threshold),
     )
 
 
@@ -112,6 +116,7 @@ def detect_markers(
     centroid_threshold: float = 0.2,
     background_order: int = 3,
     split_merged: bool = True,
+    _levels: tuple[float, float] | None = None,
     polarity: str = "dark",
 ) -> Detections:
     """Detect dark circular markers (or bright particles, ``polarity="bright"``) with sub-pixel centres.
@@ -157,6 +162,9 @@ def detect_markers(
     polarity : {"dark", "bright"}
         "dark": dark markers on bright tissue; "bright": bright particles on a dark background
         (the image is inverted first, and saturation then means nothing unless given).
+    _levels : (float, float), optional
+        Internal (:func:`detect_markers_near`): candidate threshold and noise (grey levels) of the
+        whole image, used for a crop instead of the crop's own statistics.
 
     Returns
     -------
@@ -166,185 +174,420 @@ def detect_markers(
     if image.ndim != 2:
         raise ValueError(f"image must be a 2-D grey-level array (H, W); got shape {image.shape}")
     image, saturation = _apply_polarity(image, polarity, saturation)
-    H, W = image.shape
-    sat = _saturation_level(image, saturation)
-    img = image.astype(np.float32)
     dmin, dmax = (3.0, 80.0) if diameter_range is None else map(float, diameter_range)
     if not 0 < dmin < dmax:
         raise ValueError(f"diameter_range must be (min, max) with 0 < min < max px; got {diameter_range}")
+    sat = _saturation_level(image, saturation)
+    rejects: list[np.ndarray] = [] if sat is None else [_glare_blobs(image, sat)]
+    mask, noise, thr = _candidate_mask(image, dmax, threshold_sigma, min_darkness, _levels)
+    blobs, dmax = _components(mask, dmin, dmax, estimate_size=diameter_range is None, rejects=rejects)
+    if blobs is None:
+        return _empty(noise, _concat(rejects), thr)
+    m = _measure_blobs(image, blobs, dmax, window_margin, background_order, edge_margin, sat)
+    reason, lo, hi, dref = _classify(m, diameter_range, dmin, dmax, max_elongation, min_relative_contrast)
+    split = _split_merged(m, reason, dref, lo, hi) if split_merged else _NO_SPLIT
+    bad = (reason != "") & (reason != "split")
+    if np.any(bad):
+        rec = _records(m.cxy[bad], m.diam[bad], m.peak[bad], "")
+        rec["reason"] = reason[bad]
+        rejects.append(rec)
+    good = np.flatnonzero(reason == "")
+    if good.size == 0 and split.centres.shape[0] == 0:
+        return _empty(noise, _concat(rejects), thr)
+    found = _centroids(m, good, noise, window_margin, iterations, centroid_threshold, rejects)
+    return _assemble(found, split, noise, thr, rejects)
 
-    # 1. candidates
+
+
+def detect_markers_near(
+    image: np.ndarray,
+    points: np.ndarray,
+    radius: float,
+    *,
+    levels: tuple[float, float] | None = None,
+    tile: int = 64,
+    max_fraction: float = 0.7,
+    **kwargs,
+) -> Detections:
+    """:func:`detect_markers` restricted to the neighbourhood of expected marker positions.
+
+    The image is cut into ``tile`` x ``tile`` px tiles; the tiles within ``radius`` of a point are
+    searched, each group of touching tiles as one crop with a margin wide enough for the
+    morphology and the patch measurements to see what they see on the whole image. The candidate
+    threshold and the noise are the whole image's statistics: give them as ``levels`` (from a
+    whole-image detection of the same camera, :attr:`Detections.threshold` and ``noise``), else
+    each crop's own are used (they differ: a crop holds less bath and more tissue). Markers whose
+    centre lies outside the searched tiles are not reported. When the searched crops would cover
+    more than ``max_fraction`` of the image, the whole image is searched.
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W)
+    points : ndarray, shape (m, 2)
+        Expected centres, px (OpenCV convention); non-finite rows are ignored.
+    radius : float
+        Search radius around each point, px.
+    levels : (float, float), optional
+        Candidate threshold and noise, grey levels.
+    **kwargs
+        Keywords of :func:`detect_markers`; ``diameter_range`` is required (it sizes the margin).
+
+    Returns
+    -------
+    Detections
+        As :func:`detect_markers` (``noise`` is the median over the crops).
+    """
+    image = np.asarray(image)
+    if kwargs.get("diameter_range") is None:
+        raise ValueError("detect_markers_near needs diameter_range=(min, max) px to size its search margin; got None")
+    if not radius > 0:
+        raise ValueError(f"radius must be > 0 px; got {radius}")
+    points = np.asarray(points, dtype=float).reshape(-1, 2)
+    points = points[np.all(np.isfinite(points), axis=1)]
+    H, W = image.shape[:2]
+    dmax = float(kwargs["diameter_range"][1])
+    margin = int(np.ceil(1.3 * dmax)) + int(np.ceil(1.1 * dmax + kwargs.get("window_margin", 2.0) + 6))
+    groups, crops = _search_tiles(points, radius, (H, W), tile, margin)
+    if sum((y1 - y0) * (x1 - x0) for x0, y0, x1, y1 in crops) > max_fraction * H * W:
+        return detect_markers(image, **kwargs)
+    if levels is not None and not np.all(np.isfinite(levels)):
+        levels = None
+    parts = [_crop_detections(image, crop, groups == g + 1, tile, levels, kwargs) for g, crop in enumerate(crops)]
+    if not parts:
+        return _empty(0.0)
+    centres = np.concatenate([d.centres for d in parts])
+    order = np.lexsort((centres[:, 0], centres[:, 1]))
+    return Detections(
+        centres=centres[order],
+        diameter=np.concatenate([d.diameter for d in parts])[order],
+        contrast=np.concatenate([d.contrast for d in parts])[order],
+        quality=np.concatenate([d.quality for d in parts])[order],
+        precision=np.concatenate([d.precision for d in parts])[order],
+        rejects=_concat([d.rejects for d in parts]),
+        noise=float(np.median([d.noise for d in parts])),
+        threshold=float(np.median([d.threshold for d in parts])),
+    )
+
+
+def _search_tiles(points: np.ndarray, radius: float, shape: tuple[int, int], tile: int, margin: int):
+    """Tiles within ``radius`` of the points, labelled by group of touching tiles, and each
+    group's crop (x0, y0, x1, y1) px with ``margin`` (clipped to the image).
+
+    Returns (labels (n_tile_rows, n_tile_cols) int, 0 = not searched; list of crops)."""
+    H, W = shape
+    grid = np.zeros((-(-H // tile), -(-W // tile)), np.uint8)
+    lo = np.floor((points - radius) / tile).astype(int)
+    hi = np.floor((points + radius) / tile).astype(int)
+    span = int(np.max(hi - lo)) + 1 if points.size else 0
+    for dy in range(span):  # a few tile offsets, vectorised over the points
+        for dx in range(span):
+            ty, tx = lo[:, 1] + dy, lo[:, 0] + dx
+            ok = (ty <= hi[:, 1]) & (tx <= hi[:, 0]) & (ty >= 0) & (tx >= 0) & (ty < grid.shape[0]) & (tx < grid.shape[1])
+            grid[ty[ok], tx[ok]] = 1
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(grid, connectivity=8)
+    crops = []
+    for x, y, w, h, _ in stats[1:]:
+        crops.append((max(x * tile - margin, 0), max(y * tile - margin, 0),
+                      min((x + w) * tile + margin, W), min((y + h) * tile + margin, H)))
+    return labels, crops
+
+
+def _crop_detections(image: np.ndarray, crop, searched: np.ndarray, tile: int, levels, kwargs: dict) -> Detections:
+    """Detections in one crop, moved to image coordinates, keeping those in the ``searched`` tiles."""
+    x0, y0, x1, y1 = crop
+    det = detect_markers(image[y0:y1, x0:x1], _levels=levels, **kwargs)
+    shift = np.array([x0, y0], dtype=float)
+    centres = det.centres + shift
+    rejects = det.rejects.copy()
+    rejects["x"] += x0
+    rejects["y"] += y0
+
+    def inside(xy):
+        t = np.floor(xy / tile).astype(int)
+        t[:, 0] = np.clip(t[:, 0], 0, searched.shape[1] - 1)
+        t[:, 1] = np.clip(t[:, 1], 0, searched.shape[0] - 1)
+        return searched[t[:, 1], t[:, 0]]
+
+    keep = inside(centres)
+    rkeep = inside(np.stack([rejects["x"], rejects["y"]], axis=1))
+    return Detections(centres[keep], det.diameter[keep], det.contrast[keep], det.quality[keep], det.precision[keep],
+                      rejects[rkeep], det.noise, det.threshold)
+
+
+@dataclass(frozen=True)
+class _Blobs:
+    """Candidate connected components (n of them) of one image."""
+
+    labels: np.ndarray  # (H, W) int32 label image
+    ids: np.ndarray  # (n,) their labels
+    box: np.ndarray  # (n, 4) int: left, top, width, height, px
+    cxy: np.ndarray  # (n, 2) centroid of the thresholded pixels, px
+
+
+@dataclass(frozen=True)
+class _Measures:
+    """Patch measurements of n candidates on a (P, P) grid centred on each blob's pixel ``ci``."""
+
+    cxy: np.ndarray  # (n, 2) blob centroids, px
+    ci: np.ndarray  # (n, 2) int patch centres, px
+    xx: np.ndarray  # (P, P) x offset from the patch centre, px
+    yy: np.ndarray  # (P, P) y offset, px
+    other: np.ndarray  # (n, P, P) bool: pixels of other blobs
+    dark: np.ndarray  # (n, P, P) normalised darkness 1 - I / B
+    background: np.ndarray  # (n, P, P) fitted local background B, grey levels
+    peak: np.ndarray  # (n,) peak (3x3-smoothed) darkness
+    area: np.ndarray  # (n,) half-contrast area, px^2
+    diam: np.ndarray  # (n,) its equivalent diameter, px
+    mean: np.ndarray  # (n, 2) its centroid relative to ci, px
+    cov: np.ndarray  # (n, 3) its second moments sxx, syy, sxy, px^2
+    axes: np.ndarray  # (n, 2) major and minor eigenvalues of cov, px^2
+    near_edge: np.ndarray  # (n,) bool
+    glare: np.ndarray  # (n,) bool
+
+
+class _Split(NamedTuple):
+    """Centres recovered from merged blobs (two per fitted blob)."""
+
+    centres: np.ndarray  # (m, 2) px
+    diameter: np.ndarray  # (m,) px
+    contrast: np.ndarray  # (m,)
+    precision: np.ndarray  # (m,) px
+
+
+_NO_SPLIT = _Split(np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros(0))
+
+
+def _candidate_mask(image: np.ndarray, dmax: float, threshold_sigma: float, min_darkness: float,
+                    levels: tuple[float, float] | None):
+    """Step 1: pixels darker than their local upper envelope (morphological closing) by a robust
+    threshold and by at least ``min_darkness`` of the envelope.
+
+    Integer images stay integer (OpenCV's morphology is several times faster on them and the
+    result is the same). Returns (mask uint8 (H, W), noise in grey levels).
+    """
+    H, W = image.shape
+    work = image if image.dtype in (np.uint8, np.uint16) else image.astype(np.float32)
     k = int(np.ceil(1.3 * dmax)) | 1
-    closed = cv2.morphologyEx(img, cv2.MORPH_CLOSE, cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)))
-    tophat = closed - img
-    sample = tophat[:: max(1, H // 256), :: max(1, W // 256)].ravel()
-    med = float(np.median(sample))
-    mad = float(np.median(np.abs(sample - med))) * 1.4826
-    noise_img = img[:: max(1, H // 256), :: max(1, W // 256)]
-    lap = noise_img[1:-1, 1:-1] - 0.25 * (noise_img[:-2, 1:-1] + noise_img[2:, 1:-1] + noise_img[1:-1, :-2] + noise_img[1:-1, 2:])
-    noise = float(np.median(np.abs(lap - np.median(lap)))) * 1.4826 / np.sqrt(1.25) if lap.size else 0.0
-    floor = 0.03 * float(np.median(closed[:: max(1, H // 256), :: max(1, W // 256)]))
-    thr = med + max(threshold_sigma * mad, floor)
+    closed = cv2.morphologyEx(work, cv2.MORPH_CLOSE, cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)))
+    tophat = cv2.subtract(closed, work)
+    sub = (slice(None, None, max(1, H // 256)), slice(None, None, max(1, W // 256)))
+    if levels is None:
+        sample = tophat[sub].ravel().astype(np.float32)
+        med = float(np.median(sample))
+        mad = float(np.median(np.abs(sample - med))) * 1.4826
+        floor = 0.03 * float(np.median(closed[sub]))
+        thr = med + max(threshold_sigma * mad, floor)
+        noise = _image_noise(work[sub].astype(np.float32))
+    else:
+        thr, noise = levels
     # relative darkness against the local upper envelope: markers are nearly black, texture and
     # shading are not; the absolute threshold keeps noise in dark regions (bath) out
-    rel = tophat / np.maximum(closed, 1e-6 * max(1.0, float(closed.max())))
-    mask = ((tophat > thr) & (rel > min_darkness)).astype(np.uint8)
-    n_lab, labels, stats, cents = cv2.connectedComponentsWithStats(mask, connectivity=8)
-    areas = stats[1:, cv2.CC_STAT_AREA].astype(float)
-    ids = np.arange(1, n_lab)
-    # ignore specks that are a fraction of the smallest accepted marker (noise, texture)
-    min_area = max(3.0, 0.25 * np.pi * (0.5 * dmin) ** 2)
-    keep = areas >= min_area
-    ids = ids[keep]
-    if diameter_range is None and ids.size:
-        # working size limit from the typical compact candidate (speeds up the patch stage)
-        bwh = np.maximum(stats[ids, cv2.CC_STAT_WIDTH], stats[ids, cv2.CC_STAT_HEIGHT])
-        compact = areas[keep] >= 0.5 * bwh**2
-        if np.count_nonzero(compact) >= 3:
-            dmax = min(dmax, max(2.0 * float(np.median(2 * np.sqrt(areas[keep][compact] / np.pi))), 4.0 * dmin))
-    rejects: list[np.ndarray] = []
-    if sat is not None:
-        rejects.append(_glare_blobs(image, sat))
-    if ids.size == 0:
-        return _empty(noise, _concat(rejects))
-    bw = stats[ids, cv2.CC_STAT_WIDTH]
-    bh = stats[ids, cv2.CC_STAT_HEIGHT]
-    bx = stats[ids, cv2.CC_STAT_LEFT]
-    by = stats[ids, cv2.CC_STAT_TOP]
-    cxy = cents[ids]
-    big = (np.maximum(bw, bh) > 2.2 * dmax) | (areas[keep] > 2.6 * np.pi * (0.5 * dmax) ** 2)
-    if np.any(big):
-        rejects.append(_records(cxy[big], np.sqrt(4 * areas[keep][big] / np.pi), np.nan, "too_large"))
-    ids, bw, bh, bx, by, cxy = ids[~big], bw[~big], bh[~big], bx[~big], by[~big], cxy[~big]
-    if ids.size == 0:
-        return _empty(noise, _concat(rejects))
+    if work.dtype != np.float32:
+        relative = cv2.addWeighted(tophat, 1.0, closed, -min_darkness, 0.0, dtype=cv2.CV_32F) > 0
+    else:
+        relative = tophat > min_darkness * np.maximum(closed, 1e-6 * max(1.0, float(closed.max())))
+    mask = ((tophat > thr) & relative).view(np.uint8)
+    return mask, noise, thr
 
-    # 2. patch measurements (vectorised over candidates)
-    P = int(2 * np.ceil(max(np.max(np.maximum(bw, bh)) * 0.5 + window_margin + 3, 0.5 * dmax + window_margin + 3)) + 1)
-    half = P // 2
-    pad_mode = cv2.BORDER_REFLECT
-    img_p = cv2.copyMakeBorder(img, half, half, half, half, pad_mode)
-    lab_p = cv2.copyMakeBorder(labels.astype(np.int32), half, half, half, half, cv2.BORDER_CONSTANT, value=0)
-    ci = np.rint(cxy).astype(int)  # patch centre, integer pixel (x, y)
-    off = np.arange(P) - half
-    rows = ci[:, 1, None] + off[None, :] + half
-    cols = ci[:, 0, None] + off[None, :] + half
-    patch = img_p[rows[:, :, None], cols[:, None, :]]  # (n, P, P)
-    plab = lab_p[rows[:, :, None], cols[:, None, :]]
-    own = plab == ids[:, None, None]
+
+def _image_noise(img: np.ndarray) -> float:
+    """Robust noise estimate (grey levels) from the 4-neighbour Laplacian of a (sub-sampled) image."""
+    lap = img[1:-1, 1:-1] - 0.25 * (img[:-2, 1:-1] + img[2:, 1:-1] + img[1:-1, :-2] + img[1:-1, 2:])
+    return float(np.median(np.abs(lap - np.median(lap)))) * 1.4826 / np.sqrt(1.25) if lap.size else 0.0
+
+
+def _components(mask: np.ndarray, dmin: float, dmax: float, *, estimate_size: bool, rejects: list):
+    """Step 1b: connected components of the candidate mask, specks and oversized blobs removed.
+
+    With ``estimate_size`` the working size limit ``dmax`` is lowered to twice the typical compact
+    candidate. Appends ``too_large`` rejects; returns (_Blobs or None, dmax).
+    """
+    n_lab, labels, stats, cents = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    ids = np.arange(1, n_lab)
+    areas = stats[1:, cv2.CC_STAT_AREA].astype(float)
+    # ignore specks that are a fraction of the smallest accepted marker (noise, texture)
+    keep = areas >= max(3.0, 0.25 * np.pi * (0.5 * dmin) ** 2)
+    ids, areas = ids[keep], areas[keep]
+    if estimate_size and ids.size:
+        # working size limit from the typical compact candidate (speeds up the patch stage)
+        size = np.maximum(stats[ids, cv2.CC_STAT_WIDTH], stats[ids, cv2.CC_STAT_HEIGHT])
+        compact = areas >= 0.5 * size**2
+        if np.count_nonzero(compact) >= 3:
+            dmax = min(dmax, max(2.0 * float(np.median(2 * np.sqrt(areas[compact] / np.pi))), 4.0 * dmin))
+    if ids.size == 0:
+        return None, dmax
+    box = stats[ids, :4]
+    big = (np.max(box[:, 2:], axis=1) > 2.2 * dmax) | (areas > 2.6 * np.pi * (0.5 * dmax) ** 2)
+    if np.any(big):
+        rejects.append(_records(cents[ids][big], np.sqrt(4 * areas[big] / np.pi), np.nan, "too_large"))
+    if np.all(big):
+        return None, dmax
+    return _Blobs(labels, ids[~big], box[~big], cents[ids][~big]), dmax
+
+
+def _patches(image: np.ndarray, labels: np.ndarray, centres: np.ndarray, size: int):
+    """(n, P, P) float32 grey-level patches (border reflected) and int label patches (0 outside)
+    around integer pixel centres (n, 2) (x, y)."""
+    H, W = image.shape
+    off = np.arange(size) - size // 2
+    rows = centres[:, 1, None] + off[None, :]
+    cols = centres[:, 0, None] + off[None, :]
+    r_img, c_img = _reflect(rows, H)[:, :, None], _reflect(cols, W)[:, None, :]
+    patch = image[r_img, c_img].astype(np.float32)
+    inside = ((rows >= 0) & (rows < H))[:, :, None] & ((cols >= 0) & (cols < W))[:, None, :]
+    plab = np.where(inside, labels[r_img, c_img], 0)
+    return patch, plab
+
+
+def _reflect(index: np.ndarray, n: int) -> np.ndarray:
+    """Indices mirrored at the borders as OpenCV's BORDER_REFLECT (``fedcba|abcdefgh|hgfedcb``)."""
+    index = np.where(index < 0, -index - 1, index)
+    index = np.where(index >= n, 2 * n - index - 1, index)
+    return np.clip(index, 0, n - 1)
+
+
+def _measure_blobs(image, blobs: _Blobs, dmax, window_margin, background_order, edge_margin, sat) -> _Measures:
+    """Step 2: per candidate, on a fixed-size patch (vectorised): background, darkness, peak,
+    half-contrast area and its moments, border contact and nearby saturation."""
+    H, W = image.shape
+    bx, by, bw, bh = blobs.box.T
+    size = np.maximum(bw, bh)
+    P = int(2 * np.ceil(max(np.max(size) * 0.5 + window_margin + 3, 0.5 * dmax + window_margin + 3)) + 1)
+    ci = np.rint(blobs.cxy).astype(int)  # patch centre, integer pixel (x, y)
+    patch, plab = _patches(image, blobs.labels, ci, P)
+    own = plab == blobs.ids[:, None, None]
     other = (plab != 0) & ~own
-    yy, xx = np.meshgrid(off.astype(float), off.astype(float), indexing="ij")
-    bg_plane = _annulus_plane(patch, own | other, xx, yy, r_in=0.5 * np.maximum(bw, bh) + 2.0, r_out=half - 0.5, order=background_order)
+    off = (np.arange(P) - P // 2).astype(float)
+    yy, xx = np.meshgrid(off, off, indexing="ij")
+    bg = _annulus_plane(patch, own | other, xx, yy, r_in=0.5 * size + 2.0, r_out=P // 2 - 0.5, order=background_order)
     with np.errstate(divide="ignore", invalid="ignore"):
-        dark = 1.0 - patch / np.maximum(bg_plane, 1e-12)
-    dark_s = _smooth3(dark)
-    peak = np.max(np.where(own, dark_s, -np.inf), axis=(1, 2))
-    halfmask = own & (dark > 0.5 * peak[:, None, None])
-    a_half = halfmask.sum(axis=(1, 2)).astype(float)
-    diam = 2.0 * np.sqrt(a_half / np.pi)
-    # second moments of the half-contrast area
+        dark = 1.0 - patch / np.maximum(bg, 1e-12)
+    peak = np.max(np.where(own, _smooth3(dark), -np.inf), axis=(1, 2))
+    half = own & (dark > 0.5 * peak[:, None, None])
+    area = half.sum(axis=(1, 2)).astype(float)
+    mean, cov, axes = _moments(half, area, xx, yy)
+    diam = 2.0 * np.sqrt(area / np.pi)
+    near_edge = (bx < edge_margin) | (by < edge_margin) | (bx + bw > W - edge_margin) | (by + bh > H - edge_margin)
+    glare = np.zeros(ci.shape[0], dtype=bool)
+    if sat is not None:
+        inner = np.hypot(xx, yy)[None] <= (0.5 * diam + window_margin)[:, None, None]
+        glare = np.any((patch >= sat) & inner, axis=(1, 2))
+    return _Measures(blobs.cxy, ci, xx, yy, other, dark, bg, peak, area, diam, mean, cov, axes, near_edge, glare)
+
+
+def _moments(mask: np.ndarray, area: np.ndarray, xx: np.ndarray, yy: np.ndarray):
+    """Centroid (n, 2), second moments (n, 3: sxx, syy, sxy) and their eigenvalues (n, 2: major,
+    minor) of (n, P, P) masks with pixel counts ``area``."""
     with np.errstate(invalid="ignore", divide="ignore"):
-        mx = (halfmask * xx).sum((1, 2)) / a_half
-        my = (halfmask * yy).sum((1, 2)) / a_half
-        sxx = (halfmask * (xx - mx[:, None, None]) ** 2).sum((1, 2)) / a_half
-        syy = (halfmask * (yy - my[:, None, None]) ** 2).sum((1, 2)) / a_half
-        sxy = (halfmask * (xx - mx[:, None, None]) * (yy - my[:, None, None])).sum((1, 2)) / a_half
+        mx = (mask * xx).sum((1, 2)) / area
+        my = (mask * yy).sum((1, 2)) / area
+        dx, dy = xx - mx[:, None, None], yy - my[:, None, None]
+        sxx = (mask * dx**2).sum((1, 2)) / area
+        syy = (mask * dy**2).sum((1, 2)) / area
+        sxy = (mask * dx * dy).sum((1, 2)) / area
     tr = sxx + syy
     disc = np.sqrt(np.maximum((sxx - syy) ** 2 / 4 + sxy**2, 0.0))
     l1 = tr / 2 + disc
     l2 = np.maximum(tr / 2 - disc, 1e-12)
-    elong = np.sqrt(l1 / l2)
-    near_edge = (bx < edge_margin) | (by < edge_margin) | (bx + bw > W - edge_margin) | (by + bh > H - edge_margin)
-    glare = np.zeros(ids.size, dtype=bool)
-    if sat is not None:
-        rr = np.hypot(xx, yy)
-        glare = np.any((patch >= sat) & (rr[None] <= (0.5 * diam + window_margin)[:, None, None]), axis=(1, 2))
+    return np.stack([mx, my], axis=1), np.stack([sxx, syy, sxy], axis=1), np.stack([l1, l2], axis=1)
 
-    reason = np.full(ids.size, "", dtype="U12")
-    reason[glare] = "glare"
-    reason[(reason == "") & near_edge] = "edge"
-    reason[(reason == "") & ~np.isfinite(peak)] = "low_contrast"
+
+def _classify(m: _Measures, diameter_range, dmin, dmax, max_elongation, min_relative_contrast):
+    """Step 2b: reject reason per candidate ("" = accepted) and the accepted diameter range.
+
+    Returns (reason (n,) str, lo, hi, dref) with the diameters in px.
+    """
+    elong = np.sqrt(m.axes[:, 0] / m.axes[:, 1])
+    reason = np.full(m.peak.size, "", dtype="U12")
+    reason[m.glare] = "glare"
+    reason[(reason == "") & m.near_edge] = "edge"
+    reason[(reason == "") & ~np.isfinite(m.peak)] = "low_contrast"
+    lo, hi = dmin, dmax
     if diameter_range is None:
-        plausible = (reason == "") & (elong < max_elongation) & (diam >= dmin)
+        plausible = (reason == "") & (elong < max_elongation) & (m.diam >= dmin)
         if np.any(plausible):
-            dmed = float(np.median(diam[plausible]))
+            dmed = float(np.median(m.diam[plausible]))
             lo, hi = 0.6 * dmed, 1.5 * dmed
-        else:
-            lo, hi = dmin, dmax
-    else:
-        lo, hi = dmin, dmax
     dref = 0.5 * (lo + hi) if diameter_range is not None else (lo + hi) / 2.1
-    area_ratio = a_half / (np.pi * (0.5 * dref) ** 2)
-    merged = (elong > max_elongation) & (area_ratio > 1.4)
-    reason[(reason == "") & merged] = "merged"
+    area_ratio = m.area / (np.pi * (0.5 * dref) ** 2)
+    reason[(reason == "") & (elong > max_elongation) & (area_ratio > 1.4)] = "merged"
     reason[(reason == "") & (elong > max_elongation)] = "not_round"
-    reason[(reason == "") & (diam < lo)] = "too_small"
-    reason[(reason == "") & (diam > hi)] = "too_large"
+    reason[(reason == "") & (m.diam < lo)] = "too_small"
+    reason[(reason == "") & (m.diam > hi)] = "too_large"
     good = reason == ""
     if np.any(good):
-        cref = float(np.median(peak[good]))
-        reason[good & (peak < min_relative_contrast * cref)] = "low_contrast"
-    split_c, split_d, split_a, split_p = np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros(0)
-    if split_merged:
-        cand = np.flatnonzero(reason == "merged")
-        parts = []
-        for i in cand:  # merged blobs are few; each is a small 8-parameter fit
-            fit = _fit_two_discs(dark[i], other[i], xx, yy, (mx[i], my[i]), (sxx[i], syy[i], sxy[i]), 0.5 * dref, lo, hi)
-            if fit is not None:
-                parts.append((i, fit))
-                reason[i] = "split"
-        if parts:
-            split_c = np.concatenate([ci[i].astype(float) + f[0] for i, f in parts])
-            split_d = np.concatenate([2 * f[1] for _, f in parts])
-            split_a = np.concatenate([np.full(2, f[2]) for _, f in parts])
-            split_p = np.concatenate([f[3] for _, f in parts])
-    bad = (reason != "") & (reason != "split")
-    if np.any(bad):
-        rec = _records(cxy[bad], diam[bad], peak[bad], "")
-        rec["reason"] = reason[bad]
-        rejects.append(rec)
-    good = reason == ""
-    if not np.any(good) and split_c.shape[0] == 0:
-        return _empty(noise, _concat(rejects))
+        cref = float(np.median(m.peak[good]))
+        reason[good & (m.peak < min_relative_contrast * cref)] = "low_contrast"
+    return reason, lo, hi, dref
 
-    # 3. sub-pixel centroid of normalised darkness in a soft circular window
-    g = np.flatnonzero(good)
-    centres, prec, q, ok = np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros(0, bool)
-    if g.size:
-        d_g = dark[g]
-        d_g = np.where(other[g], 0.0, d_g)
-        if centroid_threshold > 0:
-            d_g = np.maximum(d_g - centroid_threshold * peak[g][:, None, None], 0.0)
-        rw = 0.5 * diam[g] + window_margin
-        c = np.stack([mx[g], my[g]], axis=1)  # relative to the patch centre pixel
-        for _ in range(max(1, iterations)):
-            rr = np.hypot(xx[None] - c[:, 0, None, None], yy[None] - c[:, 1, None, None])
-            win = np.clip(rw[:, None, None] + 0.5 - rr, 0.0, 1.0)
-            wgt = d_g * win
-            s = wgt.sum((1, 2))
-            c = np.stack([(wgt * xx).sum((1, 2)) / s, (wgt * yy).sum((1, 2)) / s], axis=1)
-        # noise-limited precision: var(cx) = sigma_rel^2 sum(win (x - cx)^2) / s^2
-        sigma_rel = noise / np.maximum(np.median(bg_plane[g], axis=(1, 2)), 1e-12)
-        prec = sigma_rel * np.sqrt((win * ((xx[None] - c[:, 0, None, None]) ** 2)).sum((1, 2))) / np.abs(s)
-        centres = ci[g].astype(float) + c
-        ok = np.all(np.isfinite(centres), axis=1)
-        if not np.all(ok):
-            rejects.append(_records(cxy[g][~ok], diam[g][~ok], peak[g][~ok], "low_contrast"))
-        q = np.sqrt(l2 / np.maximum(l1, 1e-12))[g]
-    centres = np.concatenate([centres[ok], split_c])
-    diameter = np.concatenate([diam[g][ok], split_d])
-    contrast = np.concatenate([peak[g][ok], split_a])
-    quality = np.concatenate([q[ok], np.full(split_c.shape[0], 0.5)])
-    precision = np.concatenate([prec[ok], split_p])
+
+def _split_merged(m: _Measures, reason: np.ndarray, dref: float, lo: float, hi: float) -> _Split:
+    """Step 2c: fit two discs to each ``merged`` blob; fitted ones get reason "split" (in place)."""
+    parts = []
+    for i in np.flatnonzero(reason == "merged"):  # merged blobs are few; each is a small 8-parameter fit
+        fit = _fit_two_discs(m.dark[i], m.other[i], m.xx, m.yy, m.mean[i], m.cov[i], 0.5 * dref, lo, hi)
+        if fit is not None:
+            parts.append((i, fit))
+            reason[i] = "split"
+    if not parts:
+        return _NO_SPLIT
+    return _Split(
+        np.concatenate([m.ci[i].astype(float) + f[0] for i, f in parts]),
+        np.concatenate([2 * f[1] for _, f in parts]),
+        np.concatenate([np.full(2, f[2]) for _, f in parts]),
+        np.concatenate([f[3] for _, f in parts]),
+    )
+
+
+def _centroids(m: _Measures, g, noise, window_margin, iterations, centroid_threshold, rejects) -> _Split:
+    """Step 3: iterated sub-pixel centroid of the normalised darkness in a soft circular window,
+    for the accepted candidates ``g``; non-finite ones are appended to ``rejects`` as
+    ``low_contrast``. Returns centres, diameters, contrasts and precisions (as a _Split) and the
+    roundness (minor / major axis) of the kept ones."""
+    if g.size == 0:
+        return _NO_SPLIT, np.zeros(0)
+    # the window (radius <= half the largest accepted diameter + margin, re-centred by < 1-2 px)
+    # lies well inside the patch: work on the central part only
+    P = m.xx.shape[0]
+    half = min(P // 2, int(np.ceil(0.5 * np.max(m.diam[g]) + window_margin + 4 + np.max(np.abs(m.mean[g])))))
+    inner = slice(P // 2 - half, P // 2 + half + 1)
+    xx, yy = m.xx[inner, inner], m.yy[inner, inner]
+    d_g = np.where(m.other[g, inner, inner], 0.0, m.dark[g, inner, inner])
+    if centroid_threshold > 0:
+        d_g = np.maximum(d_g - centroid_threshold * m.peak[g][:, None, None], 0.0)
+    rw = 0.5 * m.diam[g] + window_margin
+    c = m.mean[g]  # relative to the patch centre pixel
+    for _ in range(max(1, iterations)):
+        rr = np.hypot(xx[None] - c[:, 0, None, None], yy[None] - c[:, 1, None, None])
+        win = np.clip(rw[:, None, None] + 0.5 - rr, 0.0, 1.0)
+        wgt = d_g * win
+        s = wgt.sum((1, 2))
+        c = np.stack([(wgt * xx).sum((1, 2)) / s, (wgt * yy).sum((1, 2)) / s], axis=1)
+    # noise-limited precision: var(cx) = sigma_rel^2 sum(win (x - cx)^2) / s^2
+    sigma_rel = noise / np.maximum(np.median(m.background[g], axis=(1, 2)), 1e-12)
+    prec = sigma_rel * np.sqrt((win * ((xx[None] - c[:, 0, None, None]) ** 2)).sum((1, 2))) / np.abs(s)
+    centres = m.ci[g].astype(float) + c
+    ok = np.all(np.isfinite(centres), axis=1)
+    if not np.all(ok):
+        rejects.append(_records(m.cxy[g][~ok], m.diam[g][~ok], m.peak[g][~ok], "low_contrast"))
+    q = np.sqrt(m.axes[g, 1] / np.maximum(m.axes[g, 0], 1e-12))
+    return _Split(centres[ok], m.diam[g][ok], m.peak[g][ok], prec[ok]), q[ok]
+
+
+def _assemble(found, split: _Split, noise: float, threshold: float, rejects: list) -> Detections:
+    """Step 4: single and split centres together, sorted by (y, x)."""
+    single, q = found
+    centres = np.concatenate([single.centres, split.centres])
     order = np.lexsort((centres[:, 0], centres[:, 1]))
     return Detections(
         centres=centres[order],
-        diameter=diameter[order],
-        contrast=contrast[order],
-        quality=quality[order],
-        precision=precision[order],
+        diameter=np.concatenate([single.diameter, split.diameter])[order],
+        contrast=np.concatenate([single.contrast, split.contrast])[order],
+        quality=np.concatenate([q, np.full(split.centres.shape[0], 0.5)])[order],
+        precision=np.concatenate([single.precision, split.precision])[order],
         rejects=_concat(rejects),
         noise=noise,
+        threshold=threshold,
     )
 
 
@@ -468,13 +711,21 @@ def _annulus_plane(patch, exclude, xx, yy, r_in, r_out, order=1) -> np.ndarray:
             break
         # robust: drop annulus pixels more than 3 MAD from the plane (texture, neighbours)
         res = np.abs(flat - coef @ A.T)
-        rabs = np.where(ring_f, res, np.nan)
-        with warnings.catch_warnings():  # a blob whose annulus is entirely excluded: keep its plain fit
-            warnings.simplefilter("ignore", RuntimeWarning)
-            mad = np.nanmedian(rabs, axis=1) * 1.4826 + 1e-9
+        # a blob whose annulus is entirely excluded keeps its plain fit (infinite MAD)
+        mad = _masked_median(res, ring_f) * 1.4826 + 1e-9
         mad = np.where(np.isfinite(mad), mad, np.inf)
         w = (ring_f & (res <= 3.0 * mad[:, None])).astype(float)
     return (coef @ A.T).reshape(patch.shape)
+
+
+def _masked_median(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Row-wise median of ``values`` (n, m) over the entries where ``mask`` (n, m) is True; NaN for
+    an empty row (as ``np.nanmedian``, without its per-row Python loop)."""
+    s = np.sort(np.where(mask, values, np.inf), axis=1)
+    count = mask.sum(axis=1)
+    rows = np.arange(s.shape[0])
+    middle = 0.5 * (s[rows, np.maximum(count - 1, 0) // 2] + s[rows, count // 2])
+    return np.where(count > 0, middle, np.nan)
 
 
 def _glare_blobs(image: np.ndarray, sat: float) -> np.ndarray:

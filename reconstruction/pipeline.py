@@ -8,7 +8,9 @@ optional callback ``progress(step, n_steps, stage)`` and nothing is printed.
 from __future__ import annotations
 
 import logging
+import os
 from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -16,7 +18,7 @@ from scipy.spatial import cKDTree
 
 from reconstruction.cameras import Camera
 from reconstruction.correspondence import CylinderPrior, match_views, observed_pixels
-from reconstruction.detection import REJECT_REASONS, Detections, detect_markers
+from reconstruction.detection import REJECT_REASONS, Detections, detect_markers, detect_markers_near
 from reconstruction.surface import (
     fit_cylinder,
     marker_surface_points,
@@ -29,9 +31,11 @@ from reconstruction.triangulation import triangulate
 
 __all__ = [
     "ReconstructionSettings",
+    "SeriesTracker",
     "StepPoints",
     "SeriesResult",
     "detect_all",
+    "detect_step",
     "convergence_point",
     "expected_diameter_px",
     "points_from_detections",
@@ -90,6 +94,17 @@ class ReconstructionSettings:
         neighbours predict the motion poorly, and rejecting it leaves only grazing views to recover it.
     detection : dict
         Extra keyword arguments for :func:`reconstruction.detection.detect_markers`.
+    workers : int or None
+        Threads detecting the cameras of a step in parallel (None: one per CPU core; 1: serial).
+    guided_detection : bool
+        From the second loaded step on, search each image only near the tracked markers'
+        predicted projections (:func:`detect_step`).
+    guided_radius : float
+        Search radius around each predicted projection, in expected marker diameters (plus 1.5x
+        the 95th percentile of the markers' image motion in the previous step).
+    guided_min_fraction : float
+        A camera whose guided search finds fewer than this fraction of its previous step's
+        detections is searched again over the whole image.
     """
 
     marker_diameter: float = 0.4e-3
@@ -109,6 +124,10 @@ class ReconstructionSettings:
     reference_outlier_floor: float = 30e-6
     sigma_px: float | None = None
     detection: dict = field(default_factory=dict)
+    workers: int | None = None
+    guided_detection: bool = True
+    guided_radius: float = 2.0
+    guided_min_fraction: float = 0.98
 
     def __post_init__(self) -> None:
         if not self.marker_diameter > 0:
@@ -177,26 +196,44 @@ def convergence_point(cameras: list[Camera]) -> np.ndarray:
 
 
 def detect_all(
-    images: Mapping[str, np.ndarray], cameras: list[Camera], settings: ReconstructionSettings
+    images: Mapping[str, np.ndarray],
+    cameras: list[Camera],
+    settings: ReconstructionSettings,
+    *,
+    regions: Sequence[tuple[np.ndarray, float, tuple[float, float] | None] | None] | None = None,
+    only: Sequence[int] | None = None,
 ) -> list[Detections | None]:
     """Run :func:`detect_markers` on every camera's image (None where a camera has no image).
 
     The accepted diameter range per camera follows from the marker diameter and the camera's
-    distance to the point its optical axis shares with the others.
+    distance to the point its optical axis shares with the others. The cameras are processed in
+    ``settings.workers`` threads (OpenCV and NumPy release the GIL). ``regions`` (per camera:
+    expected centres (m, 2) px, a search radius px and the image's (threshold, noise) levels or
+    None; or None for the whole image) restricts the search to those neighbourhoods
+    (:func:`reconstruction.detection.detect_markers_near`). ``only``: indices of
+    the cameras to process (the others are None).
     """
     target = convergence_point(cameras)
-    out: list[Detections | None] = []
-    for cam in cameras:
+
+    def one(c: int) -> Detections | None:
+        cam = cameras[c]
         img = images.get(cam.name)
-        if img is None:
-            out.append(None)
-            continue
+        if img is None or (only is not None and c not in only):
+            return None
         kw = dict(settings.detection)
         if "diameter_range" not in kw:
             d = expected_diameter_px(cam, settings.marker_diameter, target)
             kw["diameter_range"] = (max(0.45 * d, 2.0), max(1.7 * d, 4.0))
-        out.append(detect_markers(img, **kw))
-    return out
+        if regions is not None and regions[c] is not None and len(regions[c][0]):
+            points, radius, levels = regions[c]
+            return detect_markers_near(img, points, radius, levels=levels, **kw)
+        return detect_markers(img, **kw)
+
+    workers = min(settings.workers or os.cpu_count() or 1, len(cameras))
+    if workers <= 1:
+        return [one(c) for c in range(len(cameras))]
+    with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="detect") as pool:
+        return list(pool.map(one, range(len(cameras))))
 
 
 def _bootstrap_prior(dets, cameras, settings: ReconstructionSettings, loose: CylinderPrior | None) -> CylinderPrior | None:
@@ -423,6 +460,216 @@ def _weak_view_uncertainty(unc: np.ndarray, weak: np.ndarray, sigma_px: float, s
     return np.where(weak, unc * scale, unc)
 
 
+class SeriesTracker:
+    """Marker identities built one step at a time: what :func:`track_series` does in one go, for
+    callers that get the steps one by one (guided detection, results while a test runs).
+
+    ``add`` the reference step first, then each later step; ``search_regions`` gives where each
+    camera should look for the markers of the next step; ``result`` assembles the
+    :class:`SeriesResult` of the steps added so far (it can be called at any time).
+    """
+
+    def __init__(self, cameras: list[Camera], settings: ReconstructionSettings | None = None) -> None:
+        self.cameras = list(cameras)
+        self.settings = settings or ReconstructionSettings()
+        self._steps: list[dict] = []  # per step: centres, uncertainty, n_views, rms (n,) arrays + diagnostics
+        self._carried: list[np.ndarray] = []  # per step: (n, 3) latest positions (measured or predicted), m
+        self._prior: CylinderPrior | None = None
+        self._levels: list[tuple[float, float] | None] = [None] * len(self.cameras)  # per camera (threshold, noise)
+
+    @property
+    def n_steps(self) -> int:
+        return len(self._steps)
+
+    def add(self, detections: Sequence[np.ndarray], *, quality: Sequence[np.ndarray | None] | None = None,
+            axial_ratio: float | None = None, found: Sequence[Detections | None] | None = None) -> None:
+        """Add one step: per camera pixel centres ``(n_i, 2)``; ``quality`` per camera as
+        :attr:`Detections.quality`; ``axial_ratio`` = expected axial length ratio to the previous
+        step; ``found`` = the per-camera :class:`Detections` (for the reject counts)."""
+        if not self._steps:
+            step = self._reference(detections, quality)
+        else:
+            step = self._next(detections, quality, axial_ratio)
+        step["detected"] = np.array([len(d) for d in detections], dtype=np.int64)
+        step["rejects"] = _reject_counts(found, len(self.cameras))
+        for c, d in enumerate(found or []):
+            if d is not None and np.isfinite(d.threshold):
+                self._levels[c] = (d.threshold, d.noise)
+        self._steps.append(step)
+
+    def _reference(self, detections, quality) -> dict:
+        settings = self.settings
+        ref = points_from_detections(detections, self.cameras, settings, quality=quality)
+        n = ref.centres.shape[0]
+        if n == 0:
+            raise ValueError("no markers were reconstructed in the reference step (step 0)")
+        step = _empty_step(n, ref, tracked=n)
+        step["centres"] = ref.centres.copy()
+        step["uncertainty"], step["n_views"], step["rms"] = ref.uncertainty.copy(), ref.n_views.copy(), ref.reprojection_rms.copy()
+        # the reference has no prediction to check against: a point standing out of the smooth wall
+        # of its neighbours (a depth error of a 2-view point) is NaN in step 0; its position projected
+        # on the neighbours' surface is carried so that it is still tracked in later steps
+        carried = ref.centres.copy()
+        r0, n0 = surface_residuals(ref.centres)
+        fin = np.isfinite(r0)
+        if fin.sum() >= 10:
+            scale = 1.4826 * np.median(np.abs(r0[fin] - np.median(r0[fin]))) + np.median(np.abs(r0[fin]))
+            bad = fin & (np.abs(r0) > max(settings.reference_outlier_factor * scale, settings.reference_outlier_floor))
+            if np.any(bad):
+                carried[bad] = ref.centres[bad] - r0[bad, None] * n0[bad]
+                step["centres"][bad] = np.nan
+                step["uncertainty"][bad] = step["rms"][bad] = np.nan
+                step["n_views"][bad] = 0
+                step["outliers"], step["tracked"] = int(bad.sum()), n - int(bad.sum())
+        self._carried.append(carried)
+        self._prior = ref.prior
+        return step
+
+    def _next(self, detections, quality, axial_ratio) -> dict:
+        settings, prior = self.settings, self._prior
+        carried = self._carried[-1]
+        n = carried.shape[0]
+        loose = None
+        if prior is not None:
+            loose = CylinderPrior(radius=prior.radius, tolerance=settings.prior_tolerance * prior.radius,
+                                  axis_point=prior.axis_point, axis_direction=prior.axis_direction,
+                                  min_facing=settings.min_facing)
+        pts = points_from_detections(detections, self.cameras, settings, loose_prior=loose, quality=quality)
+        step = _empty_step(n, pts)
+        a, pred, gate = self._assign(carried, pts, axial_ratio, step)
+        ok = a >= 0
+        step["centres"][ok] = pts.centres[a[ok]]
+        step["uncertainty"][ok] = pts.uncertainty[a[ok]]
+        step["n_views"][ok] = pts.n_views[a[ok]]
+        step["rms"][ok] = pts.reprojection_rms[a[ok]]
+        step["unassigned"] = pts.centres.shape[0] - int(ok.sum())
+        rec = _guided_recovery(pred, ~ok, pts, self.cameras, settings, gate)
+        if rec is not None:
+            idx, X, u, r, v, _ = rec
+            step["centres"][idx], step["uncertainty"][idx], step["rms"][idx], step["n_views"][idx] = X, u, r, v
+            step["recovered"] = idx.size
+        vis = np.all(np.isfinite(step["centres"]), axis=1)
+        step["tracked"], step["lost"] = int(vis.sum()), n - int(vis.sum())
+        self._carried.append(np.where(vis[:, None], step["centres"], pred))
+        if pts.prior is not None:
+            self._prior = pts.prior
+        return step
+
+    def _assign(self, carried: np.ndarray, pts: StepPoints, axial_ratio, step: dict):
+        """Tracked marker -> point index (-1 = none), predicted positions (n, 3) m and the 3-D gate (m).
+
+        A point far from where its neighbours say it should be is a bad measurement (a partly
+        occluded or merged view in a 2-view point): left unassigned rather than a wrong position.
+        """
+        settings = self.settings
+        n = carried.shape[0]
+        if pts.centres.shape[0] < 6:
+            return np.full(n, -1, np.int64), carried.copy(), 0.35 * marker_spacing(carried)
+        m = match_step(carried, pts.centres, axial_ratio=axial_ratio)
+        a = m.assignment
+        step["swaps"], step["ambiguous"] = m.swaps.shape[0], int(m.ambiguous.sum())
+        r = m.residual[np.isfinite(m.residual)]
+        if r.size >= 10:
+            scale = 1.4826 * np.median(np.abs(r - np.median(r))) + np.median(r)
+            limit = max(settings.outlier_factor * scale, settings.outlier_floor)
+            bad = np.isfinite(m.residual) & (m.residual > limit)
+            if settings.readmit_strong and np.any(bad) and pts.prior is not None:
+                # near a clamped end the neighbours predict the motion poorly; a point seen in
+                # >= 2 views that all face the camera well is a sound measurement: keep it,
+                # rather than replace it by a guided point from the grazing views left over
+                bad &= ~_strong_points(pts, self.cameras, settings)[np.maximum(a, 0)]
+            a = np.where(bad, -1, a)
+            step["outliers"] = int(bad.sum())
+        return a, m.predicted, m.gate
+
+    def search_regions(self, radius_px: float) -> list[tuple[np.ndarray, float, tuple[float, float] | None]] | None:
+        """Where each camera should look for the markers of the next step: per camera the
+        projections (m, 2) px of the markers' latest positions that face it, a search radius
+        (px): ``radius_px`` plus 1.5x the 95th percentile of the markers' image motion in the last step, and
+        the camera's latest (threshold, noise) detection levels (grey levels) or None.
+        None before the reference step."""
+        if not self._carried:
+            return None
+        latest = self._carried[-1]
+        out = []
+        for cam in self.cameras:
+            px = cam.project(latest)
+            if self._prior is not None:
+                px = px[self._prior.facing(latest, cam)]
+            motion = 0.0
+            if len(self._carried) >= 2:
+                moved = np.linalg.norm(cam.project(latest) - cam.project(self._carried[-2]), axis=1)
+                moved = moved[np.isfinite(moved)]
+                motion = float(np.percentile(moved, 95)) if moved.size else 0.0
+            out.append((px[np.all(np.isfinite(px), axis=1)], radius_px + 1.5 * motion, self._levels[len(out)]))
+        return out
+
+    def detected_counts(self) -> np.ndarray | None:
+        """Detections per camera in the last step added, (n_cameras,), or None."""
+        return self._steps[-1]["detected"] if self._steps else None
+
+    def result(self, *, frame: str = "calibration", axis_sign: int = 1, progress: Progress | None = None) -> SeriesResult:
+        """The :class:`SeriesResult` of the steps added so far (see :func:`track_series`)."""
+        if frame not in ("calibration", "specimen"):
+            raise ValueError(f"frame must be 'calibration' or 'specimen'; got {frame!r}")
+        if not self._steps:
+            raise ValueError("no steps were added: add the reference step first")
+        steps = self._steps
+        centres = np.stack([s["centres"] for s in steps])
+        visible = np.all(np.isfinite(centres), axis=2)
+        positions = _surface_points(centres, visible, self.settings, progress)
+        T = np.eye(4)
+        if frame == "specimen" and visible[0].sum() >= 6:
+            R, origin = specimen_frame(centres[0], self.cameras[0].center, axis_sign=axis_sign)
+            T[:3, :3], T[:3, 3] = R, -R @ origin
+            centres = centres @ R.T + T[:3, 3]
+            positions = positions @ R.T + T[:3, 3]
+        diag = {key: np.array([s[key] for s in steps]) for key in _DIAG_KEYS}
+        diag["reject_reasons"] = np.array(REJECT_REASONS)
+        return SeriesResult(positions, centres, visible, np.stack([s["uncertainty"] for s in steps]),
+                            np.stack([s["n_views"] for s in steps]), np.stack([s["rms"] for s in steps]),
+                            np.arange(centres.shape[1]), T, diag)
+
+
+_DIAG_KEYS = ("detected", "rejects", "reconstructed", "tracked", "lost", "recovered", "unassigned", "swaps",
+              "outliers", "ambiguous", "sigma_px", "reprojection_rms_median")
+
+
+def _empty_step(n: int, pts: StepPoints, tracked: int = 0) -> dict:
+    """Per-step arrays for n tracked markers (NaN = not seen) and the step's diagnostics."""
+    return {
+        "centres": np.full((n, 3), np.nan), "uncertainty": np.full(n, np.nan), "n_views": np.zeros(n, np.int64),
+        "rms": np.full(n, np.nan), "reconstructed": pts.centres.shape[0], "tracked": tracked, "lost": 0,
+        "recovered": 0, "unassigned": 0, "swaps": 0, "outliers": 0, "ambiguous": 0, "sigma_px": pts.sigma_px,
+        "reprojection_rms_median": float(np.median(pts.reprojection_rms)) if pts.centres.shape[0] else np.nan,
+    }
+
+
+def _reject_counts(found: Sequence[Detections | None] | None, n_cams: int) -> np.ndarray:
+    """(n_cameras, n_reasons) rejected candidates per camera and reason."""
+    out = np.zeros((n_cams, len(REJECT_REASONS)), np.int64)
+    for c, d in enumerate(found or []):
+        if d is not None:
+            counts = d.reject_counts()
+            out[c] = [counts[r] for r in REJECT_REASONS]
+    return out
+
+
+def _surface_points(centres: np.ndarray, visible: np.ndarray, settings: ReconstructionSettings,
+                    progress: Progress | None) -> np.ndarray:
+    """Wall points under the markers, (n_steps, n, 3) m: centres moved one marker radius inwards."""
+    positions = np.full_like(centres, np.nan)
+    n_steps = centres.shape[0]
+    for k in range(n_steps):
+        if progress:
+            progress(k, n_steps, "surface")
+        v = visible[k]
+        if v.sum() >= 8:
+            normals = surface_normals(centres[k, v], method=settings.normals)
+            positions[k, v] = marker_surface_points(centres[k, v], settings.marker_diameter / 2, normals)
+    return positions
+
+
 def track_series(
     detections: Sequence[Sequence[np.ndarray]],
     cameras: list[Camera],
@@ -458,143 +705,53 @@ def track_series(
     -------
     SeriesResult
     """
-    settings = settings or ReconstructionSettings()
     if frame not in ("calibration", "specimen"):
         raise ValueError(f"frame must be 'calibration' or 'specimen'; got {frame!r}")
     n_steps = len(detections)
     if n_steps == 0:
         raise ValueError("detections must contain at least the reference step; got 0 steps")
-    n_cams = len(cameras)
-    rho = settings.marker_diameter / 2
-    diag = {
-        "detected": np.array([[len(d) for d in step] for step in detections], dtype=np.int64),
-        "reconstructed": np.zeros(n_steps, np.int64),
-        "tracked": np.zeros(n_steps, np.int64),
-        "lost": np.zeros(n_steps, np.int64),
-        "recovered": np.zeros(n_steps, np.int64),
-        "unassigned": np.zeros(n_steps, np.int64),
-        "swaps": np.zeros(n_steps, np.int64),
-        "outliers": np.zeros(n_steps, np.int64),
-        "ambiguous": np.zeros(n_steps, np.int64),
-        "sigma_px": np.full(n_steps, np.nan),
-        "reprojection_rms_median": np.full(n_steps, np.nan),
-        "reject_reasons": np.array(REJECT_REASONS),
-        "rejects": np.zeros((n_steps, n_cams, len(REJECT_REASONS)), np.int64),
-    }
-    if detection_stats is not None:
-        for k, step in enumerate(detection_stats):
-            for c, d in enumerate(step):
-                if d is not None:
-                    counts = d.reject_counts()
-                    diag["rejects"][k, c] = [counts[r] for r in REJECT_REASONS]
-
-    if progress:
-        progress(0, n_steps, "correspondence")
-    def quality(k):
-        if detection_stats is None:
-            return None
-        return [d.quality if d is not None else None for d in detection_stats[k]]
-
-    ref = points_from_detections(detections[0], cameras, settings, quality=quality(0))
-    n = ref.centres.shape[0]
-    if n == 0:
-        raise ValueError("no markers were reconstructed in the reference step (step 0)")
-    centres = np.full((n_steps, n, 3), np.nan)
-    unc = np.full((n_steps, n), np.nan)
-    nv = np.zeros((n_steps, n), np.int64)
-    rms = np.full((n_steps, n), np.nan)
-    centres[0], unc[0], nv[0], rms[0] = ref.centres, ref.uncertainty, ref.n_views, ref.reprojection_rms
-    diag["reconstructed"][0] = diag["tracked"][0] = n
-    diag["sigma_px"][0] = ref.sigma_px
-    diag["reprojection_rms_median"][0] = float(np.median(ref.reprojection_rms))
-    carried = ref.centres.copy()
-    # the reference has no prediction to check against: a point standing out of the smooth wall
-    # of its neighbours (a depth error of a 2-view point) is NaN in step 0; its position projected
-    # on the neighbours' surface is carried so that it is still tracked in later steps
-    r0, n0 = surface_residuals(ref.centres)
-    fin = np.isfinite(r0)
-    if fin.sum() >= 10:
-        scale = 1.4826 * np.median(np.abs(r0[fin] - np.median(r0[fin]))) + np.median(np.abs(r0[fin]))
-        bad = fin & (np.abs(r0) > max(settings.reference_outlier_factor * scale, settings.reference_outlier_floor))
-        if np.any(bad):
-            carried[bad] = ref.centres[bad] - r0[bad, None] * n0[bad]
-            centres[0, bad] = np.nan
-            unc[0, bad] = rms[0, bad] = np.nan
-            nv[0, bad] = 0
-            diag["outliers"][0] = int(bad.sum())
-            diag["tracked"][0] = n - int(bad.sum())
-    prior = ref.prior
-    for k in range(1, n_steps):
-        if progress:
-            progress(k, n_steps, "correspondence")
-        loose = None
-        if prior is not None:
-            loose = CylinderPrior(radius=prior.radius, tolerance=settings.prior_tolerance * prior.radius,
-                                  axis_point=prior.axis_point, axis_direction=prior.axis_direction,
-                                  min_facing=settings.min_facing)
-        step = points_from_detections(detections[k], cameras, settings, loose_prior=loose, quality=quality(k))
-        diag["reconstructed"][k] = step.centres.shape[0]
-        diag["sigma_px"][k] = step.sigma_px
-        if step.centres.shape[0]:
-            diag["reprojection_rms_median"][k] = float(np.median(step.reprojection_rms))
-        if progress:
-            progress(k, n_steps, "tracking")
-        ratio = None if axial_ratios is None else float(axial_ratios[k])
-        if step.centres.shape[0] >= 6:
-            m = match_step(carried, step.centres, axial_ratio=ratio)
-            a, pred = m.assignment, m.predicted
-            diag["swaps"][k] = m.swaps.shape[0]
-            diag["ambiguous"][k] = int(m.ambiguous.sum())
-            gate = m.gate
-            # a point far from where its neighbours say it should be is a bad measurement (a
-            # partly occluded or merged view in a 2-view point): NaN rather than a wrong position
-            r = m.residual[np.isfinite(m.residual)]
-            if r.size >= 10:
-                scale = 1.4826 * np.median(np.abs(r - np.median(r))) + np.median(r)
-                limit = max(settings.outlier_factor * scale, settings.outlier_floor)
-                bad = np.isfinite(m.residual) & (m.residual > limit)
-                if settings.readmit_strong and np.any(bad) and step.prior is not None:
-                    # near a clamped end the neighbours predict the motion poorly; a point seen in
-                    # >= 2 views that all face the camera well is a sound measurement: keep it,
-                    # rather than replace it by a guided point from the grazing views left over
-                    bad &= ~_strong_points(step, cameras, settings)[np.maximum(a, 0)]
-                a = np.where(bad, -1, a)
-                diag["outliers"][k] = int(bad.sum())
-        else:
-            a, pred, gate = np.full(n, -1, np.int64), carried.copy(), 0.35 * marker_spacing(carried)
-        ok = a >= 0
-        centres[k, ok] = step.centres[a[ok]]
-        unc[k, ok] = step.uncertainty[a[ok]]
-        nv[k, ok] = step.n_views[a[ok]]
-        rms[k, ok] = step.reprojection_rms[a[ok]]
-        diag["unassigned"][k] = step.centres.shape[0] - int(ok.sum())
-        rec = _guided_recovery(pred, ~ok, step, cameras, settings, gate)
-        if rec is not None:
-            idx, X, u, r, v, _ = rec
-            centres[k, idx], unc[k, idx], rms[k, idx], nv[k, idx] = X, u, r, v
-            diag["recovered"][k] = idx.size
-        vis = np.all(np.isfinite(centres[k]), axis=1)
-        diag["tracked"][k] = int(vis.sum())
-        diag["lost"][k] = n - int(vis.sum())
-        carried = np.where(vis[:, None], centres[k], pred)
-        if step.prior is not None:
-            prior = step.prior
-    visible = np.all(np.isfinite(centres), axis=2)
-    positions = np.full_like(centres, np.nan)
+    tracker = SeriesTracker(cameras, settings)
     for k in range(n_steps):
         if progress:
-            progress(k, n_steps, "surface")
-        v = visible[k]
-        if v.sum() >= 8:
-            normals = surface_normals(centres[k, v], method=settings.normals)
-            positions[k, v] = marker_surface_points(centres[k, v], rho, normals)
-    T = np.eye(4)
-    if frame == "specimen" and visible[0].sum() >= 6:
-        R, origin = specimen_frame(centres[0], cameras[0].center, axis_sign=axis_sign)
-        T[:3, :3], T[:3, 3] = R, -R @ origin
-        centres = centres @ R.T + T[:3, 3]
-        positions = positions @ R.T + T[:3, 3]
-    return SeriesResult(positions, centres, visible, unc, nv, rms, np.arange(n), T, diag)
+            progress(k, n_steps, "correspondence")
+        found = None if detection_stats is None else detection_stats[k]
+        quality = None if found is None else [d.quality if d is not None else None for d in found]
+        ratio = None if axial_ratios is None or k == 0 else float(axial_ratios[k])
+        tracker.add(detections[k], quality=quality, axial_ratio=ratio, found=found)
+    return tracker.result(frame=frame, axis_sign=axis_sign, progress=progress)
+
+
+def detect_step(
+    images: Mapping[str, np.ndarray],
+    cameras: list[Camera],
+    settings: ReconstructionSettings,
+    tracker: SeriesTracker | None = None,
+) -> list[Detections | None]:
+    """Detections of one step, guided by ``tracker`` when ``settings.guided_detection``.
+
+    From the second loaded step on (the motion of the markers in the image is then known), each
+    camera is searched only near the predicted projections of the tracked markers
+    (:meth:`SeriesTracker.search_regions`); a camera where that finds fewer than
+    ``settings.guided_min_fraction`` of its previous step's detections (a large jump, markers
+    out of their regions) is searched again over the whole image.
+    """
+    regions = None
+    if tracker is not None and settings.guided_detection and tracker.n_steps >= 2:
+        target = convergence_point(cameras)
+        d = np.median([expected_diameter_px(c, settings.marker_diameter, target) for c in cameras])
+        regions = tracker.search_regions(settings.guided_radius * d)
+    found = detect_all(images, cameras, settings, regions=regions)
+    previous = tracker.detected_counts() if tracker is not None else None
+    if regions is None or previous is None:
+        return found
+    redo = [c for c, f in enumerate(found)
+            if f is not None and len(f) < settings.guided_min_fraction * previous[c]]
+    if redo:
+        log.debug("guided detection found too few markers in cameras %s: searching the whole images", redo)
+        again = detect_all(images, cameras, settings, only=redo)
+        for c in redo:
+            found[c] = again[c]
+    return found
 
 
 def reconstruct_series(
@@ -610,6 +767,9 @@ def reconstruct_series(
 ) -> SeriesResult:
     """Full reconstruction of a session's images: detection, correspondence, tracking, offset.
 
+    Steps are processed in order (detection of step k is guided by the markers tracked up to
+    step k - 1, see :func:`detect_step`).
+
     Parameters
     ----------
     images : sequence of mappings camera name -> image (H, W), or a callable ``step -> mapping``
@@ -624,6 +784,8 @@ def reconstruct_series(
     SeriesResult
     """
     settings = settings or ReconstructionSettings()
+    if frame not in ("calibration", "specimen"):
+        raise ValueError(f"frame must be 'calibration' or 'specimen'; got {frame!r}")
     if callable(images):
         if n_steps is None:
             raise ValueError("n_steps is required when images is a callable")
@@ -632,12 +794,16 @@ def reconstruct_series(
         n_steps = len(images) if n_steps is None else n_steps
         seq = images
         get = lambda k: seq[k]  # noqa: E731
-    dets, stats = [], []
+    if n_steps == 0:
+        raise ValueError("images must contain at least the reference step; got 0 steps")
+    tracker = SeriesTracker(cameras, settings)
     for k in range(n_steps):
         if progress:
             progress(k, n_steps, "detection")
-        found = detect_all(get(k), cameras, settings)
-        stats.append(found)
-        dets.append([d.centres if d is not None else np.zeros((0, 2)) for d in found])
-    return track_series(dets, cameras, settings, axial_ratios=axial_ratios, progress=progress, detection_stats=stats,
-                        frame=frame, axis_sign=axis_sign)
+        found = detect_step(get(k), cameras, settings, tracker if k else None)
+        if progress:
+            progress(k, n_steps, "correspondence")
+        ratio = None if axial_ratios is None or k == 0 else float(axial_ratios[k])
+        tracker.add([d.centres if d is not None else np.zeros((0, 2)) for d in found],
+                    quality=[d.quality if d is not None else None for d in found], axial_ratio=ratio, found=found)
+    return tracker.result(frame=frame, axis_sign=axis_sign, progress=progress)

@@ -128,6 +128,25 @@ def board_poses(
     return np.array(rvecs), np.array(tvecs)
 
 
+_MAPS: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}  # the last ring's per-pixel maps (see _camera_maps)
+
+
+def _camera_maps(cam: Camera, sensor: SensorModel, phase: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per-pixel undistorted normalised coordinates (h, w, 2) and illumination (h, w) of a camera.
+
+    They do not change from view to view: kept for the cameras of the last ring (most of a view's
+    cost when the views are rendered one at a time, as a simulated rig captures them)."""
+    w, h = cam.image_size
+    key = b"".join([np.asarray(cam.K, float).tobytes(), np.asarray(cam.dist, float).tobytes(),
+                    np.array([w, h, phase], float).tobytes(), repr(sensor).encode()])
+    if key not in _MAPS:
+        if len(_MAPS) >= 6:
+            _MAPS.clear()
+        V, U = np.mgrid[0:h, 0:w].astype(np.float32)
+        _MAPS[key] = (undistort_grid(cam, U, V).astype(np.float64), illumination_field(U, V, (w, h), sensor, phase=phase))
+    return _MAPS[key]
+
+
 def render_board_views(
     cameras: list[Camera],
     spec: BoardSpec,
@@ -181,9 +200,7 @@ def render_board_views(
     for ci, cam in enumerate(cameras):
         w, h = cam.image_size
         win = windows[ci]
-        V, U = np.mgrid[0:h, 0:w].astype(np.float32)
-        xy = undistort_grid(cam, U, V).astype(np.float64)
-        illum = illumination_field(U, V, (w, h), sensor, phase=ci)
+        xy, illum = _camera_maps(cam, sensor, ci)
         if win is not None:  # refracted rays of every pixel, float32 (~1e-4 px at the board), by bands
             o32 = np.empty((h, w, 3), np.float32)
             d32 = np.empty((h, w, 3), np.float32)

@@ -184,7 +184,7 @@ def test_latin1_toml_is_one_line_error(tmp_path, capsys):
 class SpikyRig(FakeRig):
     """One well-formed but corrupted pressure reading (950 mmHg) in the middle of the test."""
 
-    spike_seq: int = 150
+    spike_seq: int = 60  # ~0.3 s in at 200 Hz: within the shortest run (~0.7 s unloaded)
 
     def _gen(self):
         super()._gen()

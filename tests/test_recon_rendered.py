@@ -7,48 +7,14 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from _calib_sim import SPEC, board_corners_world, rigid_fit
-from reconstruction.calibration import calibrate_from_detections
-from reconstruction.cameras import rotation_matrix
+from _recon_rendered import HIDDEN_MARKER, HIDDEN_STEP, MISSING_STEP, N_STEPS, rendered_scene
 from reconstruction.pipeline import ReconstructionSettings, reconstruct_series
 from reconstruction.surface import fit_cylinder
-from reconstruction.targets import detect_boards
-from rig_sim import camera_ring, deform_cylinder, random_marker_layout, render_markers
-from rig_sim.board import board_poses, render_board_views
-
-N_STEPS = 8
-HIDDEN_MARKER, HIDDEN_STEP = 17, 3
-MISSING_CAMERA, MISSING_STEP = "cam4", 5
 
 
 @pytest.fixture(scope="module")
 def rendered():
-    cams = camera_ring(6, image_size=(1224, 1024), seed=3)
-    rv, tv = board_poses(cams, SPEC, 16, seed=0)
-    views = render_board_views(cams, SPEC, rv, tv, seed=0)
-    calib = calibrate_from_detections(detect_boards(views.images, SPEC), SPEC, {c.name: c.image_size for c in cams},
-                                      fix_k3=True)
-    # the estimated world frame is the calibration's own; map it to the truth frame through the
-    # boards only (independent of the markers), to compare with the ground truth
-    est, ok = board_corners_world(calib.board_rvecs, calib.board_tvecs)
-    true = np.concatenate([SPEC.object_points() @ rotation_matrix(r).T + t for r, t in zip(views.rvecs[ok], views.tvecs[ok])])
-    R, t = rigid_fit(est, true)
-    layout = random_marker_layout(300, seed=2)
-    lt = 1 + 0.05 * np.arange(N_STEPS)
-    lz = 1 + 0.02 * np.arange(N_STEPS)
-    pts, nrm, prof = deform_cylinder(layout, lt, lz, bulge=0.03)
-    frames, images = [], []
-    for k in range(N_STEPS):
-        p = pts[k].copy()
-        if k == HIDDEN_STEP:
-            p[HIDDEN_MARKER] = np.nan  # e.g. a bubble over the marker
-        fr = render_markers(cams, p, nrm[k], prof[k], marker_radius=0.2e-3, seed=10 + k)
-        imgs = {c.name: im for c, im in zip(cams, fr.images)}
-        if k == MISSING_STEP:
-            del imgs[MISSING_CAMERA]
-            fr.truth.visible[4] = False
-        frames.append(fr)
-        images.append(imgs)
+    cams, calib, frames, images, (R, t) = rendered_scene()
     settings = ReconstructionSettings(marker_diameter=0.4e-3, specimen_radius=0.010)
     res = reconstruct_series(images, calib.cameras, settings)
     centres = res.centres @ R.T + t

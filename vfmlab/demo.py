@@ -32,6 +32,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from acquisition.session import open_session
+from vfmlab.live_results import display_unit
 
 __all__ = ["DemoError", "DemoOutcome", "DemoSettings", "run_demo", "truth_table"]
 
@@ -57,7 +58,7 @@ class DemoSettings:
     material: str = "fung"
     clamped: bool = False
     models: tuple[str, ...] = DEMO_MODELS
-    sim_speed: float = 5.0
+    sim_speed: float = 10.0
     seed: int = 0
 
 
@@ -67,6 +68,7 @@ class DemoOutcome:
     report: Path
     results: dict[str, str] = field(default_factory=dict)  # model -> identification result name
     stage_seconds: dict[str, float] = field(default_factory=dict)
+    stage_cpu_seconds: dict[str, float] = field(default_factory=dict)  # this process, all threads
 
 
 def _data_file(name: str) -> dict:
@@ -93,10 +95,11 @@ def write_demo_files(out_dir: Path, settings: DemoSettings) -> tuple[Path, Path]
 
 def _stage(console: Console, index: int, total: int, title: str, outcome: DemoOutcome, key: str, action) -> None:
     console.rule(f"[bold]{index}/{total}  {title}")
-    start = time.perf_counter()
+    start, cpu = time.perf_counter(), time.process_time()
     action()
     outcome.stage_seconds[key] = time.perf_counter() - start
-    console.print(f"[dim]{title}: {outcome.stage_seconds[key]:.1f} s[/]")
+    outcome.stage_cpu_seconds[key] = time.process_time() - cpu
+    console.print(f"[dim]{title}: {outcome.stage_seconds[key]:.1f} s (CPU {outcome.stage_cpu_seconds[key]:.1f} s)[/]")
 
 
 def _command(argv: list[str], stage: str) -> None:
@@ -178,7 +181,7 @@ def truth_table(session: Path, material: str) -> tuple[Table, list[dict]]:
                 err = None if true is None else (values[i] - true) / true
                 rows.append({"model": model, "parameter": pname, "value": float(values[i]),
                              "stderr": float(errors[i]), "true": true, "relative_error": err})
-                scale, unit = _display_unit(pname)
+                scale, unit = display_unit(pname)
                 table.add_row(
                     model if i == 0 else "", f"{pname} [{unit}]" if unit else pname,
                     f"{values[i] / scale:.4g}", f"{errors[i] / scale:.2g}",
@@ -190,14 +193,6 @@ def truth_table(session: Path, material: str) -> tuple[Table, list[dict]]:
     return table, rows
 
 
-def _display_unit(name: str) -> tuple[float, str]:
-    if name in ("beta", "c", "k1", "mu"):
-        return 1e3, "kPa"
-    if name == "phi":
-        return np.pi / 180, "deg"
-    return 1.0, ""
-
-
 def summarize(console: Console, outcome: DemoOutcome, settings: DemoSettings) -> None:
     """Print the truth table, the flags in words, the stage times and where the files are."""
     table, _ = truth_table(outcome.session, settings.material)
@@ -207,7 +202,8 @@ def summarize(console: Console, outcome: DemoOutcome, settings: DemoSettings) ->
             for flag in s.result(name)["attrs"].get("flags") or []:
                 console.print(f"[yellow]{model}[/]: {escape(str(flag))}")
     times = ", ".join(f"{k} {v:.1f} s" for k, v in outcome.stage_seconds.items())
-    console.print(f"[dim]Stage times: {times}; total {sum(outcome.stage_seconds.values()):.1f} s[/]")
+    console.print(f"[dim]Stage times: {times}; total {sum(outcome.stage_seconds.values()):.1f} s "
+                  f"(CPU {sum(outcome.stage_cpu_seconds.values()):.1f} s)[/]")
     console.print(f"Session: [bold]{escape(str(outcome.session))}[/]")
     console.print(f"Report:  [bold]{escape(str(outcome.report))}[/]")
 

@@ -17,6 +17,7 @@ from collections.abc import Sequence
 import click
 from rich.console import Console, Group
 from rich.live import Live
+from rich.markup import escape
 from rich.panel import Panel
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 from rich.table import Table
@@ -48,8 +49,34 @@ def _num(value: float, fmt: str) -> str:
     return text.replace("-", " ", 1) if float(text) == 0 else text  # never "-0.00"
 
 
-def render_state(state: RunnerState, title: str = "vfmlab run"):
-    """A rich renderable of the runner's state (see module docstring)."""
+def render_live_results(status) -> Group:
+    """The "results while the test runs" panel: the latest parameters of each model with their
+    standard errors (kPa, degrees or dimensionless), steps reconstructed, markers tracked."""
+    from vfmlab.live_results import display_unit
+
+    head = Text(f"{status.steps_reconstructed} steps reconstructed · {status.tracked} markers tracked · "
+                f"{status.message}", style="dim")
+    parts = [head]
+    if status.estimates:
+        table = Table(box=None, padding=(0, 2), show_edge=False)
+        for column, justify in (("model", "left"), ("parameter", "left"), ("value", "right"), ("± std. err.", "right"),
+                                ("steps", "right")):
+            table.add_column(column, justify=justify)
+        for model, est in status.estimates.items():
+            for i, name in enumerate(est.names):
+                scale, unit = display_unit(name)
+                table.add_row(model if i == 0 else "", escape(f"{name} [{unit}]") if unit else name,
+                              f"{est.values[i] / scale:.4g}", f"{est.stderr[i] / scale:.2g}",
+                              str(len(est.rows)) if i == 0 else "")
+        parts.append(table)
+    if status.error:
+        parts.append(Text("⚠ live results: " + status.error, style="yellow"))
+    return Group(*parts)
+
+
+def render_state(state: RunnerState, title: str = "vfmlab run", results=None):
+    """A rich renderable of the runner's state (see module docstring); ``results`` (a
+    :class:`vfmlab.live_results.LiveStatus`) adds the parameters identified so far."""
     readings = Table.grid(padding=(0, 2))
     readings.add_column(justify="right", style="bold")
     readings.add_column()
@@ -79,6 +106,8 @@ def render_state(state: RunnerState, title: str = "vfmlab run"):
         for w in state.warnings[-3:]:
             warn.append("⚠ " + w + "\n", style="yellow")
         parts.append(warn)
+    if results is not None:
+        parts.append(Panel(render_live_results(results), title="Results while the test runs", border_style="green"))
     border = "yellow" if state.phase == "paused" else "blue"
     return Panel(Group(*parts), title=title, border_style=border, subtitle="Ctrl-C: pause")
 
@@ -89,8 +118,9 @@ class LiveView:
     Updates are rate-limited to ``max_fps``; :meth:`suspend` hides the view for a prompt.
     """
 
-    def __init__(self, console: Console, title: str = "vfmlab run", max_fps: float = 8.0):
+    def __init__(self, console: Console, title: str = "vfmlab run", max_fps: float = 8.0, results=None):
         self.console, self.title = console, title
+        self.results = results  # callable () -> LiveStatus, or None
         self._min_dt = 1.0 / max_fps
         self._last = 0.0
         self.state = RunnerState()
@@ -105,7 +135,7 @@ class LiveView:
         return self
 
     def __exit__(self, *exc: object) -> None:
-        self._live.update(render_state(self.state, self.title), refresh=False)
+        self._live.update(self._render(self.state), refresh=False)
         self._live.stop()
         self._active = False
 
@@ -116,7 +146,10 @@ class LiveView:
             return
         self._last = now
         with self._lock:
-            self._live.update(render_state(state, self.title), refresh=True)
+            self._live.update(self._render(state), refresh=True)
+
+    def _render(self, state: RunnerState):
+        return render_state(state, self.title, self.results() if self.results is not None else None)
 
     def suspend(self):
         """Context manager: stop the live display while prompting the operator."""

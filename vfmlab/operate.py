@@ -120,9 +120,10 @@ def _sigint_pauses(runner: SessionRunner, console: Console):
 def _execute(runner_kwargs: dict[str, Any], protocol: Protocol, writer: SessionWriter, bench: Bench,
              console: Console, yes: bool, start_step: int, precondition: bool, calibrate: bool,
              detector: Callable[[np.ndarray], int] | None,
-             observer: Callable[[RunnerState, Bench], None] | None = None) -> SessionRunner:
+             observer: Callable[[RunnerState, Bench], None] | None = None, results: Any = None) -> SessionRunner:
     live = console.is_terminal
-    view = LiveView(console, title=f"vfmlab run · {esc(writer.path.name)}") if live else None
+    view = (LiveView(console, title=f"vfmlab run · {esc(writer.path.name)}",
+                     results=results.status if results else None) if live else None)
     if yes:
         operator = AutoOperator(set_pressure=bench.operator_pressure, set_stretch=bench.stage,
                                 place_board=bench.place_board, remove_board=bench.remove_board)
@@ -145,7 +146,8 @@ def _execute(runner_kwargs: dict[str, Any], protocol: Protocol, writer: SessionW
 
     runner = SessionRunner(protocol, writer, pressure=bench.pressure, sampler=bench.sampler, cameras=bench.cameras,
                            operator=operator, pressure_mode=bench.config.pressure.mode, stage=bench.stage,
-                           safety=bench.config.safety, detector=detector, on_update=on_update, **runner_kwargs)
+                           safety=bench.config.safety, detector=detector, on_update=on_update,
+                           on_step_captured=results.on_step if results is not None else None, **runner_kwargs)
     with _sigint_pauses(runner, console), (view if view is not None else contextlib.nullcontext()):
         runner.run(start_step=start_step, precondition=precondition, calibrate=calibrate)
     runner.state.message = runner.status
@@ -177,10 +179,14 @@ def specimen_ends(rig, specimen, sim: bool, console: Console | None = None) -> t
 def run_session(protocol_path: str, specimen_path: str, out: str, *, rig_path: str | None = None,
                 sim: bool = False, yes: bool = False, sim_speed: float = 1.0, console: Console,
                 detector: Callable[[np.ndarray], int] | None = None,
-                observer: Callable[[RunnerState, Bench], None] | None = None, **runner_kwargs: Any) -> Outcome:
+                observer: Callable[[RunnerState, Bench], None] | None = None, live_models: tuple[str, ...] = (),
+                live_options: dict[str, Any] | None = None, **runner_kwargs: Any) -> Outcome:
     """``vfmlab run``: validate, assemble the rig, create the session file and run the protocol.
 
     ``observer(state, bench)`` is called at every runner update (tests inject faults with it).
+    ``live_models``: models identified while the test runs (:mod:`vfmlab.live_results`; keyword
+    arguments of :class:`~vfmlab.live_results.LiveResults` in ``live_options``); their final
+    estimates are stored as "identification" results.
     """
     try:
         rig = _load_rig(rig_path, sim)
@@ -226,9 +232,41 @@ def run_session(protocol_path: str, specimen_path: str, out: str, *, rig_path: s
                 load_cell_measures=rig.load_cell.measures, overwrite=replace_leftover)
         except (SessionError, OSError) as exc:
             raise OperateError(str(exc)) from None
+        results = _live_results(out_path, specimen, rig, live_models, live_options)
         runner = _execute(runner_kwargs, protocol, writer, bench, console, yes, 0, True, True, detector,
-                          observer)
-    return _report(runner, out_path, console)
+                          observer, results)
+    outcome = _report(runner, out_path, console)
+    if results is not None:
+        _finish_live_results(results, out_path, console)
+    return outcome
+
+
+def _live_results(path: Path, specimen: SpecimenFile, rig: RigConfig, models: tuple[str, ...],
+                  options: dict[str, Any] | None):
+    """The background reconstruction + identification of the steps, or None (no models)."""
+    if not models:
+        return None
+    from vfmlab.live_results import LiveResults
+
+    kwargs = dict(thickness=specimen.thickness, radius=specimen.radius, models=tuple(models),
+                  load_cell_measures=rig.load_cell.measures)
+    kwargs.update(options or {})
+    return LiveResults(path, **kwargs)
+
+
+def _finish_live_results(results, path: Path, console: Console) -> None:
+    """Wait for the last steps' results, print and store them; a failure here is only reported."""
+    from vfmlab.live import render_live_results
+
+    try:
+        status = results.close()
+        console.print(render_live_results(status))
+        if status.estimates:
+            names = results.store(path)
+            console.print(f"live results stored as {', '.join(names)} in {path}")
+    except Exception as exc:  # noqa: BLE001 - the test itself is complete and saved
+        log.warning("live results could not be finished: %s", exc, exc_info=True)
+        console.print(f"[yellow]live results could not be stored: {exc}[/]")
 
 
 def resume_session(path: str, *, rig_path: str | None = None, sim: bool = False, yes: bool = False,

@@ -22,7 +22,7 @@ import numpy as np
 
 from acquisition.errors import ImplausibleInputError, InputError
 from acquisition.plausibility import check_identifiable
-from acquisition.session import SessionError, open_session, write_result
+from acquisition.session import SessionError, SessionWriteError, open_session, write_result
 
 log = logging.getLogger(__name__)
 
@@ -32,7 +32,7 @@ PRESSURE_NOISE = 3.0
 #: Standard deviation of a load-cell reading used for the parameter uncertainty (N).
 FORCE_NOISE = 0.002
 
-__all__ = ["STAGES", "StageError", "StageUnavailable", "identify_session", "identify_stored",
+__all__ = ["STAGES", "StageError", "StageUnavailable", "identification_arrays", "identify_session", "identify_stored",
            "load_identification_inputs", "reconstruct_session", "reconstruct_stored", "resolve_ends",
            "session_calibrated_cameras", "session_step_rows"]
 
@@ -193,20 +193,25 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
     settings = {"model": model, "wall": wall, "ends": ends, "ends_source": ends_source, "optimizer": optimizer,
                 "smoothing": smoothing, "markers_result": data["markers_result"], "thickness": data["thickness"],
                 "force_correction": force_notes}
-    arrays, attrs = _result_record(result, data["rows"], checks)
+    arrays, _, attrs = identification_arrays(result, data["rows"], checks)
     attrs.update({"model": model, "wall": wall, "invoked_by": invoked_by, "notes": data["notes"]})
     data["settings"] = settings
     try:
         group = write_result(path, "identification", arrays, settings, attrs=attrs,
                              units={"ivw": "J", "evw": "J", "residuals": "1"})
+    except SessionWriteError:  # a failed write (disk full, locked): exit 1, not bad input
+        raise
     except SessionError as exc:
         raise StageError(str(exc)) from None
     return group, result, data
 
 
-def _result_record(result, rows, checks) -> tuple[dict, dict]:
-    """Arrays and attributes of an "identification" result (plus what the setting checks measured)."""
+def identification_arrays(result: Any, rows: np.ndarray, checks: Any = None) -> tuple[dict, dict, dict]:
+    """The arrays, settings (empty: the caller's) and attributes of an "identification" result
+    for an identification result object and the step-table rows (n_steps,) it was given, plus
+    what the setting checks (``identification.checks``) measured when given."""
     names = list(result.parameters)
+    rows = np.asarray(rows)
     arrays = {
         "parameters": np.array([result.parameters[n] for n in names]),
         "stderr": np.array([result.stderr[n] for n in names]),
@@ -215,20 +220,21 @@ def _result_record(result, rows, checks) -> tuple[dict, dict]:
         "ivw": result.ivw,
         "evw": result.evw,
         "residuals": result.residuals,
-        "step_index": rows if result.steps is None else rows[list(result.steps)],
+        "step_index": rows if getattr(result, "steps", None) is None else rows[list(result.steps)],
     }
-    if result.uncertainty is not None:
+    if getattr(result, "uncertainty", None) is not None:
         arrays["interval_low"] = np.array([result.uncertainty.interval[n][0] for n in names])
         arrays["interval_high"] = np.array([result.uncertainty.interval[n][1] for n in names])
         arrays["bootstrap_bias"] = np.array([result.uncertainty.bias[n] for n in names])
     attrs = {"cost": result.cost, "converged": result.converged, "flags": list(result.flags),
              "message": result.message, "n_evaluations": result.n_evaluations,
              "field_names": list(result.field_names), "smoothing_used": json.dumps(data_smoothing(result)),
-             "uncertainty": "parametric bootstrap, 95 % intervals" if result.uncertainty is not None else "gauss-newton"}
+             "uncertainty": ("parametric bootstrap, 95 % intervals" if getattr(result, "uncertainty", None) is not None
+                             else "gauss-newton")}
     if checks is not None:
         attrs.update({"check_taper": list(checks.taper), "check_gap": checks.gap,
                       "check_gap_other_ends": checks.gap_other_ends, "check_gap_other_wall": checks.gap_other_wall})
-    return arrays, attrs
+    return arrays, {}, attrs
 
 
 def _check_setup(result, positions):
@@ -371,6 +377,8 @@ def reconstruct_stored(path: str | os.PathLike, *, cameras: list | None = None, 
         name = write_result(path, "markers", arrays, params, attrs,
                             units={"positions": "m", "centres": "m", "uncertainty": "m", "reprojection_rms": "px",
                                    "world_to_rig": "m"})
+    except SessionWriteError:  # a failed write (disk full, locked): exit 1, not bad input
+        raise
     except SessionError as exc:
         raise StageError(str(exc)) from None
     return name, res, rows, names, calibration_source

@@ -167,6 +167,7 @@ class SimScene:
     def remove_board(self) -> None:
         with self._lock:
             self.board_view = None
+            self._board_images = {}
 
     def _board(self, k: int) -> list[np.ndarray]:
         if k not in self._board_images:

@@ -34,7 +34,7 @@ Examples:
               help="Markers glued on the simulated artery.")
 @click.option("--clamped/--homogeneous", default=False, show_default=True,
               help="Simulated tube clamped on cannulae (strain varies along the axis) or homogeneous.")
-@click.option("--sim-speed", "sim_speed", type=click.FloatRange(1.0, 50.0), default=5.0, show_default=True,
+@click.option("--sim-speed", "sim_speed", type=click.FloatRange(1.0, 50.0), default=10.0, show_default=True,
               help="How much faster than real time the simulated pressure settles (as 'vfmlab run --sim-speed').")
 @click.option("--speed", "old_speed", type=click.FloatRange(1.0, 50.0), default=None, hidden=True,
               help="Old spelling of --sim-speed.")

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import click
 
-from vfmlab.cli._common import CliError, console, err_console
-from vfmlab.cli.cmd_run import require_answers
+from vfmlab.cli._common import console, err_console
+from vfmlab.cli.cmd_run import finish_session, require_answers
 
 EPILOG = """
 \b
@@ -36,19 +36,10 @@ Examples:
 def command(session: str, rig: str | None, sim: bool, sim_speed: float, old_speed: float | None, yes: bool,
             detect: bool, as_json: bool) -> None:
     """Continue SESSION (.h5) where it stopped."""
-    from vfmlab.operate import OperateError, as_json as outcome_json, detector_from_reconstruction, resume_session
+    from vfmlab.operate import detector_from_reconstruction, resume_session
 
     require_answers(yes)
-    try:
-        outcome = resume_session(session, rig_path=rig, sim=sim, yes=yes,
-                                 sim_speed=old_speed if old_speed is not None else sim_speed,
-                                 console=err_console if as_json else console,
-                                 detector=detector_from_reconstruction() if detect else None)
-    except OperateError as exc:
-        error = CliError(str(exc))
-        error.exit_code = exc.exit_code
-        raise error from None
-    if as_json:
-        click.echo(outcome_json(outcome))
-    if outcome.failed:
-        raise click.exceptions.Exit(1)
+    finish_session(lambda: resume_session(session, rig_path=rig, sim=sim, yes=yes,
+                                          sim_speed=old_speed if old_speed is not None else sim_speed,
+                                          console=err_console if as_json else console,
+                                          detector=detector_from_reconstruction() if detect else None), as_json)

@@ -6,7 +6,7 @@ import sys
 
 import click
 
-from vfmlab.cli._common import CliError, console, err_console
+from vfmlab.cli._common import CliError, CliInputError, console, err_console
 from vfmlab.cli._outputs import check_output_path
 
 EPILOG = """
@@ -48,20 +48,37 @@ def require_answers(yes: bool) -> None:
               help="Unattended: no prompts (capture anyway when a level does not settle; Ctrl-C quits resumably).")
 @click.option("--detect/--no-detect", default=True, show_default=True,
               help="Count markers in each capture for the live view.")
+@click.option("--live-models", default="none", show_default=True, metavar="MODELS",
+              help="Models identified while the test runs (comma-separated: fung, delfino, hgo, neohookean; "
+                   "'none' to switch off): each step is reconstructed in the background (cameras calibrated from "
+                   "the board views) and the final parameters are stored as identification results.")
 @click.option("--json", "as_json", is_flag=True,
               help="Progress on stderr; print the outcome (status, path, n_steps, elapsed_s) as JSON on stdout.")
 def command(protocol: str, specimen: str, out: str, rig: str | None, sim: bool, sim_speed: float,
-            old_speed: float | None, yes: bool, detect: bool, as_json: bool) -> None:
+            old_speed: float | None, yes: bool, detect: bool, live_models: str, as_json: bool) -> None:
     """Run PROTOCOL (TOML) on the rig, writing every step to the session file --out as it happens."""
-    from vfmlab.operate import OperateError, as_json as outcome_json, detector_from_reconstruction, run_session
+    from vfmlab.operate import detector_from_reconstruction, run_session
 
     require_answers(yes)
     check_output_path(out, force=False, inputs=[protocol, specimen, rig], can_force=False, leftover_ok=True)
+    models = tuple(m.strip() for m in live_models.split(",") if m.strip() and m.strip() != "none")
+    unknown = [m for m in models if m not in ("fung", "delfino", "hgo", "neohookean")]
+    if unknown:
+        raise CliInputError(f"--live-models must be among fung, delfino, hgo, neohookean or 'none'; got {unknown}")
+    finish_session(lambda: run_session(protocol, specimen, out, rig_path=rig, sim=sim, yes=yes,
+                                       sim_speed=old_speed if old_speed is not None else sim_speed,
+                                       console=err_console if as_json else console,
+                                       detector=detector_from_reconstruction() if detect else None,
+                                       live_models=models), as_json)
+
+
+def finish_session(operate, as_json: bool) -> None:
+    """Run ``operate()`` (a run or a resume), print its outcome as JSON if asked, and end with
+    exit code 1 when the session aborted or failed (decision 0007)."""
+    from vfmlab.operate import OperateError, as_json as outcome_json
+
     try:
-        outcome = run_session(protocol, specimen, out, rig_path=rig, sim=sim, yes=yes,
-                              sim_speed=old_speed if old_speed is not None else sim_speed,
-                              console=err_console if as_json else console,
-                              detector=detector_from_reconstruction() if detect else None)
+        outcome = operate()
     except OperateError as exc:
         error = CliError(str(exc))
         error.exit_code = exc.exit_code

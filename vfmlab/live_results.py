@@ -1,0 +1,234 @@
+"""Results while the test runs: each captured step is reconstructed in a background thread and,
+once the reference and two loaded steps exist, the chosen model(s) are identified after every
+step, so that the operator sees the material's parameters (with their standard errors) before
+the specimen is unmounted.
+
+The capture loop never waits for this: :meth:`LiveResults.on_step` (the runner's
+``on_step_captured`` hook) only queues the step's images and readings. The worker reconstructs
+with :class:`reconstruction.SeriesTracker` (guided detection, step by step) and identifies with
+:func:`identification.identify`; any failure is logged and shown in the live view, never raised
+into the test. The cameras are the given calibration or, by default, a calibration computed from
+the session's board views (read from the session file while it is being written, SWMR). After
+the run, :meth:`LiveResults.store` writes the final identifications as normal "identification"
+results (``invoked_by = "run (live)"``).
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["LiveEstimate", "LiveResults", "LiveStatus", "calibrate_from_session", "display_unit"]
+
+log = logging.getLogger(__name__)
+
+_STOP = object()
+
+
+@dataclass(frozen=True)
+class LiveEstimate:
+    """The latest identification of one model: SI values and standard errors per parameter."""
+
+    model: str
+    names: tuple[str, ...]
+    values: np.ndarray  # (n_params,) SI (Pa for stress-like parameters, rad for angles)
+    stderr: np.ndarray  # (n_params,) same units
+    rows: np.ndarray  # (n_steps,) step-table rows used, the reference first
+    cost: float
+    flags: tuple[str, ...]
+    result: object = field(repr=False, default=None)  # the identification result object
+
+
+@dataclass(frozen=True)
+class LiveStatus:
+    """What the live view shows: steps reconstructed, markers tracked, estimates, a message."""
+
+    steps_reconstructed: int = 0
+    tracked: int = 0
+    estimates: dict[str, LiveEstimate] = field(default_factory=dict)
+    message: str = "waiting for the reference step"
+    error: str = ""
+    seconds_per_step: float = float("nan")  # worker time for the last step (reconstruction + identification)
+
+
+def display_unit(name: str) -> tuple[float, str]:
+    """(SI value per display unit, unit) of a model parameter: kPa for stress-like ones, degrees
+    for angles, ("", 1) for dimensionless ones."""
+    if name in ("beta", "c", "k1", "mu"):
+        return 1e3, "kPa"
+    if name == "phi":
+        return np.pi / 180, "deg"
+    return 1.0, ""
+
+
+def calibrate_from_session(path: str | Path, fix_k3: bool = True) -> list:
+    """Calibrated cameras from the session's calibration-board views (``vfmlab calibrate``'s
+    defaults: ChArUco board, joint bundle adjustment), reading the file while it is written."""
+    from acquisition.session import open_session
+    from reconstruction.calibration import calibrate_from_detections
+    from reconstruction.targets import BoardSpec, detect_board
+
+    spec = BoardSpec()
+    detections, sizes = {}, {}
+    with open_session(path) as s:
+        for name in s.camera_names:
+            images = s.calibration_images(name)
+            if len(images) == 0:
+                raise ValueError(f"{path}: no calibration-board views for camera {name!r}")
+            sizes[name] = (images.shape[2], images.shape[1])
+            detections[name] = [detect_board(im, spec) for im in images]
+    return calibrate_from_detections(detections, spec, sizes, fix_k3=fix_k3).cameras
+
+
+class LiveResults:
+    """Background reconstruction and identification of the steps of a running test.
+
+    Parameters
+    ----------
+    session : path of the session file being written (for the calibration views).
+    thickness, radius : float
+        Reference wall thickness and outer radius of the specimen, m.
+    models : sequence of str
+        Models to identify ("fung", "delfino", "hgo", "neohookean").
+    marker_diameter : float
+        m.
+    load_cell_measures : {"wall", "total"}
+        A "total" reading is corrected to the wall force (+ p pi r_i^2, decision 0003).
+    ends : {"free", "clamped"}
+    cameras : list of Camera, optional
+        Calibrated cameras; default: :func:`calibrate_from_session` at the reference step.
+    calibrate : callable () -> list of Camera, optional
+        Replaces :func:`calibrate_from_session` (tests).
+    """
+
+    def __init__(self, session: str | Path, *, thickness: float, radius: float | None = None,
+                 models: Sequence[str] = ("fung",), marker_diameter: float = 0.4e-3,
+                 load_cell_measures: str = "wall", ends: str = "free", cameras: list | None = None,
+                 calibrate: Callable[[], list] | None = None) -> None:
+        if load_cell_measures not in ("wall", "total"):
+            raise ValueError(f"load_cell_measures must be 'wall' or 'total'; got {load_cell_measures!r}")
+        self.session, self.models, self.ends = Path(session), tuple(models), ends
+        self.thickness, self.radius, self.marker_diameter = float(thickness), radius, float(marker_diameter)
+        self.load_cell_measures = load_cell_measures
+        self._cameras = cameras
+        self._calibrate = calibrate or (lambda: calibrate_from_session(self.session))
+        self._queue: queue.SimpleQueue = queue.SimpleQueue()
+        self._lock = threading.Lock()
+        self._status = LiveStatus()
+        self._tracker = None
+        self._off = ""  # why the worker stopped for good (no calibration), or ""
+        self._readings: list[tuple[int, float, float]] = []  # (row, pressure Pa, wall force N) per step
+        self._thread = threading.Thread(target=self._work, name="live-results", daemon=True)
+        self._thread.start()
+
+    # ---------------------------------------------------------------- runner side (never blocks)
+    def on_step(self, row: int, images: dict[str, np.ndarray], record) -> None:
+        """The runner's ``on_step_captured`` hook: queue the step (test steps only) and return."""
+        if record.block < 0:
+            return  # imaged preconditioning is not a test step
+        if record.supersedes >= 0:
+            self._set(message=f"step row {record.supersedes} was retaken: live results keep the first capture")
+            return
+        self._queue.put((row, images, float(record.pressure), float(record.force)))
+
+    def status(self) -> LiveStatus:
+        """A snapshot for the live view (thread-safe)."""
+        with self._lock:
+            return self._status
+
+    def close(self, timeout: float | None = 60.0) -> LiveStatus:
+        """Finish the queued steps (at most ``timeout`` s) and stop the worker; the final status."""
+        self._queue.put(_STOP)
+        self._thread.join(timeout)
+        if self._thread.is_alive():
+            log.warning("live results: still busy after %.0f s; the final estimates are those of an earlier step",
+                        timeout)
+        return self.status()
+
+    def store(self, path: str | Path | None = None) -> list[str]:
+        """Write the final estimates as "identification" results of the session; their names."""
+        from acquisition.session import write_result
+        from vfmlab.pipeline import identification_arrays
+
+        names = []
+        for model, est in self.status().estimates.items():
+            arrays, settings, attrs = identification_arrays(est.result, est.rows)
+            settings.update(model=model, wall="membrane", ends=self.ends, optimizer="lsq", smoothing=None,
+                            markers_result="(live reconstruction)", thickness=self.thickness)
+            attrs.update(model=model, wall="membrane", invoked_by="run (live)")
+            names.append(write_result(path or self.session, "identification", arrays, settings, attrs=attrs,
+                                      units={"ivw": "J", "evw": "J", "residuals": "1"}))
+        return names
+
+    # ---------------------------------------------------------------- worker
+    def _set(self, **changes) -> None:
+        with self._lock:
+            self._status = replace(self._status, **changes)
+
+    def _work(self) -> None:
+        while True:
+            item = self._queue.get()
+            if item is _STOP:
+                return
+            if self._off:
+                continue  # the queue is drained, nothing is computed
+            t0 = time.perf_counter()
+            try:
+                self._step(*item)
+            except Exception as exc:  # noqa: BLE001 - results while the test runs must never stop it
+                log.warning("live results: step row %d failed: %s", item[0], exc, exc_info=True)
+                self._set(error=f"step row {item[0]}: {type(exc).__name__}: {exc}")
+            self._set(seconds_per_step=time.perf_counter() - t0)
+
+    def _step(self, row: int, images: dict[str, np.ndarray], pressure: float, force: float) -> None:
+        from reconstruction.pipeline import ReconstructionSettings, SeriesTracker, detect_step
+
+        if self._tracker is None:
+            if self._cameras is None:
+                self._set(message="calibrating from the board views")
+                try:
+                    self._cameras = self._calibrate()
+                except Exception as exc:
+                    self._off = f"no calibration ({exc}): live results are off for this run"
+                    self._set(message=self._off)
+                    raise
+            settings = ReconstructionSettings(marker_diameter=self.marker_diameter, specimen_radius=self.radius)
+            self._tracker = SeriesTracker(self._cameras, settings)
+        tracker = self._tracker
+        found = detect_step(images, tracker.cameras, tracker.settings, tracker if tracker.n_steps else None)
+        tracker.add([d.centres if d is not None else np.zeros((0, 2)) for d in found],
+                    quality=[d.quality if d is not None else None for d in found], found=found)
+        if self.load_cell_measures == "total":
+            force = force + pressure * np.pi * (self.radius - self.thickness) ** 2
+        self._readings.append((row, pressure, force))
+        n = tracker.n_steps
+        result = tracker.result(frame="specimen")
+        self._set(steps_reconstructed=n, tracked=int(result.visible[-1].sum()),
+                  message="waiting for two loaded steps" if n < 3 else f"identifying after step row {row}")
+        if n >= 3:
+            self._identify(result.positions, np.array(self._readings))
+
+    def _identify(self, positions: np.ndarray, readings: np.ndarray) -> None:
+        from identification import identify
+
+        estimates = dict(self.status().estimates)
+        for model in self.models:
+            try:
+                res = identify(positions, readings[:, 1], readings[:, 2], thickness=self.thickness, model=model,
+                               ends=self.ends)
+            except Exception as exc:  # noqa: BLE001 - one model failing must not hide the others
+                log.info("live results: %s not identified from %d steps: %s", model, positions.shape[0], exc)
+                self._set(error=f"{model}: {exc}")
+                continue
+            names = tuple(res.parameters)
+            estimates[model] = LiveEstimate(model, names, np.array([res.parameters[k] for k in names]),
+                                            np.array([res.stderr[k] for k in names]), readings[:, 0].astype(int),
+                                            float(res.cost), tuple(res.flags), res)
+        self._set(estimates=estimates, message=f"{positions.shape[0]} steps reconstructed and identified")
