@@ -86,7 +86,9 @@ class ClampedSolution:
         Wall time of this solve (including any pressure sub-steps).
     model : str
     params : dict
-        SI parameters.
+        SI parameters (the reference values; local values are ``stress_scale(Z)`` times the stress-like ones).
+    stress_scale : callable or None
+        Local stress multiplier m(Z) of the solve (None: homogeneous tube).
     """
 
     pressure: float
@@ -107,6 +109,7 @@ class ClampedSolution:
     solve_time: float
     model: str
     params: dict
+    stress_scale: object = None
 
     def evaluate(self, Z) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Profile (r, z, dr/dZ, dz/dZ) at reference Z (n,) m, from the BVP's own C1 cubic interpolant."""
@@ -117,7 +120,8 @@ class ClampedSolution:
     def wall_force(self, Z) -> np.ndarray:
         """Wall axial force N(Z) = 2 pi R H S_s dz/dZ [N] at reference Z (n,)."""
         r, _, a, b = self.evaluate(Z)
-        return _wall_force((get_law(self.model), self.params), r, a, b, self.radius, self.thickness)
+        return _wall_force((get_law(self.model), self.params), r, a, b, self.radius, self.thickness,
+                           _scale_at(self.stress_scale, np.asarray(Z, dtype=float)))
 
 
 def _meridional_pk2(law, params, lt, ls):
@@ -125,11 +129,22 @@ def _meridional_pk2(law, params, lt, ls):
     return s1, s2 / (ls * ls)
 
 
-def _wall_force(law_params, r, a, b, radius, thickness):
+def _wall_force(law_params, r, a, b, radius, thickness, scale=1.0):
     law, params = law_params
     ls = np.hypot(a, b)
     _, ss = _meridional_pk2(law, params, r / radius, ls)
-    return 2.0 * np.pi * radius * thickness * ss * b
+    return 2.0 * np.pi * radius * thickness * scale * ss * b
+
+
+def _scale_at(stress_scale, Z) -> np.ndarray | float:
+    """Local stress multiplier m(Z) (1 for a homogeneous tube), validated positive and finite."""
+    if stress_scale is None:
+        return 1.0
+    m = np.asarray(stress_scale(np.asarray(Z, dtype=float)), dtype=float)
+    if m.shape != np.shape(Z) or not np.all(np.isfinite(m) & (m > 0)):
+        raise ValueError(f"stress_scale must map Z (shape {np.shape(Z)}) to positive finite multipliers of the "
+                         f"same shape; got shape {m.shape}, range [{np.nanmin(m):.3g}, {np.nanmax(m):.3g}]")
+    return m
 
 
 def _invert_meridional(law, params, lt, g, n_iter: int = 60):
@@ -168,33 +183,35 @@ def _invert_meridional(law, params, lt, g, n_iter: int = 60):
     return x
 
 
-def _make_problem(law, params, p_hat, rc_hat, half_len_hat, s0):
+def _make_problem(law, params, p_hat, rc_hat, half_len_hat, s0, stress_scale=None, radius=1.0):
     """First-order system in xi = Z/R: y = (r/R, z/R, q_z/s0, q_r/s0), q_z = S_s dz/dZ, q_r = S_s dr/dZ [Pa].
 
-    p_hat = p R / (H s0); s0 [Pa] scales the stresses so that all unknowns are O(1).
+    p_hat = p R / (H s0); s0 [Pa] scales the stresses so that all unknowns are O(1). ``stress_scale`` (callable of
+    Z [m], or None) multiplies the law's stresses pointwise: the ring equilibrium holds with the local law.
     """
 
-    def state(y):
+    def state(x, y):
         r, _, qz, qr = y
+        m = _scale_at(stress_scale, x * radius)
         gh = np.sqrt(qz * qz + qr * qr)
-        ls = _invert_meridional(law, params, r, gh * s0)
-        return r, qz, qr, gh, ls
+        ls = _invert_meridional(law, params, r, np.broadcast_to(gh * s0 / m, r.shape))
+        return r, qz, qr, gh, ls, m
 
     def fun(x, y):
-        r, qz, qr, gh, ls = state(y)
+        r, qz, qr, gh, ls, m = state(x, y)
         a, b = ls * qr / gh, ls * qz / gh  # dr/dZ, dz/dZ
-        f_t = law.cauchy(r, ls, **params)[0] / (r * s0)  # lam_s T_theta / (H s0)
+        f_t = m * law.cauchy(r, ls, **params)[0] / (r * s0)  # lam_s T_theta / (H s0)
         return np.vstack([a, b, p_hat * r * a, f_t - p_hat * r * b])
 
     def fun_jac(x, y):
-        r, qz, qr, gh, ls = state(y)
+        r, qz, qr, gh, ls, m = state(x, y)
         a, b = ls * qr / gh, ls * qz / gh
         h = _H_CS
         cr = law.cauchy(r + 1j * h, ls + 0j, **params)  # d/dr of (sigma_t, sigma_s)
         cl = law.cauchy(r + 0j, ls + 1j * h, **params)  # d/dlam_s
-        st, ss = np.real(cr[0]), np.real(cr[1])
-        st_r, ss_r = np.imag(cr[0]) / h, np.imag(cr[1]) / h
-        st_l, ss_l = np.imag(cl[0]) / h, np.imag(cl[1]) / h
+        st, ss = m * np.real(cr[0]), m * np.real(cr[1])
+        st_r, ss_r = m * np.imag(cr[0]) / h, m * np.imag(cr[1]) / h
+        st_l, ss_l = m * np.imag(cl[0]) / h, m * np.imag(cl[1]) / h
         # phi = sigma_s / lam_s = g defines lam_s(r, g)
         phi_r, phi_l = ss_r / ls, ss_l / ls - ss / (ls * ls)
         lam_r = -phi_r / phi_l
@@ -234,7 +251,8 @@ def _make_problem(law, params, p_hat, rc_hat, half_len_hat, s0):
 def solve_clamped(model: str, params: Mapping[str, float], pressures, stretch: float, *, radius: float = 10e-3,
                   thickness: float = 1.3e-3, length: float = 35e-3, clamp_radius: float | None = None,
                   n_nodes: int = 401, tol: float = 1e-8, max_halvings: int = 6,
-                  max_nodes: int = 50000, n_sub: int = 3, coarse_tol: float = 1e-4) -> list[ClampedSolution]:
+                  max_nodes: int = 50000, n_sub: int = 3, coarse_tol: float = 1e-4,
+                  stress_scale=None) -> list[ClampedSolution]:
     """Solve the clamped membrane tube at a sequence of pressures (continuation in the given order).
 
     Parameters
@@ -262,6 +280,10 @@ def solve_clamped(model: str, params: Mapping[str, float], pressures, stretch: f
         Continuation sub-steps per pressure increment, solved at ``coarse_tol``.
     coarse_tol : float
         Tolerance of the continuation sub-steps (the reported solution is always solved at ``tol``).
+    stress_scale : callable, optional
+        Axially varying material: m(Z) for reference Z (n,) m -> (n,) positive multipliers of the law's stresses
+        (for Fung and Delfino a local beta = m(Z) beta; e.g. ``rig_sim.regional.AxialProfile``). Smooth profiles
+        keep the collocation mesh small. Default: homogeneous.
 
     Returns
     -------
@@ -302,7 +324,7 @@ def solve_clamped(model: str, params: Mapping[str, float], pressures, stretch: f
     def attempt(p, x, y, lam=stretch, tol_=tol, s=None):
         s = s0 if s is None else s
         fun, bc, fun_jac, bc_jac = _make_problem(law, params, p * radius / (thickness * s), rc / radius,
-                                                 lam * half, s)
+                                                 lam * half, s, stress_scale, radius)
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             res = solve_bvp(fun, bc, x, y, tol=tol_, bc_tol=tol_, max_nodes=max_nodes, fun_jac=fun_jac,
                             bc_jac=bc_jac)
@@ -354,8 +376,8 @@ def solve_clamped(model: str, params: Mapping[str, float], pressures, stretch: f
     for p in pr:
         res = base if p == 0.0 and p_prev == 0.0 else advance(p_prev, float(p), res)
         now = time.perf_counter()
-        sol = _package(res, model, law, params, float(p), stretch, rc, radius, thickness, length, now - t_prev,
-                       getattr(res, "stress_scale", s0))
+        sol = _package(res, model, (law, params, stress_scale), float(p), stretch, rc, radius, thickness, length,
+                       now - t_prev, getattr(res, "stress_scale", s0))
         if sol.min_dzdZ <= 0:
             log.warning("clamped %s tube at p=%.6g Pa, stretch %g: the membrane folds back next to the cannulae "
                         "(min dz/dZ = %.3g); the end regions are not physical for a real artery", model, p, stretch,
@@ -368,28 +390,30 @@ def solve_clamped(model: str, params: Mapping[str, float], pressures, stretch: f
     return out
 
 
-def _package(res, model, law, params, p, stretch, rc, radius, thickness, length, dt, s0) -> ClampedSolution:
+def _package(res, model, material, p, stretch, rc, radius, thickness, length, dt, s0) -> ClampedSolution:
+    law, params, stress_scale = material
     x = res.x
     r, z, qz, qr = res.y
     qz = qz * s0
     a, b = res.yp[0], res.yp[1]  # dr/dZ, dz/dZ (dimensionless)
-    fun = _make_problem(law, params, p * radius / (thickness * s0), rc / radius, 0.0, s0)[0]
+    fun = _make_problem(law, params, p * radius / (thickness * s0), rc / radius, 0.0, s0, stress_scale, radius)[0]
     eps = 1e-7 * (x[-1] - x[0])
     # second derivatives (1/m) for the Hermite data of the slopes: centred differences of the exact slope map
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        ap, bp = (np.asarray(fun(x, res.y + d * res.yp * eps)[0:2]) for d in (1.0, -1.0))
+        ap, bp = (np.asarray(fun(x + d * eps, res.y + d * res.yp * eps)[0:2]) for d in (1.0, -1.0))
     curv = (ap - bp) / (2 * eps) / radius
     y = np.vstack([r * radius, z * radius, a, b])
     yp = np.vstack([a, b, curv])
     n_wall = 2.0 * np.pi * radius * thickness * qz
     ft = n_wall - p * math.pi * (r * radius) ** 2
     ls_end = math.hypot(a[-1], b[-1])
-    s_s = float(law.cauchy(np.array([r[-1]]), np.array([ls_end]), **params)[1][0])
+    m_end = float(np.asarray(_scale_at(stress_scale, np.array([x[-1] * radius]))).reshape(-1)[0])
+    s_s = m_end * float(law.cauchy(np.array([r[-1]]), np.array([ls_end]), **params)[1][0])
     t_s_end = s_s * thickness / (r[-1] * ls_end)
     return ClampedSolution(
         pressure=p, stretch=float(stretch), clamp_radius=rc, radius=radius, thickness=thickness, length=length,
         Z=x * radius, y=y, yp=yp, end_wall_force=float(0.5 * (n_wall[0] + n_wall[-1])),
         transducer_force=float(np.mean(ft)), end_meridional_tension=t_s_end,
         end_slope=float(math.atan2(a[-1], b[-1])), max_rms_residual=float(np.max(res.rms_residuals)),
-        min_dzdZ=float(np.min(b)), solve_time=float(dt), model=model, params=dict(params),
+        min_dzdZ=float(np.min(b)), solve_time=float(dt), model=model, params=dict(params), stress_scale=stress_scale,
     )

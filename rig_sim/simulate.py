@@ -78,6 +78,8 @@ class SimulatedTest:
     noise_std : float, m
         Standard deviation of the Gaussian noise on each coordinate.
     seed : int
+    stress_scale : rig_sim.regional.AxialProfile or None
+        Local stress multiplier m(Z) of an axially varying material (None: homogeneous).
     """
 
     positions: np.ndarray
@@ -104,6 +106,7 @@ class SimulatedTest:
     clamped: bool = True
     noise_std: float = 0.0
     seed: int = 0
+    stress_scale: object = None
 
     @property
     def n_steps(self) -> int:
@@ -159,7 +162,8 @@ class SimulatedTest:
 
 
 @functools.lru_cache(maxsize=32)
-def _clamped_block(model, params_items, pressures, stretch, radius, thickness, length, bvp_nodes, bvp_tol, n_profile):
+def _clamped_block(model, params_items, pressures, stretch, radius, thickness, length, bvp_nodes, bvp_tol, n_profile,
+                   stress_scale=None):
     """Clamped-tube profiles for one stretch block, cached: repeated simulations (noise seeds, layouts) reuse them.
 
     Returns read-only arrays r, z, dr/dZ, dz/dZ of shape (n_pressures, n_profile), end wall force and clamp radius
@@ -168,7 +172,7 @@ def _clamped_block(model, params_items, pressures, stretch, radius, thickness, l
     from .clamped import solve_clamped  # local import: the BVP solver is only needed here
 
     sols = solve_clamped(model, dict(params_items), np.asarray(pressures), stretch, radius=radius,
-                         thickness=thickness, length=length, n_nodes=bvp_nodes, tol=bvp_tol)
+                         thickness=thickness, length=length, n_nodes=bvp_nodes, tol=bvp_tol, stress_scale=stress_scale)
     zp = np.linspace(-0.5 * length, 0.5 * length, n_profile)
     prof = np.array([np.stack(sol.evaluate(zp)) for sol in sols])  # (n_p, 4, n_profile)
     out = [prof[:, i] for i in range(4)]
@@ -202,7 +206,8 @@ def simulate_test(model: str, params: Mapping[str, float], *, radius: float = 10
                   thickness: float = 1.3e-3, stretches: Sequence[float] = (1.1,),
                   pressures: Sequence[float] = tuple(PAPER_PRESSURES), n_markers: int = 300, clamped: bool = True,
                   wall: str = "membrane", noise_std: float = 0.0, seed: int = 0, marker_margin: float = 4e-3,
-                  n_profile: int = 401, bvp_nodes: int = 401, bvp_tol: float = 1e-8) -> SimulatedTest:
+                  n_profile: int = 401, bvp_nodes: int = 401, bvp_tol: float = 1e-8,
+                  stress_scale=None) -> SimulatedTest:
     """Simulate an inflation/extension test of a cylindrical artery and its markers.
 
     Parameters
@@ -241,6 +246,9 @@ def simulate_test(model: str, params: Mapping[str, float], *, radius: float = 10
         Samples of the stored deformed profile.
     bvp_nodes, bvp_tol : int, float
         Initial mesh size and tolerance of the clamped-tube BVP.
+    stress_scale : rig_sim.regional.AxialProfile, optional
+        Material varying along the axis (clamped only): local stresses m(Z) times the law's (a local beta(Z) =
+        m(Z) beta for Fung). Must be hashable (simulations are cached). Default: homogeneous.
 
     Returns
     -------
@@ -253,6 +261,9 @@ def simulate_test(model: str, params: Mapping[str, float], *, radius: float = 10
     """
     p, st, pr = _validate(model, params, radius, length, thickness, stretches, pressures, n_markers, wall,
                           noise_std, marker_margin)
+    if stress_scale is not None and not clamped:
+        raise ValueError("stress_scale (a material varying along Z) needs clamped=True: the free-ended tube is "
+                         "solved as a homogeneous cylinder")
     if clamped and wall == "thick":
         raise NotImplementedError("clamped=True needs wall='membrane': a clamped thick-walled tube needs a 2-D "
                                   "axisymmetric finite-element solve, which rig_sim does not provide")
@@ -270,7 +281,8 @@ def simulate_test(model: str, params: Mapping[str, float], *, radius: float = 10
         pressure[sl], stretch[sl] = pr, lam
         if clamped:
             cached = _clamped_block(model, tuple(p.items()), tuple(pr.tolist()), float(lam), float(radius),
-                                    float(thickness), float(length), int(bvp_nodes), float(bvp_tol), int(n_profile))
+                                    float(thickness), float(length), int(bvp_nodes), float(bvp_tol), int(n_profile),
+                                    stress_scale)
             for key, arr in zip(("r", "z", "drdZ", "dzdZ"), cached[:4]):
                 prof[key][sl] = arr
             force[sl], lumen[sl] = cached[4], cached[5]
@@ -296,7 +308,7 @@ def simulate_test(model: str, params: Mapping[str, float], *, radius: float = 10
         profile_Z=_ro(Zp), profile_r=_ro(prof["r"]), profile_z=_ro(prof["z"]), profile_drdZ=_ro(prof["drdZ"]),
         profile_dzdZ=_ro(prof["dzdZ"]), reference_radius=float(radius), thickness=float(thickness),
         length=float(length), model=model, params=dict(p), wall=wall, clamped=bool(clamped),
-        noise_std=float(noise_std), seed=int(seed),
+        noise_std=float(noise_std), seed=int(seed), stress_scale=stress_scale,
     )
     exact = np.stack([out.surface(k, theta, Zm) for k in range(n_steps)])
     noisy = exact + rng_noise.normal(0.0, noise_std, exact.shape) if noise_std > 0 else exact.copy()

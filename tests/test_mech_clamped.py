@@ -112,3 +112,55 @@ def test_simulate_clamped_markers_on_profile():
 def test_stretch_must_exceed_one():
     with pytest.raises(ValueError, match="stretch must exceed 1"):
         solve_clamped("fung", PAPER_PARAMETERS["fung"], [0.0], 1.0)
+
+
+# --- axially varying material (rig_sim.regional) -------------------------------------------------------------------
+
+def test_weakened_zone_equilibrium_with_local_law():
+    """With m(Z) the ring equilibrium holds pointwise with the local law (independent finite-difference check)."""
+    from rig_sim.regional import AxialProfile
+
+    prof = AxialProfile(depth=0.4, center=4e-3, width=L / 4, gradient=6.0)
+    par = PAPER_PARAMETERS["fung"]
+    s = solve_clamped("fung", par, P3, 1.1, radius=R, thickness=H, length=L, stress_scale=prof)[2]
+    Z, (r, _, a, b) = s.Z, s.y
+    ft = s.wall_force(Z) - s.pressure * np.pi * r**2
+    assert np.ptp(ft) < 1e-6 * np.max(np.abs(s.wall_force(Z)))
+    ls = np.hypot(a, b)
+    st, ss = (prof(Z) * c for c in membrane_cauchy("fung", par, r / R, ls))
+    h = H / (r / R * ls)
+    lhs = np.gradient(r * ss * h * a / ls, Z, edge_order=2)
+    rhs = ls * st * h - s.pressure * r * b
+    assert np.max(np.abs(lhs - rhs)[5:-5]) < 2e-3 * np.max(np.abs(s.pressure * r * b))
+    # the weak zone bulges: the radius peaks inside it, not at mid-span
+    assert abs(Z[np.argmax(r)] - 4e-3) < 2e-3
+
+
+def test_long_weak_zone_is_locally_homogeneous():
+    """A weak zone 8 R long in a 20 R tube: at its centre the state is the homogeneous tube with beta * 0.6."""
+    from rig_sim.regional import AxialProfile
+
+    par = PAPER_PARAMETERS["fung"]
+    p = 120 * MMHG
+    prof = AxialProfile(depth=0.4, center=0.0, width=8 * R, edge=R)
+    s = solve_clamped("fung", par, [0.0, p], 1.2, radius=R, thickness=H, length=20 * R, stress_scale=prof)[1]
+    r, _, a, b = s.evaluate([0.0])
+    weak = dict(par, beta=par["beta"] * float(prof(np.array([0.0]))[0]))
+    hom = inflate_membrane("fung", weak, p, float(b[0]), radius=R, thickness=H)
+    assert abs(a[0]) < 1e-9
+    assert r[0] == pytest.approx(float(hom.radius[0]), rel=2e-4)
+    strong = inflate_membrane("fung", par, p, float(b[0]), radius=R, thickness=H)
+    assert abs(float(strong.radius[0]) / r[0] - 1) > 10 * abs(float(hom.radius[0]) / r[0] - 1)
+
+
+def test_simulated_heterogeneous_test_records_its_profile():
+    from rig_sim.regional import AxialProfile
+
+    prof = AxialProfile(depth=0.4, center=5e-3)
+    with pytest.raises(ValueError, match="clamped"):
+        simulate_test("fung", PAPER_PARAMETERS["fung"], clamped=False, stress_scale=prof)
+    with pytest.raises(ValueError, match="depth"):
+        AxialProfile(depth=1.2)
+    m = prof(np.array([-15e-3, 5e-3]))
+    assert m[0] == pytest.approx(1.0, abs=1e-6) and m[1] == pytest.approx(0.6, abs=1e-6)
+    assert prof.band_mean([2e-3, 8e-3, 11e-3, 17e-3])[[0, 2]] == pytest.approx([0.6, 1.0], abs=0.01)

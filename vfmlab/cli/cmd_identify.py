@@ -18,6 +18,7 @@ Examples:
   vfmlab identify a1.h5                                   # Fung, membrane, clamped ends
   vfmlab identify a1.h5 --model hgo --wall thick --smooth 4,2
   vfmlab identify a1.h5 --model delfino --json > delfino.json
+  vfmlab identify a1.h5 --regions 4                       # beta per axial band (where is the wall weaker?)
 """
 
 
@@ -42,9 +43,12 @@ Examples:
 @click.option("--uncertainty", type=click.Choice(["bootstrap", "gauss-newton"]), default="bootstrap",
               show_default=True, help="bootstrap: standard errors and 95 % intervals from re-simulated measurements "
                                       "(a few seconds); gauss-newton: instant, but too small on noisy markers.")
+@click.option("--regions", type=click.IntRange(1, 12), default=None, metavar="N",
+              help="Identify the stress-like parameter (beta) per band of N equal axial bands, the others shared, "
+                   "with standard errors and the bands that differ; stored as a 'regional' result.")
 @click.option("--json", "as_json", is_flag=True,
               help="Print the result as JSON for scripts (SI; the unit of each parameter under 'units').")
-def command(session_path, model, wall, ends, optimizer, smooth, uncertainty, as_json):
+def command(session_path, model, wall, ends, optimizer, smooth, uncertainty, regions, as_json):
     """Identify MODEL parameters from the latest marker tracks of SESSION and store the result in it.
 
     Units: parameters in SI (Pa, rad); the table shows kPa and degrees.
@@ -52,6 +56,10 @@ def command(session_path, model, wall, ends, optimizer, smooth, uncertainty, as_
     from vfmlab.pipeline import identify_stored
 
     smoothing = parse_smooth_option(smooth)
+    if regions is not None:
+        from vfmlab.cli._regional import run_regional
+
+        return run_regional(session_path, model, wall, ends, smoothing, regions, as_json)
     group, result, data = identify_stored(session_path, model=model, wall=wall, ends=ends, optimizer=optimizer,
                                           smoothing=smoothing, uncertainty=uncertainty, invoked_by="identify")
     names = list(result.parameters)

@@ -1,0 +1,69 @@
+"""``vfmlab identify --regions N``: per-band parameter profiles (output of ``vfmlab.regional``)."""
+
+from __future__ import annotations
+
+from vfmlab.cli._common import CliError, console, display_quantity, esc, num, print_json
+
+
+def _json(group, result, model_units):
+    print_json({
+        "model": result.model, "regional": list(result.regional), "band_edges_m": result.edges.tolist(),
+        "band_centres_m": result.centres.tolist(),
+        "profiles": {n: v.tolist() for n, v in result.profiles.items()},
+        "stderr": {n: v.tolist() for n, v in result.stderr.items()},
+        "z_score": {n: v.tolist() for n, v in result.z_score.items()},
+        "differs": result.differs.tolist(), "parameters": result.parameters,
+        "parameter_stderr": result.parameter_stderr,
+        "homogeneous": result.homogeneous.parameters, "units": model_units, "cost": result.cost,
+        "converged": result.converged, "flags": list(result.flags), "result_group": group})
+
+
+def _table(result, model_units):
+    from rich.table import Table
+
+    table = Table(title=f"{result.model}: {', '.join(result.regional)} per axial band (shared: "
+                        f"{', '.join(result.parameters) or 'none'})")
+    for col, just in (("band", "right"), ("from", "right"), ("to", "right"), ("parameter", "left"),
+                      ("value", "right"), ("std. error", "right"), ("unit", "left"), ("vs median", "right")):
+        table.add_column(col, justify=just)
+    for n in result.regional:
+        for b in range(result.n_bands):
+            v, unit = display_quantity(result.profiles[n][b], model_units[n])
+            s, _ = display_quantity(result.stderr[n][b], model_units[n])
+            mark = " *" if result.differs[b] else ""
+            table.add_row(str(b), f"{result.edges[b] * 1e3:.1f} mm", f"{result.edges[b + 1] * 1e3:.1f} mm", esc(n),
+                          num(v, 4), num(s, 2), unit or "–", f"{result.contrast[n][b]:+.1%}{mark}")
+    return table
+
+
+def run_regional(session_path, model, wall, ends, smoothing, regions, as_json) -> None:
+    """Identify, store and print a regional result (``--regions``)."""
+    from identification import get_model
+    from vfmlab.pipeline import StageError
+    from vfmlab.regional import identify_regional_stored
+
+    try:
+        group, result, data = identify_regional_stored(session_path, n_bands=regions, model=model, wall=wall,
+                                                       ends=ends, smoothing=smoothing, invoked_by="identify")
+    except StageError as exc:
+        raise CliError(str(exc)) from None
+    m = get_model(model)
+    model_units = dict(zip(m.parameter_names, m.units))
+    if as_json:
+        _json(group, result, model_units)
+        return
+    console.print(_table(result, model_units))
+    for n, v in result.parameters.items():
+        val, unit = display_quantity(v, model_units[n])
+        console.print(f"shared {esc(n)} = {num(val, 4)} {unit or ''}".rstrip())
+    hom = result.homogeneous.parameters
+    for n in result.regional:
+        val, unit = display_quantity(hom[n], model_units[n])
+        console.print(f"homogeneous fit for comparison: {esc(n)} = {num(val, 4)} {unit or ''}".rstrip())
+    console.print("band positions: reference axial coordinate from the mean marker position, towards the load cell; "
+                  "* = differs from the median band")
+    for note in data["notes"]:
+        console.print(f"[dim]{esc(note)}[/]")
+    for flag in result.flags:
+        console.print(f"[yellow]warning:[/] {esc(flag)}")
+    console.print(f"stored as {esc(group)}")
