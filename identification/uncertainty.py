@@ -302,11 +302,21 @@ def _summarise(model, estimate, reps, rms, result, level, pressure_noise, force_
         n_failed=int(failed), gauss_newton_stderr=dict(result.stderr))
 
 
+def _said(lo: float, hi: float, unit: str) -> str:
+    """An interval in the units people read: kPa for Pa, degrees for rad."""
+    if unit == "Pa":
+        return f"{lo / 1e3:.3g} to {hi / 1e3:.3g} kPa"
+    if unit == "rad":
+        return f"{np.degrees(lo):.3g} to {np.degrees(hi):.3g} deg"
+    return f"{lo:.3g} to {hi:.3g}"
+
+
 def uncertainty_flags(unc: Uncertainty, parameters: Mapping[str, float], positive: Mapping[str, bool],
-                      skip: tuple = ()) -> list[str]:
+                      skip: tuple = (), units: Mapping[str, str] | None = None) -> list[str]:
     """Plain-words warnings: parameters the data cannot resolve to ``PRECISION``, failed replicates.
 
-    ``skip``: parameters already flagged as poorly identifiable (not repeated).
+    ``skip``: parameters already flagged as poorly identifiable (not repeated). ``units``: SI unit
+    of each parameter ("Pa", "rad", "1"); intervals are said in kPa and degrees, as people read them.
     """
     flags = []
     cause = (f"at the marker noise of these data (~{unc.marker_noise * 1e3:.2g} mm); more markers, better cameras "
@@ -321,7 +331,8 @@ def uncertainty_flags(unc: Uncertainty, parameters: Mapping[str, float], positiv
         half = max(v - lo, hi - v) / abs(v) if v else float("inf")
         if not np.isfinite(half) or half > PRECISION:
             flags.append(f"{name} is not resolved to {PRECISION:.0%}: its {CONFIDENCE:.0%} interval is "
-                         f"{lo:.4g} to {hi:.4g} ({-(v - lo) / abs(v):+.0%}/{(hi - v) / abs(v):+.0%}) {cause}")
+                         f"{_said(lo, hi, (units or {}).get(name, '1'))} "
+                         f"({-(v - lo) / abs(v):+.0%}/{(hi - v) / abs(v):+.0%}) {cause}")
     total = unc.n_replicates
     if total and unc.n_failed > MAX_FAILED * total:
         flags.append(f"{unc.n_failed} of {total} re-simulated replicates failed to identify: the fit is "
@@ -339,6 +350,7 @@ def with_uncertainty(result, data: VFMData, positions: np.ndarray, **options):
     unc = bootstrap(data, result, positions, **options)
     model = get_model(result.model)
     poorly = tuple(n for n in model.parameter_names if any(f.startswith(f"{n} is poorly") for f in result.flags))
-    flags = uncertainty_flags(unc, result.parameters, dict(zip(model.parameter_names, model.positive)), poorly)
+    flags = uncertainty_flags(unc, result.parameters, dict(zip(model.parameter_names, model.positive)), poorly,
+                              units=dict(zip(model.parameter_names, model.units)))
     stderr = {k: (v if np.isfinite(v) else result.stderr[k]) for k, v in unc.stderr.items()}
     return replace(result, stderr=stderr, flags=tuple(result.flags) + tuple(flags), uncertainty=unc)
