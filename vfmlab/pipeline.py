@@ -33,8 +33,8 @@ PRESSURE_NOISE = 3.0
 FORCE_NOISE = 0.002
 
 __all__ = ["STAGES", "StageError", "StageUnavailable", "identification_arrays", "identify_session", "identify_stored",
-           "load_identification_inputs", "reconstruct_session", "reconstruct_stored", "resolve_ends",
-           "session_calibrated_cameras", "session_step_rows"]
+           "load_identification_inputs", "read_identification_inputs", "reconstruct_session", "reconstruct_stored",
+           "resolve_ends", "session_calibrated_cameras", "session_step_rows"]
 
 
 class StageError(InputError):
@@ -90,6 +90,15 @@ def load_identification_inputs(session, markers: str | None = None) -> dict[str,
     return {"positions": positions, "pressure": pressure, "force": force, "thickness": float(specimen.thickness),
             "radius": float(specimen.radius), "length": float(specimen.length), "session_ends": ends,
             "markers_result": result["name"], "rows": rows, "notes": notes, "uncertainty": uncertainty}
+
+
+def read_identification_inputs(path: str | os.PathLike, markers: str | None = None) -> dict[str, Any]:
+    """:func:`load_identification_inputs` of the session file at ``path``; a session fault is a ``StageError``."""
+    try:
+        with open_session(path) as session:
+            return load_identification_inputs(session, markers)
+    except SessionError as exc:
+        raise StageError(str(exc)) from None
 
 
 #: End condition assumed when neither the session nor the user says: real specimens are tied on cannulae.
@@ -169,11 +178,7 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
         if len(smoothing) != 2 or min(smoothing) < 0:
             raise StageError(f"smoothing must be 'auto' or two non-negative integers (axial, harmonics); "
                              f"got {smoothing!r}")
-    try:
-        with open_session(path) as session:
-            data = load_identification_inputs(session, markers)
-    except SessionError as exc:
-        raise StageError(str(exc)) from None
+    data = read_identification_inputs(path, markers)
     ends, ends_source, ends_notes, warnings = resolve_ends(data["session_ends"], ends)
     force_notes = list(data["notes"])
     data["notes"] = force_notes + ends_notes

@@ -11,8 +11,8 @@ from typing import Any
 
 import numpy as np
 
-from acquisition.session import SessionError, open_session, write_result
-from vfmlab.pipeline import StageError, load_identification_inputs, resolve_ends
+from acquisition.session import SessionError, write_result
+from vfmlab.pipeline import StageError, read_identification_inputs, resolve_ends
 
 __all__ = ["identify_regional_stored"]
 
@@ -56,11 +56,7 @@ def identify_regional_stored(path: str | os.PathLike, *, n_bands: int, model: st
     from identification import IdentificationError, get_model
     from identification.regional import identify_regional, prepare_regional
 
-    try:
-        with open_session(path) as session:
-            data = load_identification_inputs(session, markers)
-    except SessionError as exc:
-        raise StageError(str(exc)) from None
+    data = read_identification_inputs(path, markers)
     ends, ends_source, ends_notes, ends_warnings = resolve_ends(data["session_ends"], ends)
     data["notes"] = list(data["notes"]) + ends_notes + ends_warnings
     try:
