@@ -52,7 +52,11 @@ def test_run_identifies_while_running_and_stores_the_result(tmp_path):
         assert len(names) == 1
         result = s.result(names[0])
         assert result["attrs"]["invoked_by"] == "run (live)"
-        np.testing.assert_array_equal(result["arrays"]["step_index"], np.arange(s.n_steps))
+        # every step, or a step the live tracker saw only in part left out and said so (identify's rule)
+        rows = np.asarray(result["arrays"]["step_index"])
+        assert rows[0] == 0 and rows.size >= 3 and set(rows.tolist()) <= set(range(s.n_steps)), rows
+        if rows.size < s.n_steps:
+            assert any("were left out" in fl for fl in result["attrs"]["flags"]), result["attrs"]["flags"]
         values = dict(zip(result["arrays"]["parameter_names"], result["arrays"]["parameters"]))
         stderr = dict(zip(result["arrays"]["parameter_names"], result["arrays"]["stderr"]))
     truth = PAPER_PARAMETERS["fung"]
