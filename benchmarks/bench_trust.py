@@ -1,6 +1,8 @@
 """Issue 10 part A benchmarks: mesh hygiene, setting checks, finite-element ground truth (prints markdown tables).
 
-    OMP_NUM_THREADS=1 PYTHONPATH=. python benchmarks/bench_trust.py --part hygiene|checks|fe|all [--seeds N]
+    OMP_NUM_THREADS=1 PYTHONPATH=. python benchmarks/bench_trust.py --part PART [--seeds N] [--fine]
+
+PART is hygiene, checks, fe, fe-convergence or all:
 
 hygiene : unsmoothed fits on independent closed-form tubes (tests/ident_synth.py, 300 uniformly random
           markers, 0.01 mm noise on every marker of every step incl. the reference) for a grid of
@@ -8,8 +10,11 @@ hygiene : unsmoothed fits on independent closed-form tubes (tests/ident_synth.py
 checks  : detection rates of the setting checks (identification/checks.py) on rig_sim clamped / free membrane
           tubes and a free thick tube, each fitted with the right and the wrong end condition / wall form.
 fe      : felupe axisymmetric FE tubes (rig_sim/fe_tube.py), clamped and free, HGO and Delfino (Demiray),
-          identified with --wall thick and the right ends (and the wrong ones for comparison). FE solutions are
+          identified with --wall thick and the right ends, with the paper's and the flat-end virtual fields
+          (identification/thick_fields.py), and with the wrong ends / wall for comparison. FE solutions are
           cached in benchmarks/.fe-cache/ (delete it to recompute).
+fe-convergence : Delfino FE tubes: free against the closed form (bulk modulus, elements through the wall),
+          clamped against mesh, marker margin and virtual fields.
 """
 
 from __future__ import annotations
@@ -97,39 +102,97 @@ def bench_checks(n_seeds, noises=(0.0, 0.01e-3, 0.05e-3, 0.17e-3)):
                       f"| {np.median(err):.1%} |", flush=True)
 
 
+FE_PRESSURES = tuple(np.linspace(0, 150, 8)[1:] * MMHG)
+
+
+def _fe_fit(fe, model, ends, wall, fields="paper", margin=4e-3):
+    """Fit 300 markers (seed 0, ``margin`` m clear of the clamps) of an FE tube: (result, RMS gap, errors)."""
+    from identification.thick_fields import flat_end_fields
+
+    pos = _fe_markers(fe, margin)
+    mesh = build_mesh(pos[0])
+    kw = {"fields": flat_end_fields(mesh)} if fields == "flat-end" else {}
+    r = identify(pos, fe.pressure, fe.wall_force, thickness=fe.thickness, model=model, wall=wall, ends=ends, mesh=mesh,
+                 **kw)
+    truth = PAPER_PARAMETERS[model]
+    errs = ", ".join(f"{n} {r.parameters[n] / truth[n] - 1:+.2%}" for n in truth)
+    return r, float(np.sqrt(np.mean(r.residuals**2))), errs
+
+
+def _fe_markers(fe, margin):
+    from rig_sim.fe_tube import fe_markers
+
+    return fe_markers(fe, 300, seed=0, margin=margin)
+
+
+def _weak(r):
+    """Parameters the fit flags as poorly identifiable."""
+    return ", ".join(f.split(" ")[0] for f in r.flags if "poorly identifiable" in f) or "-"
+
+
 def bench_fe(fine: bool):
-    from rig_sim.fe_tube import fe_markers, solve_fe_tube
+    from rig_sim.fe_tube import BULK_RATIO, solve_fe_tube
 
     cache = ROOT / "benchmarks" / ".fe-cache"
-    pressures = tuple(np.linspace(0, 150, 8)[1:] * MMHG)
-    mesh = {True: (80, 6), False: (8, 4)} if fine else {True: (40, 4), False: (8, 4)}
-    print("\n### FE ground truth (felupe, axisymmetric, L/L0 = 1.1, 7 levels 21-150 mmHg, 300 markers)\n")
-    print("| model | FE ends | mesh (axial x radial) | fitted with | RMS gap | errors |")
-    print("|---|---|---|---|---|---|")
+    mesh = {True: (80, 8), False: (8, 8)} if fine else {True: (40, 4), False: (8, 4)}
+    print(f"\n### FE ground truth (felupe, axisymmetric, bulk {BULK_RATIO:g} x, L/L0 = 1.1, 7 levels 21-150 mmHg, "
+          "300 markers 4 mm clear of the clamps)\n")
+    print("| model | FE ends | mesh (axial x radial) | fitted with | virtual fields | RMS gap | errors "
+          "| flagged weak |")
+    print("|---|---|---|---|---|---|---|---|")
     for model in ("hgo", "delfino"):
-        truth = PAPER_PARAMETERS[model]
         for clamped in (True, False):
             t0 = time.perf_counter()
             na, nr = mesh[clamped]
-            fe = solve_fe_tube(model, truth, pressures=pressures, stretch=1.1, clamped=clamped, n_axial=na,
-                               n_radial=nr, cache_dir=cache)
-            pos = fe_markers(fe, 300, seed=0)
+            fe = solve_fe_tube(model, PAPER_PARAMETERS[model], pressures=FE_PRESSURES, stretch=1.1, clamped=clamped,
+                               n_axial=na, n_radial=nr, cache_dir=cache)
             ends_true = "clamped" if clamped else "free"
             other = "free" if clamped else "clamped"
-            for ends, wall in ((ends_true, "thick"), (other, "thick"), (ends_true, "membrane")):
-                r = identify(pos, fe.pressure, fe.wall_force, thickness=fe.thickness, model=model, wall=wall,
-                             ends=ends)
-                gap = float(np.sqrt(np.mean(r.residuals**2)))
-                errs = ", ".join(f"{n} {r.parameters[n] / truth[n] - 1:+.2%}" for n in truth)
-                print(f"| {model} | {ends_true} | {na} x {nr} | {ends}/{wall} | {gap:.2%} | {errs} |", flush=True)
+            for ends, wall, fields in ((ends_true, "thick", "paper"), (ends_true, "thick", "flat-end"),
+                                       (other, "thick", "paper"), (ends_true, "membrane", "paper")):
+                r, gap, errs = _fe_fit(fe, model, ends, wall, fields)
+                print(f"| {model} | {ends_true} | {na} x {nr} | {ends}/{wall} | {fields} | {gap:.2%} | {errs} "
+                      f"| {_weak(r)} |", flush=True)
             logging.getLogger(__name__).info("%s %s: %.0f s", model, ends_true, time.perf_counter() - t0)
+
+
+def bench_fe_convergence():
+    """Delfino FE tubes: free against the closed form (bulk modulus, elements through the wall), clamped
+    against mesh, marker margin and virtual fields."""
+    from rig_sim.fe_tube import solve_fe_tube
+    from rig_sim.mechanics import inflate_thick
+
+    cache = ROOT / "benchmarks" / ".fe-cache"
+    truth = PAPER_PARAMETERS["delfino"]
+    print("\n### Delfino free FE tube against the closed-form thick tube (fitted free/thick)\n")
+    print("| bulk / beta | mesh (axial x radial) | outer radius vs closed form (max) | wall force vs closed form (max) "
+          "| RMS gap | errors |")
+    print("|---|---|---|---|---|---|")
+    for ratio, nr in ((1e5, 4), (1e7, 4), (1e8, 4), (1e10, 4), (1e8, 8), (1e8, 16)):
+        fe = solve_fe_tube("delfino", truth, pressures=FE_PRESSURES, stretch=1.1, clamped=False, n_axial=2, n_radial=nr,
+                           bulk=ratio * truth["beta"], cache_dir=cache)
+        ex = inflate_thick("delfino", truth, np.asarray(FE_PRESSURES), 1.1, radius=fe.radius, thickness=fe.thickness)
+        dr = np.abs(fe.r[1:, 0] / ex.outer_radius - 1).max()
+        dn = np.abs(fe.wall_force[1:] / ex.wall_force - 1).max()
+        _, gap, errs = _fe_fit(fe, "delfino", "free", "thick")
+        print(f"| {ratio:g} | 2 x {nr} | {dr:.1e} | {dn:.1e} | {gap:.3%} | {errs} |", flush=True)
+    print("\n### Delfino clamped FE tube (fitted clamped/thick): mesh, marker margin, virtual fields\n")
+    print("| mesh (axial x radial) | markers clear of the clamps | virtual fields | RMS gap | errors |")
+    print("|---|---|---|---|---|")
+    for na, nr in ((40, 4), (40, 8), (80, 8)):
+        fe = solve_fe_tube("delfino", truth, pressures=FE_PRESSURES, stretch=1.1, clamped=True, n_axial=na, n_radial=nr,
+                           cache_dir=cache)
+        for margin in (4e-3, 6e-3, 8e-3):
+            for fields in ("paper", "flat-end"):
+                _, gap, errs = _fe_fit(fe, "delfino", "clamped", "thick", fields, margin)
+                print(f"| {na} x {nr} | {margin * 1e3:g} mm | {fields} | {gap:.2%} | {errs} |", flush=True)
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--part", choices=["hygiene", "checks", "fe", "all"], default="all")
+    ap.add_argument("--part", choices=["hygiene", "checks", "fe", "fe-convergence", "all"], default="all")
     ap.add_argument("--seeds", type=int, default=10, help="noise seeds per row (hygiene, checks)")
-    ap.add_argument("--fine", action="store_true", help="finer FE mesh for the clamped tubes (80 x 6)")
+    ap.add_argument("--fine", action="store_true", help="finer FE meshes (80 x 8 clamped, 8 x 8 free)")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)
     if args.part in ("hygiene", "all"):
@@ -138,6 +201,8 @@ def main(argv=None):
         bench_checks(args.seeds)
     if args.part in ("fe", "all"):
         bench_fe(args.fine)
+    if args.part in ("fe-convergence", "all"):
+        bench_fe_convergence()
     return 0
 
 
