@@ -105,24 +105,24 @@ def bench_checks(n_seeds, noises=(0.0, 0.01e-3, 0.05e-3, 0.17e-3)):
 FE_PRESSURES = tuple(np.linspace(0, 150, 8)[1:] * MMHG)
 
 
-def _fe_fit(fe, model, ends, wall, fields="paper", margin=4e-3):
-    """Fit 300 markers (seed 0, ``margin`` m clear of the clamps) of an FE tube: (result, RMS gap, errors)."""
+def _fe_fit(fe, model, ends, wall, fields="paper", margin=4e-3, n_markers=300, **options):
+    """Fit markers (seed 0, ``margin`` m clear of the clamps) of an FE tube: (result, RMS gap, errors)."""
     from identification.thick_fields import flat_end_fields
 
-    pos = _fe_markers(fe, margin)
+    pos = _fe_markers(fe, margin, n_markers)
     mesh = build_mesh(pos[0])
     kw = {"fields": flat_end_fields(mesh)} if fields == "flat-end" else {}
     r = identify(pos, fe.pressure, fe.wall_force, thickness=fe.thickness, model=model, wall=wall, ends=ends, mesh=mesh,
-                 **kw)
+                 **kw, **options)
     truth = PAPER_PARAMETERS[model]
     errs = ", ".join(f"{n} {r.parameters[n] / truth[n] - 1:+.2%}" for n in truth)
     return r, float(np.sqrt(np.mean(r.residuals**2))), errs
 
 
-def _fe_markers(fe, margin):
+def _fe_markers(fe, margin, n_markers=300):
     from rig_sim.fe_tube import fe_markers
 
-    return fe_markers(fe, 300, seed=0, margin=margin)
+    return fe_markers(fe, n_markers, seed=0, margin=margin)
 
 
 def _weak(r):
@@ -176,6 +176,10 @@ def bench_fe_convergence():
         dn = np.abs(fe.wall_force[1:] / ex.wall_force - 1).max()
         _, gap, errs = _fe_fit(fe, "delfino", "free", "thick")
         print(f"| {ratio:g} | 2 x {nr} | {dr:.1e} | {dn:.1e} | {gap:.3%} | {errs} |", flush=True)
+    _layered_kinematics(solve_fe_tube("delfino", truth, pressures=FE_PRESSURES, stretch=1.1, clamped=True, n_axial=40,
+                                      n_radial=4, cache_dir=cache))
+    _thick_form_options(solve_fe_tube("delfino", truth, pressures=FE_PRESSURES, stretch=1.1, clamped=True, n_axial=80,
+                                      n_radial=8, cache_dir=cache))
     print("\n### Delfino clamped FE tube (fitted clamped/thick): mesh, marker margin, virtual fields\n")
     print("| mesh (axial x radial) | markers clear of the clamps | virtual fields | RMS gap | errors |")
     print("|---|---|---|---|---|")
@@ -186,6 +190,39 @@ def bench_fe_convergence():
             for fields in ("paper", "flat-end"):
                 _, gap, errs = _fe_fit(fe, "delfino", "clamped", "thick", fields, margin)
                 print(f"| {na} x {nr} | {margin * 1e3:g} mm | {fields} | {gap:.2%} | {errs} |", flush=True)
+
+
+def _thick_form_options(fe):
+    """Layers through the wall, in-plane quadrature and marker count on a clamped FE tube."""
+    print(f"\n### Thick-form options on the clamped Delfino FE tube ({fe.Z.size - 1} axial elements, markers 4 mm "
+          "clear)\n")
+    print("| markers | layers | quadrature | virtual fields | RMS gap | errors |")
+    print("|---|---|---|---|---|---|")
+    for n, layers, quad in ((300, 4, 1), (300, 2, 1), (300, 8, 1), (300, 4, 3), (600, 4, 1), (1200, 4, 1)):
+        for fields in ("paper", "flat-end"):
+            _, gap, errs = _fe_fit(fe, "delfino", "clamped", "thick", fields, n_markers=n, n_layers=layers,
+                                   quadrature=quad)
+            print(f"| {n} | {layers} | {quad} | {fields} | {gap:.2%} | {errs} |", flush=True)
+
+
+def _layered_kinematics(fe, distances=(17.5e-3, 12e-3, 10e-3, 8e-3, 6e-3, 5e-3, 4e-3, 3e-3, 2e-3)):
+    """The thick form's kinematics (material lines through the wall stay radial, lumen radius from
+    incompressibility: r_i^2 = r_o^2 - (R^2 - (R - H)^2) / (dz/dZ)) against the FE lumen, last step."""
+    print(f"\n### Layered kinematics on the clamped Delfino FE tube ({fe.pressure[-1] / MMHG:.0f} mmHg, "
+          f"{fe.Z.size - 1} axial elements)\n")
+    print("| reference distance from the clamp | outer slope dr/dz | lumen z - outer z (same Z) "
+          "| same if the line stays normal to the surface: (r_o - r_i) dr/dz | layered lumen radius / FE - 1 |")
+    print("|---|---|---|---|---|")
+    k, R, H = -1, fe.radius, fe.thickness
+    jz = np.gradient(fe.z[k], fe.Z)
+    ri_layered = np.sqrt(fe.r[k] ** 2 - (R * R - (R - H) ** 2) / jz)
+    slope = np.gradient(fe.r[k], fe.z[k])
+    for d in distances:
+        Z = 0.5 * fe.length - d
+        at = lambda v: float(np.interp(Z, fe.Z, v))  # noqa: E731
+        kirchhoff = (at(fe.r[k]) - at(fe.r_inner[k])) * at(slope)
+        print(f"| {d * 1e3:g} mm | {at(slope):+.3f} | {(at(fe.z_inner[k]) - at(fe.z[k])) * 1e6:+.0f} um "
+              f"| {kirchhoff * 1e6:+.0f} um | {at(ri_layered) / at(fe.r_inner[k]) - 1:+.1e} |")
 
 
 def main(argv=None):

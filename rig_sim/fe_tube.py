@@ -47,11 +47,11 @@ __all__ = ["FETube", "solve_fe_tube", "fe_markers", "FE_MATERIALS"]
 
 FE_MATERIALS = ("hgo", "delfino")
 #: Bumped when the model changes, so that cached solutions are recomputed.
-FE_VERSION = 2
+FE_VERSION = 3
 #: Width of the smoothed tension-only switch of the HGO fibres (in I4 - 1).
 FIBRE_SWITCH = 1e-3
 #: Default bulk modulus / the law's largest stiffness-like parameter. The exponential laws stiffen by
-#: ~100-1000x at 150 mmHg; on the free Delfino tube (4 elements through the wall) 1e5 left the outer
+#: orders of magnitude by 150 mmHg; on the free Delfino tube (4 elements through the wall) 1e5 left the outer
 #: radius 9e-4 off the closed form and beta +3 %, 1e7 2.8e-4 and +0.4 %, 1e8 to 1e10 2.7e-4 and +0.37 %
 #: (the rest is the radial discretisation: 6.9e-5 with 8 elements, 1.8e-5 with 16).
 BULK_RATIO = 1e8
@@ -81,6 +81,9 @@ class FETube:
     model : str
     params : dict
     clamped : bool
+    r_inner, z_inner : ndarray, shape (n_steps, n_nodes)
+        Deformed radius and axial position of the lumen nodes at the same reference Z (m): the
+        material line through the wall at Z runs from (r_inner, z_inner) to (r, z).
     """
 
     Z: np.ndarray
@@ -95,6 +98,8 @@ class FETube:
     model: str
     params: dict
     clamped: bool
+    r_inner: np.ndarray
+    z_inner: np.ndarray
 
 
 class _Umat:
@@ -171,8 +176,10 @@ def _build(radius, thickness, length, n_axial, n_radial, clamped):
     lumen = fem.FieldContainer([fem.FieldAxisymmetric(inner, dim=2)])
     outer = np.flatnonzero(np.abs(x[:, 1] - radius) < tol)
     outer = outer[np.argsort(x[outer, 0])]
+    lumen_nodes = np.flatnonzero(np.abs(x[:, 1] - (radius - thickness)) < tol)
+    lumen_nodes = lumen_nodes[np.argsort(x[lumen_nodes, 0])]
     end = np.flatnonzero(np.abs(x[:, 0] - half) < tol)
-    return fem, mesh, field, boundaries, lumen, outer, end
+    return fem, mesh, field, boundaries, lumen, (outer, lumen_nodes), end
 
 
 def _converged(dx, x, f, xtol, ftol, dof1=None, dof0=None, items=None):
@@ -262,7 +269,8 @@ def _load_path(pressures, move, n_ramp, max_step=2e3):
 @functools.lru_cache(maxsize=16)
 def _solve_cached(model, params, radius, thickness, length, stretch, pressures, clamped, n_axial, n_radial, bulk,
                   n_ramp):
-    fem, mesh, field, boundaries, lumen, outer, end = _build(radius, thickness, length, n_axial, n_radial, clamped)
+    built = _build(radius, thickness, length, n_axial, n_radial, clamped)
+    fem, mesh, field, boundaries, lumen, (outer, inner), end = built
     solid = fem.SolidBodyNearlyIncompressible(_Umat(model, dict(params)), field, bulk=bulk)
     pressure_item = fem.SolidBodyPressure(lumen, pressure=0.0)
     half = 0.5 * length
@@ -270,12 +278,11 @@ def _solve_cached(model, params, radius, thickness, length, stretch, pressures, 
     solved = _run(fem, field, solid, pressure_item, boundaries, loads)
     states = [solved[i] for i in keep]
     x = mesh.points
-    r, z, force = [np.full(outer.size, radius)], [x[outer, 0].copy()], [0.0]
-    for u, reaction in states:
-        force.append(reaction)
-        r.append(x[outer, 1] + u[outer, 1])
-        z.append(x[outer, 0] + u[outer, 0])
-    return x[outer, 0].copy(), np.array(r), np.array(z), np.array(force)
+    u = np.concatenate([np.zeros((1,) + x.shape), np.array([state[0] for state in states])])  # (s, points, 2)
+    force = np.array([0.0] + [state[1] for state in states])
+    deformed = x[None] + u
+    return (x[outer, 0].copy(), deformed[:, outer, 1], deformed[:, outer, 0], force, deformed[:, inner, 1],
+            deformed[:, inner, 0])
 
 
 def solve_fe_tube(model: str, params: Mapping[str, float], *, radius: float = 10e-3, thickness: float = 1.3e-3,
@@ -302,7 +309,7 @@ def solve_fe_tube(model: str, params: Mapping[str, float], *, radius: float = 10
         Elements along the half length and through the wall.
     bulk : float, optional
         Bulk modulus (Pa) of the near-incompressibility penalty (default ``BULK_RATIO`` = 1e8 x the
-        largest stiffness-like parameter: the exponential laws stiffen by ~100-1000x at 150 mmHg).
+        largest stiffness-like parameter: the exponential laws stiffen by orders of magnitude by 150 mmHg).
     n_ramp : int
         Substeps of the axial stretch.
     cache_dir : path, optional
@@ -322,13 +329,14 @@ def solve_fe_tube(model: str, params: Mapping[str, float], *, radius: float = 10
     if bulk is None:
         bulk = BULK_RATIO * max(v for k, v in params.items() if k in ("c", "k1", "beta", "mu"))
     key = tuple(sorted(params.items()))
-    Z, r, z, force = _solve_cached(model, key, float(radius), float(thickness), float(length), float(stretch),
-                                   tuple(float(p) for p in pressures), bool(clamped), int(n_axial), int(n_radial),
-                                   float(bulk), int(n_ramp))
+    Z, r, z, force, r_in, z_in = _solve_cached(model, key, float(radius), float(thickness), float(length),
+                                               float(stretch), tuple(float(p) for p in pressures), bool(clamped),
+                                               int(n_axial), int(n_radial), float(bulk), int(n_ramp))
     n = len(pressures)
     return FETube(Z=Z, r=r, z=z, pressure=np.concatenate([[0.0], np.asarray(pressures, float)]), wall_force=force,
                   stretch=np.concatenate([[1.0], np.full(n, float(stretch))]), radius=float(radius),
-                  thickness=float(thickness), length=float(length), model=model, params=params, clamped=bool(clamped))
+                  thickness=float(thickness), length=float(length), model=model, params=params, clamped=bool(clamped),
+                  r_inner=r_in, z_inner=z_in)
 
 
 def _disk_cached(cache_dir, model, params, **kwargs) -> FETube:
@@ -341,12 +349,13 @@ def _disk_cached(cache_dir, model, params, **kwargs) -> FETube:
         d = np.load(path, allow_pickle=False)
         return FETube(Z=d["Z"], r=d["r"], z=d["z"], pressure=d["pressure"], wall_force=d["wall_force"],
                       stretch=d["stretch"], radius=float(d["radius"]), thickness=float(d["thickness"]),
-                      length=float(d["length"]), model=model, params=params, clamped=bool(d["clamped"]))
+                      length=float(d["length"]), model=model, params=params, clamped=bool(d["clamped"]),
+                      r_inner=d["r_inner"], z_inner=d["z_inner"])
     tube = solve_fe_tube(model, params, **kwargs)
     path.parent.mkdir(parents=True, exist_ok=True)
     np.savez(path, Z=tube.Z, r=tube.r, z=tube.z, pressure=tube.pressure, wall_force=tube.wall_force,
              stretch=tube.stretch, radius=tube.radius, thickness=tube.thickness, length=tube.length,
-             clamped=tube.clamped, key=key)
+             clamped=tube.clamped, r_inner=tube.r_inner, z_inner=tube.z_inner, key=key)
     log.info("FE tube cached in %s", path)
     return tube
 
