@@ -206,23 +206,37 @@ def _thick_form_options(fe):
 
 
 def _layered_kinematics(fe, distances=(17.5e-3, 12e-3, 10e-3, 8e-3, 6e-3, 5e-3, 4e-3, 3e-3, 2e-3)):
-    """The thick form's kinematics (material lines through the wall stay radial, lumen radius from
-    incompressibility: r_i^2 = r_o^2 - (R^2 - (R - H)^2) / (dz/dZ)) against the FE lumen, last step."""
+    """The thick form's kinematics against the FE's, last step.
+
+    Layered (identification/vfm.py ``_layer``): every layer at the outer surface's z(Z), so the axial
+    stretch dz/dZ is the same through the wall, lumen radius r_i^2 = r_o^2 - (R^2 - (R - H)^2) / (dz/dZ),
+    I1 = C_ZZ + lambda_theta^2 + 1 / (lambda_theta^2 C_ZZ) of the mid-wall layer. FE: the outer and lumen
+    node profiles; mid-wall F by differences through the wall (exact for a uniform tube: mid-length row).
+    """
     print(f"\n### Layered kinematics on the clamped Delfino FE tube ({fe.pressure[-1] / MMHG:.0f} mmHg, "
           f"{fe.Z.size - 1} axial elements)\n")
     print("| reference distance from the clamp | outer slope dr/dz | lumen z - outer z (same Z) "
-          "| same if the line stays normal to the surface: (r_o - r_i) dr/dz | layered lumen radius / FE - 1 |")
-    print("|---|---|---|---|---|")
-    k, R, H = -1, fe.radius, fe.thickness
-    jz = np.gradient(fe.z[k], fe.Z)
+          "| same if the line stays normal to the surface: (r_o - r_i) dr/dz | axial stretch: outer (layered) "
+          "/ FE mid-wall | mid-wall I1: layered - FE | layered lumen radius / FE - 1 |")
+    print("|---|---|---|---|---|---|---|")
+    k, R, H, Z = -1, fe.radius, fe.thickness, fe.Z
+    jz = np.gradient(fe.z[k], Z)
     ri_layered = np.sqrt(fe.r[k] ** 2 - (R * R - (R - H) ** 2) / jz)
     slope = np.gradient(fe.r[k], fe.z[k])
+    Rm = R - 0.5 * H  # mid-wall
+    rs = np.sqrt(fe.r[k] ** 2 - (R * R - Rm * Rm) / jz)
+    czz, lt2 = jz**2 + np.gradient(rs, Z) ** 2, (rs / Rm) ** 2
+    i1_layered = czz + lt2 + 1.0 / (lt2 * czz)
+    zm, rm = 0.5 * (fe.z[k] + fe.z_inner[k]), 0.5 * (fe.r[k] + fe.r_inner[k])
+    f_zz = np.gradient(zm, Z)
+    i1_fe = (f_zz**2 + np.gradient(rm, Z) ** 2 + ((fe.z[k] - fe.z_inner[k]) / H) ** 2
+             + ((fe.r[k] - fe.r_inner[k]) / H) ** 2 + (rm / Rm) ** 2)
     for d in distances:
-        Z = 0.5 * fe.length - d
-        at = lambda v: float(np.interp(Z, fe.Z, v))  # noqa: E731
+        at = lambda v: float(np.interp(0.5 * fe.length - d, Z, v))  # noqa: E731
         kirchhoff = (at(fe.r[k]) - at(fe.r_inner[k])) * at(slope)
         print(f"| {d * 1e3:g} mm | {at(slope):+.3f} | {(at(fe.z_inner[k]) - at(fe.z[k])) * 1e6:+.0f} um "
-              f"| {kirchhoff * 1e6:+.0f} um | {at(ri_layered) / at(fe.r_inner[k]) - 1:+.1e} |")
+              f"| {kirchhoff * 1e6:+.0f} um | {at(jz):.4f} / {at(f_zz):.4f} | {at(i1_layered) - at(i1_fe):+.4f} "
+              f"| {at(ri_layered) / at(fe.r_inner[k]) - 1:+.1e} |")
 
 
 def main(argv=None):
