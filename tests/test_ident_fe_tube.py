@@ -74,3 +74,19 @@ def test_flat_end_fields_recover_delfino_on_the_clamped_fe_tube():
     assert np.sqrt(np.mean(r.residuals**2)) < 0.005
     for name in ("beta", "alpha"):
         assert r.parameters[name] == pytest.approx(DELFINO[name], rel=0.01), (name, r.parameters)
+
+
+def test_flat_end_fields_are_exact_on_the_closed_form_thick_tube():
+    from identification import internal_virtual_work, prepare
+    from rig_sim.mechanics import simulate_test
+
+    sim = simulate_test("delfino", DELFINO, clamped=False, wall="thick", n_markers=200)
+    mesh = build_mesh(sim.positions[0])
+    fields = flat_end_fields(mesh)
+    # zero value and axial gradient at the measured boundaries, 1 on the load-cell one
+    assert np.allclose(fields.values[1, np.unique(mesh.top_edges), 2], 1.0)
+    assert np.allclose(fields.values[:, np.unique(mesh.bottom_edges)], 0.0)
+    data = prepare(sim.positions, sim.pressure, sim.axial_force, thickness=sim.thickness, wall="thick", ends="free",
+                   mesh=mesh, fields=fields)
+    gap = (internal_virtual_work(data, "delfino", DELFINO) - data.evw) / data.scale[:, None]
+    assert np.abs(gap).max() < 1e-4  # the same exactness as the paper's fields (tests/test_ident_thick.py)
