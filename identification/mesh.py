@@ -14,7 +14,6 @@ import logging
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import least_squares
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import Delaunay, cKDTree
@@ -99,31 +98,15 @@ def fit_axis(points: np.ndarray, *, toward: np.ndarray | None = None, initial: A
     pts = pts[np.all(np.isfinite(pts), axis=1)]
     if len(pts) < MIN_MARKERS:
         raise MeshError(f"fitting the specimen axis needs at least {MIN_MARKERS} finite markers; got {len(pts)}")
+    from .step_axes import fit_clouds  # (step_axes builds on this module)
+
     centre = pts.mean(axis=0)
-    deg = int(profile_degree)
+    scale = float(np.sqrt(np.mean(np.sum((pts - centre) ** 2, axis=1))))
 
     def fit(d0: np.ndarray, c0: np.ndarray):
-        frame0 = _frame(d0)
-
-        def geometry(x):
-            d = frame0[2] + x[0] * frame0[0] + x[1] * frame0[1]
-            d = d / np.linalg.norm(d)
-            o = c0 + x[2] * frame0[0] + x[3] * frame0[1]
-            v = pts - o
-            along = v @ d
-            r = np.linalg.norm(v - np.outer(along, d), axis=1)
-            return d, o, along, r
-
-        def residual(x):
-            _, _, along, r = geometry(x)
-            half = max(np.ptp(along) / 2.0, 1e-12)
-            basis = np.polynomial.legendre.legvander((along - along.mean()) / half, deg)
-            coef = np.linalg.solve(basis.T @ basis, basis.T @ r)
-            return r - basis @ coef
-
-        sol = least_squares(residual, np.zeros(4), method="lm", xtol=1e-12, ftol=1e-12, gtol=1e-12)
-        d, o, _, r = geometry(sol.x)
-        return d, o, r, float(np.sqrt(np.mean(sol.fun**2)))
+        res, d, o, r = fit_clouds(pts[None], np.ones((1, len(pts))), _frame(d0)[None], np.asarray(c0, float)[None],
+                                  scale, profile_degree=int(profile_degree))
+        return d[0], o[0], r[0], float(np.sqrt(np.mean(res[0] ** 2)))
 
     if initial is not None:
         candidates = [(initial.direction, initial.origin)]
@@ -221,19 +204,26 @@ def _quality(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
     return 4.0 * np.sqrt(3.0) * area / np.where(s > 0, s, 1.0)
 
 
+def _edge_counts(tri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Oriented edges of the triangles (3 n_tri, 2), edge (0-1) of every triangle first, then (1-2), (2-0),
+    and how many triangles use each one's undirected edge, shape (3 n_tri,)."""
+    edges = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
+    lo, hi = np.minimum(edges[:, 0], edges[:, 1]), np.maximum(edges[:, 0], edges[:, 1])
+    key = lo.astype(np.int64) * (int(tri.max(initial=0)) + 1) + hi  # one integer per undirected edge
+    _, inv, counts = np.unique(key, return_inverse=True, return_counts=True)
+    return edges, counts[inv]
+
+
 def _boundary_edges(tri: np.ndarray) -> np.ndarray:
     """Oriented edges used by exactly one triangle, shape (n, 2)."""
-    edges = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
-    key = np.sort(edges, axis=1)
-    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    return edges[counts[inv.ravel()] == 1]
+    edges, counts = _edge_counts(tri)
+    return edges[counts == 1]
 
 
 def _on_boundary(tri: np.ndarray) -> np.ndarray:
     """Which triangles have an edge used by no other triangle, shape (n_triangles,) bool."""
-    key = np.sort(np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]]), axis=1)
-    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    return (counts[inv.ravel()] == 1).reshape(3, -1).any(axis=0)
+    _, counts = _edge_counts(tri)
+    return (counts == 1).reshape(3, -1).any(axis=0)
 
 
 #: Markers closer than this fraction of the median nearest-neighbour distance to another marker are
