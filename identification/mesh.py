@@ -102,35 +102,40 @@ def fit_axis(points: np.ndarray, *, toward: np.ndarray | None = None, initial: A
 
     centre = pts.mean(axis=0)
     scale = float(np.sqrt(np.mean(np.sum((pts - centre) ** 2, axis=1))))
-
-    def fit(d0: np.ndarray, c0: np.ndarray):
+    best = None
+    for d0, c0 in _axis_candidates(pts, centre, initial):
         res, d, o, r = fit_clouds(pts[None], np.ones((1, len(pts))), _frame(d0)[None], np.asarray(c0, float)[None],
                                   scale, profile_degree=int(profile_degree))
-        return d[0], o[0], r[0], float(np.sqrt(np.mean(res[0] ** 2)))
-
-    if initial is not None:
-        candidates = [(initial.direction, initial.origin)]
-    else:
-        _, _, vt = np.linalg.svd(pts - centre, full_matrices=False)
-        candidates = [(d0, centre) for d0 in vt]
-
-        def spread(d0):  # relative scatter of the radii about the principal direction, before fitting
-            v = pts - centre
-            r = np.linalg.norm(v - np.outer(v @ d0, d0), axis=1)
-            return np.std(r) / np.mean(r)
-
-        candidates.sort(key=lambda c: spread(c[0]))
-    best = None
-    for d0, c0 in candidates:
-        d, o, r, rms = fit(d0, c0)
-        if best is None or rms / r.mean() < best[0]:
-            best = (rms / r.mean(), d, o, r, rms)
+        rms = float(np.sqrt(np.mean(res[0] ** 2)))
+        if best is None or rms / r[0].mean() < best[0]:
+            best = (rms / r[0].mean(), d[0], o[0], r[0], rms)
         if best[0] < 0.05:  # a tube: the most promising principal direction was right
             break
     _, d, o, r, rms = best
     if toward is None:
         toward = np.array([0.0, 0.0, 1.0]) if initial is None else initial.direction
-    if d @ np.asarray(toward, dtype=float) < 0:
+    return _oriented_axis(pts, d, o, r, rms, np.asarray(toward, dtype=float), initial)
+
+
+def _axis_candidates(pts: np.ndarray, centre: np.ndarray, initial: Axis | None) -> list:
+    """Starting (direction, origin) pairs of ``fit_axis``: ``initial``'s, or the three principal
+    directions of the cloud, the one with the least relative scatter of the radii about it first."""
+    if initial is not None:
+        return [(initial.direction, initial.origin)]
+    v = pts - centre
+    _, _, vt = np.linalg.svd(v, full_matrices=False)
+
+    def spread(d0):  # relative scatter of the radii about the principal direction, before fitting
+        r = np.linalg.norm(v - np.outer(v @ d0, d0), axis=1)
+        return np.std(r) / np.mean(r)
+
+    return sorted([(d0, centre) for d0 in vt], key=lambda c: spread(c[0]))
+
+
+def _oriented_axis(pts, d, o, r, rms, toward: np.ndarray, initial: Axis | None) -> Axis:
+    """The ``Axis`` of a fitted direction d and origin o: d turned towards ``toward``, the origin moved to
+    the markers' mean axial position, the angular origin kept from ``initial`` if given."""
+    if d @ toward < 0:
         d = -d
     o = o + ((pts - o) @ d).mean() * d
     frame = _frame(d)
@@ -236,9 +241,12 @@ SLIVER_QUALITY = 0.3
 MAX_REMESH = 8
 
 
-def _near_duplicates(points: np.ndarray, tolerance: float) -> np.ndarray:
-    """Which rows of ``points`` (n, 3) lie within ``tolerance`` of an earlier kept row: (n,) bool."""
-    tree = cKDTree(points)
+def _near_duplicates(points: np.ndarray, tolerance: float, tree: cKDTree | None = None) -> np.ndarray:
+    """Which rows of ``points`` (n, 3) lie within ``tolerance`` of an earlier kept row: (n,) bool.
+
+    ``tree``: a ``cKDTree`` of ``points`` if one exists already.
+    """
+    tree = cKDTree(points) if tree is None else tree
     drop = np.zeros(len(points), bool)
     for i, j in sorted(tree.query_pairs(tolerance)):
         if not drop[i]:
@@ -367,17 +375,8 @@ def build_mesh(
         raise MeshError(f"meshing needs at least {MIN_MARKERS} markers in the reference step; got {int(finite.sum())}")
     axis = fit_axis(ref[finite], toward=toward)
     r, theta, z = to_cylindrical(ref, axis)
-    idx = np.flatnonzero(finite)
-
-    d_nn, _ = cKDTree(ref[idx]).query(ref[idx], k=2)
-    spacing = float(np.median(d_nn[:, 1]))
-    tol = duplicate_fraction * spacing if duplicate_tolerance is None else float(duplicate_tolerance)
-    drop = _near_duplicates(ref[idx], tol)
-    n_dup = int(drop.sum())
-    idx = idx[~drop]
-    if len(idx) < MIN_MARKERS:
-        raise MeshError(f"meshing needs at least {MIN_MARKERS} distinct markers; got {len(idx)}")
-
+    idx, spacing, tol = _distinct_markers(ref, np.flatnonzero(finite), duplicate_tolerance, duplicate_fraction)
+    n_dup = int(finite.sum()) - len(idx)
     kept, local, quality, alive, n_boundary, n_corner = _clean_triangulation(
         axis.radius * theta[idx], z[idx], axis.radius, min_quality, sliver_quality)
     idx = idx[kept]
@@ -402,6 +401,22 @@ def build_mesh(
     return SurfaceMesh(axis=axis, triangles=tri, r=np.where(finite, r, np.nan), theta=np.where(finite, theta, np.nan),
                        z=np.where(finite, z, np.nan), used=used, bottom_edges=bottom_edges, top_edges=top_edges,
                        z_bottom=z_bottom, z_top=z_top, dropped=dropped)
+
+
+def _distinct_markers(ref: np.ndarray, idx: np.ndarray, tolerance: float | None, fraction: float):
+    """The markers ``idx`` (finite rows of ``ref`` (n, 3)) without near-duplicates.
+
+    Returns the kept indices, the median nearest-neighbour distance (m) and the duplicate
+    tolerance used (m): ``tolerance``, or ``fraction`` of that spacing.
+    """
+    tree = cKDTree(ref[idx])
+    d_nn, _ = tree.query(ref[idx], k=2)
+    spacing = float(np.median(d_nn[:, 1]))
+    tol = fraction * spacing if tolerance is None else float(tolerance)
+    idx = idx[~_near_duplicates(ref[idx], tol, tree)]
+    if len(idx) < MIN_MARKERS:
+        raise MeshError(f"meshing needs at least {MIN_MARKERS} distinct markers; got {len(idx)}")
+    return idx, spacing, tol
 
 
 def _end_loops(tri: np.ndarray, theta: np.ndarray, z: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, int]:
