@@ -209,26 +209,27 @@ def _quality(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
     return 4.0 * np.sqrt(3.0) * area / np.where(s > 0, s, 1.0)
 
 
-def _edge_counts(tri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Oriented edges of the triangles (3 n_tri, 2), edge (0-1) of every triangle first, then (1-2), (2-0),
-    and how many triangles use each one's undirected edge, shape (3 n_tri,)."""
+def _edge_ids(tri: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """Oriented edges of the triangles (3 n_tri, 2), edge (0-1) of every triangle first, then (1-2), (2-0);
+    the id of each one's undirected edge, shape (3 n_tri,), and the number of distinct edges."""
     edges = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
     lo, hi = np.minimum(edges[:, 0], edges[:, 1]), np.maximum(edges[:, 0], edges[:, 1])
     key = lo.astype(np.int64) * (int(tri.max(initial=0)) + 1) + hi  # one integer per undirected edge
-    _, inv, counts = np.unique(key, return_inverse=True, return_counts=True)
-    return edges, counts[inv]
+    unique, inv = np.unique(key, return_inverse=True)
+    return edges, inv.ravel(), len(unique)
+
+
+def _edge_counts(tri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Oriented edges of the triangles (as ``_edge_ids``) and how many triangles use each one's undirected
+    edge, shape (3 n_tri,)."""
+    edges, ids, n_edges = _edge_ids(tri)
+    return edges, np.bincount(ids, minlength=n_edges)[ids]
 
 
 def _boundary_edges(tri: np.ndarray) -> np.ndarray:
     """Oriented edges used by exactly one triangle, shape (n, 2)."""
     edges, counts = _edge_counts(tri)
     return edges[counts == 1]
-
-
-def _on_boundary(tri: np.ndarray) -> np.ndarray:
-    """Which triangles have an edge used by no other triangle, shape (n_triangles,) bool."""
-    _, counts = _edge_counts(tri)
-    return (counts == 1).reshape(3, -1).any(axis=0)
 
 
 #: Markers closer than this fraction of the median nearest-neighbour distance to another marker are
@@ -278,16 +279,22 @@ def _triangulate(s: np.ndarray, z: np.ndarray, radius: float) -> tuple[np.ndarra
 
 
 def _peel(local: np.ndarray, quality: np.ndarray, min_quality: float) -> tuple[np.ndarray, int]:
-    """Peel triangles of quality below ``min_quality`` off the ends, repeatedly: (alive (n_tri,) bool, count)."""
+    """Peel triangles of quality below ``min_quality`` off the ends, repeatedly: (alive (n_tri,) bool, count).
+
+    A triangle is on the boundary when one of its edges is used by no other living triangle; the
+    number of living triangles on each edge is updated as triangles are peeled.
+    """
+    _, ids, n_edges = _edge_ids(local)
+    ids = ids.reshape(3, -1)  # (3, n_tri) edge ids of each triangle
+    count = np.bincount(ids.ravel(), minlength=n_edges)
     alive = np.ones(len(local), bool)
     n_peeled = 0
     while True:
-        on_bnd = np.zeros(len(local), bool)
-        on_bnd[alive] = _on_boundary(local[alive])
-        peel = alive & on_bnd & (quality < min_quality)
+        peel = alive & (quality < min_quality) & (count[ids] == 1).any(axis=0)
         if not peel.any():
             return alive, n_peeled
         alive &= ~peel
+        count -= np.bincount(ids[:, peel].ravel(), minlength=n_edges)
         n_peeled += int(peel.sum())
 
 
