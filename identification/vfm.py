@@ -289,14 +289,21 @@ _STATE_CACHE: dict = {}
 _STATE_CACHE_SIZE = 4
 
 
-def _cached_surface_state(mesh: SurfaceMesh, aligned: np.ndarray, *options):
-    """``kinematics.surface_state(mesh, aligned, *options)``, reused for the same mesh object, markers and options.
+def _option_key(value):
+    """A hashable stand-in for an option value; arrays by their bytes (their repr elides long ones)."""
+    if isinstance(value, np.ndarray):
+        return (value.shape, value.dtype.str, value.tobytes())
+    return repr(value)
+
+
+def _cached_surface_state(mesh: SurfaceMesh, aligned: np.ndarray, *options, **keywords):
+    """``kinematics.surface_state(mesh, aligned, *options, **keywords)``, reused for the same mesh object,
+    markers and options.
 
     The cache holds the mesh it was computed on, so its ``id`` cannot be reused while the entry lives.
     """
-    weights = options[-1]
-    key = (id(mesh), aligned.shape, aligned.tobytes(), repr(options[:-1]),
-           None if weights is None else np.asarray(weights, float).tobytes())
+    key = (id(mesh), _option_key(np.asarray(aligned)), tuple(_option_key(o) for o in options),
+           tuple((k, _option_key(v)) for k, v in sorted(keywords.items())))
     hit = _STATE_CACHE.get(key)
     if hit is not None and hit[0] is mesh:
         st = hit[1]
@@ -304,7 +311,7 @@ def _cached_surface_state(mesh: SurfaceMesh, aligned: np.ndarray, *options):
             log.warning("markers disagreeing with their neighbours (set unobserved) per step: %s",
                         st.outliers.sum(axis=1).tolist())
         return st
-    st = surface_state(mesh, aligned, *options)
+    st = surface_state(mesh, aligned, *options, **keywords)
     if len(_STATE_CACHE) >= _STATE_CACHE_SIZE:
         _STATE_CACHE.pop(next(iter(_STATE_CACHE)))
     _STATE_CACHE[key] = (mesh, st)
