@@ -14,7 +14,6 @@ import logging
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import least_squares
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import Delaunay, cKDTree
@@ -99,55 +98,44 @@ def fit_axis(points: np.ndarray, *, toward: np.ndarray | None = None, initial: A
     pts = pts[np.all(np.isfinite(pts), axis=1)]
     if len(pts) < MIN_MARKERS:
         raise MeshError(f"fitting the specimen axis needs at least {MIN_MARKERS} finite markers; got {len(pts)}")
+    from .step_axes import fit_clouds  # (step_axes builds on this module)
+
     centre = pts.mean(axis=0)
-    deg = int(profile_degree)
-
-    def fit(d0: np.ndarray, c0: np.ndarray):
-        frame0 = _frame(d0)
-
-        def geometry(x):
-            d = frame0[2] + x[0] * frame0[0] + x[1] * frame0[1]
-            d = d / np.linalg.norm(d)
-            o = c0 + x[2] * frame0[0] + x[3] * frame0[1]
-            v = pts - o
-            along = v @ d
-            r = np.linalg.norm(v - np.outer(along, d), axis=1)
-            return d, o, along, r
-
-        def residual(x):
-            _, _, along, r = geometry(x)
-            half = max(np.ptp(along) / 2.0, 1e-12)
-            basis = np.polynomial.legendre.legvander((along - along.mean()) / half, deg)
-            coef = np.linalg.solve(basis.T @ basis, basis.T @ r)
-            return r - basis @ coef
-
-        sol = least_squares(residual, np.zeros(4), method="lm", xtol=1e-12, ftol=1e-12, gtol=1e-12)
-        d, o, _, r = geometry(sol.x)
-        return d, o, r, float(np.sqrt(np.mean(sol.fun**2)))
-
-    if initial is not None:
-        candidates = [(initial.direction, initial.origin)]
-    else:
-        _, _, vt = np.linalg.svd(pts - centre, full_matrices=False)
-        candidates = [(d0, centre) for d0 in vt]
-
-        def spread(d0):  # relative scatter of the radii about the principal direction, before fitting
-            v = pts - centre
-            r = np.linalg.norm(v - np.outer(v @ d0, d0), axis=1)
-            return np.std(r) / np.mean(r)
-
-        candidates.sort(key=lambda c: spread(c[0]))
+    scale = float(np.sqrt(np.mean(np.sum((pts - centre) ** 2, axis=1))))
     best = None
-    for d0, c0 in candidates:
-        d, o, r, rms = fit(d0, c0)
-        if best is None or rms / r.mean() < best[0]:
-            best = (rms / r.mean(), d, o, r, rms)
+    for d0, c0 in _axis_candidates(pts, centre, initial):
+        res, d, o, r = fit_clouds(pts[None], np.ones((1, len(pts))), _frame(d0)[None], np.asarray(c0, float)[None],
+                                  scale, profile_degree=int(profile_degree))
+        rms = float(np.sqrt(np.mean(res[0] ** 2)))
+        if best is None or rms / r[0].mean() < best[0]:
+            best = (rms / r[0].mean(), d[0], o[0], r[0], rms)
         if best[0] < 0.05:  # a tube: the most promising principal direction was right
             break
     _, d, o, r, rms = best
     if toward is None:
         toward = np.array([0.0, 0.0, 1.0]) if initial is None else initial.direction
-    if d @ np.asarray(toward, dtype=float) < 0:
+    return _oriented_axis(pts, d, o, r, rms, np.asarray(toward, dtype=float), initial)
+
+
+def _axis_candidates(pts: np.ndarray, centre: np.ndarray, initial: Axis | None) -> list:
+    """Starting (direction, origin) pairs of ``fit_axis``: ``initial``'s, or the three principal
+    directions of the cloud, the one with the least relative scatter of the radii about it first."""
+    if initial is not None:
+        return [(initial.direction, initial.origin)]
+    v = pts - centre
+    _, _, vt = np.linalg.svd(v, full_matrices=False)
+
+    def spread(d0):  # relative scatter of the radii about the principal direction, before fitting
+        r = np.linalg.norm(v - np.outer(v @ d0, d0), axis=1)
+        return np.std(r) / np.mean(r)
+
+    return sorted([(d0, centre) for d0 in vt], key=lambda c: spread(c[0]))
+
+
+def _oriented_axis(pts, d, o, r, rms, toward: np.ndarray, initial: Axis | None) -> Axis:
+    """The ``Axis`` of a fitted direction d and origin o: d turned towards ``toward``, the origin moved to
+    the markers' mean axial position, the angular origin kept from ``initial`` if given."""
+    if d @ toward < 0:
         d = -d
     o = o + ((pts - o) @ d).mean() * d
     frame = _frame(d)
@@ -221,19 +209,27 @@ def _quality(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
     return 4.0 * np.sqrt(3.0) * area / np.where(s > 0, s, 1.0)
 
 
+def _edge_ids(tri: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """Oriented edges of the triangles (3 n_tri, 2), edge (0-1) of every triangle first, then (1-2), (2-0);
+    the id of each one's undirected edge, shape (3 n_tri,), and the number of distinct edges."""
+    edges = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
+    lo, hi = np.minimum(edges[:, 0], edges[:, 1]), np.maximum(edges[:, 0], edges[:, 1])
+    key = lo.astype(np.int64) * (int(tri.max(initial=0)) + 1) + hi  # one integer per undirected edge
+    unique, inv = np.unique(key, return_inverse=True)
+    return edges, inv.ravel(), len(unique)
+
+
+def _edge_counts(tri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Oriented edges of the triangles (as ``_edge_ids``) and how many triangles use each one's undirected
+    edge, shape (3 n_tri,)."""
+    edges, ids, n_edges = _edge_ids(tri)
+    return edges, np.bincount(ids, minlength=n_edges)[ids]
+
+
 def _boundary_edges(tri: np.ndarray) -> np.ndarray:
     """Oriented edges used by exactly one triangle, shape (n, 2)."""
-    edges = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
-    key = np.sort(edges, axis=1)
-    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    return edges[counts[inv.ravel()] == 1]
-
-
-def _on_boundary(tri: np.ndarray) -> np.ndarray:
-    """Which triangles have an edge used by no other triangle, shape (n_triangles,) bool."""
-    key = np.sort(np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]]), axis=1)
-    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    return (counts[inv.ravel()] == 1).reshape(3, -1).any(axis=0)
+    edges, counts = _edge_counts(tri)
+    return edges[counts == 1]
 
 
 #: Markers closer than this fraction of the median nearest-neighbour distance to another marker are
@@ -246,9 +242,12 @@ SLIVER_QUALITY = 0.3
 MAX_REMESH = 8
 
 
-def _near_duplicates(points: np.ndarray, tolerance: float) -> np.ndarray:
-    """Which rows of ``points`` (n, 3) lie within ``tolerance`` of an earlier kept row: (n,) bool."""
-    tree = cKDTree(points)
+def _near_duplicates(points: np.ndarray, tolerance: float, tree: cKDTree | None = None) -> np.ndarray:
+    """Which rows of ``points`` (n, 3) lie within ``tolerance`` of an earlier kept row: (n,) bool.
+
+    ``tree``: a ``cKDTree`` of ``points`` if one exists already.
+    """
+    tree = cKDTree(points) if tree is None else tree
     drop = np.zeros(len(points), bool)
     for i, j in sorted(tree.query_pairs(tolerance)):
         if not drop[i]:
@@ -280,16 +279,22 @@ def _triangulate(s: np.ndarray, z: np.ndarray, radius: float) -> tuple[np.ndarra
 
 
 def _peel(local: np.ndarray, quality: np.ndarray, min_quality: float) -> tuple[np.ndarray, int]:
-    """Peel triangles of quality below ``min_quality`` off the ends, repeatedly: (alive (n_tri,) bool, count)."""
+    """Peel triangles of quality below ``min_quality`` off the ends, repeatedly: (alive (n_tri,) bool, count).
+
+    A triangle is on the boundary when one of its edges is used by no other living triangle; the
+    number of living triangles on each edge is updated as triangles are peeled.
+    """
+    _, ids, n_edges = _edge_ids(local)
+    ids = ids.reshape(3, -1)  # (3, n_tri) edge ids of each triangle
+    count = np.bincount(ids.ravel(), minlength=n_edges)
     alive = np.ones(len(local), bool)
     n_peeled = 0
     while True:
-        on_bnd = np.zeros(len(local), bool)
-        on_bnd[alive] = _on_boundary(local[alive])
-        peel = alive & on_bnd & (quality < min_quality)
+        peel = alive & (quality < min_quality) & (count[ids] == 1).any(axis=0)
         if not peel.any():
             return alive, n_peeled
         alive &= ~peel
+        count -= np.bincount(ids[:, peel].ravel(), minlength=n_edges)
         n_peeled += int(peel.sum())
 
 
@@ -377,17 +382,8 @@ def build_mesh(
         raise MeshError(f"meshing needs at least {MIN_MARKERS} markers in the reference step; got {int(finite.sum())}")
     axis = fit_axis(ref[finite], toward=toward)
     r, theta, z = to_cylindrical(ref, axis)
-    idx = np.flatnonzero(finite)
-
-    d_nn, _ = cKDTree(ref[idx]).query(ref[idx], k=2)
-    spacing = float(np.median(d_nn[:, 1]))
-    tol = duplicate_fraction * spacing if duplicate_tolerance is None else float(duplicate_tolerance)
-    drop = _near_duplicates(ref[idx], tol)
-    n_dup = int(drop.sum())
-    idx = idx[~drop]
-    if len(idx) < MIN_MARKERS:
-        raise MeshError(f"meshing needs at least {MIN_MARKERS} distinct markers; got {len(idx)}")
-
+    idx, spacing, tol = _distinct_markers(ref, np.flatnonzero(finite), duplicate_tolerance, duplicate_fraction)
+    n_dup = int(finite.sum()) - len(idx)
     kept, local, quality, alive, n_boundary, n_corner = _clean_triangulation(
         axis.radius * theta[idx], z[idx], axis.radius, min_quality, sliver_quality)
     idx = idx[kept]
@@ -412,6 +408,22 @@ def build_mesh(
     return SurfaceMesh(axis=axis, triangles=tri, r=np.where(finite, r, np.nan), theta=np.where(finite, theta, np.nan),
                        z=np.where(finite, z, np.nan), used=used, bottom_edges=bottom_edges, top_edges=top_edges,
                        z_bottom=z_bottom, z_top=z_top, dropped=dropped)
+
+
+def _distinct_markers(ref: np.ndarray, idx: np.ndarray, tolerance: float | None, fraction: float):
+    """The markers ``idx`` (finite rows of ``ref`` (n, 3)) without near-duplicates.
+
+    Returns the kept indices, the median nearest-neighbour distance (m) and the duplicate
+    tolerance used (m): ``tolerance``, or ``fraction`` of that spacing.
+    """
+    tree = cKDTree(ref[idx])
+    d_nn, _ = tree.query(ref[idx], k=2)
+    spacing = float(np.median(d_nn[:, 1]))
+    tol = fraction * spacing if tolerance is None else float(tolerance)
+    idx = idx[~_near_duplicates(ref[idx], tol, tree)]
+    if len(idx) < MIN_MARKERS:
+        raise MeshError(f"meshing needs at least {MIN_MARKERS} distinct markers; got {len(idx)}")
+    return idx, spacing, tol
 
 
 def _end_loops(tri: np.ndarray, theta: np.ndarray, z: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, int]:

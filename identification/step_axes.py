@@ -1,10 +1,10 @@
-"""The specimen axis of every step at once: a batched version of ``mesh.fit_axis(..., initial=...)``.
+"""Specimen axes by damped Gauss-Newton: ``mesh.fit_axis``'s solver, and every step's axis at once.
 
-``mesh.fit_axis`` fits one marker cloud with ``scipy.optimize.least_squares``; refitting each of the
-steps that way costs a solver set-up per step. Here all steps are refitted together by a damped
-Gauss-Newton iteration on the same residual (radius minus its Legendre profile along the axis,
-variable projection) from the reference axis, which every aligned step is close to. It converges
-to the same axes (to ~1e-12 relative).
+The residual is the radius of each marker minus its least-squares Legendre profile along the axis
+(variable projection); the variables are the tilt of the axis and the offset of its origin in the
+frame of a starting axis. ``fit_clouds`` solves it for a batch of marker clouds together (numpy
+only: no solver set-up per cloud); ``mesh.fit_axis`` uses it for one cloud and ``refit_axes`` for
+all the (aligned) steps of a test from the reference axis, which every step is close to.
 """
 
 from __future__ import annotations
@@ -13,11 +13,13 @@ import numpy as np
 
 from .mesh import MIN_MARKERS, Axis, _frame
 
-__all__ = ["refit_axes"]
+__all__ = ["fit_clouds", "refit_axes"]
 
 #: Relative finite-difference step of the residual's Jacobian (the iteration's fixed point does not
 #: depend on it: only the speed of convergence does).
 _H = 1e-7
+#: Trial offsets of the four variables evaluated together: the point itself and one step along each.
+_TRIALS = np.concatenate([np.zeros((1, 4)), _H * np.eye(4)])
 
 
 def _legendre(t: np.ndarray, degree: int) -> np.ndarray:
@@ -29,14 +31,16 @@ def _legendre(t: np.ndarray, degree: int) -> np.ndarray:
 
 
 def _profile_residual(pts, w, frame0, c0, x, degree):
-    """Radius minus its least-squares Legendre profile along the axis, per step.
+    """Radius minus its least-squares Legendre profile along the axis, per cloud.
 
-    pts (s, n, 3), w (s, n) 0/1 weights, x (s, e, 4) axis variables for e trial sets.
+    pts (s, n, 3), w (s, n) 0/1 weights, frame0 (s, 3, 3) and c0 (s, 3) the starting axes,
+    x (s, e, 4) axis variables for e trial sets.
     Returns the residual (s, e, n), the unit directions (s, e, 3), origins (s, e, 3), radii (s, e, n).
     """
-    d = frame0[2] + x[..., :1] * frame0[0] + x[..., 1:2] * frame0[1]
+    f0, f1, f2 = frame0[:, None, 0], frame0[:, None, 1], frame0[:, None, 2]  # (s, 1, 3)
+    d = f2 + x[..., :1] * f0 + x[..., 1:2] * f1
     d = d / np.sqrt(np.sum(d * d, axis=-1, keepdims=True))
-    o = c0 + x[..., 2:3] * frame0[0] + x[..., 3:4] * frame0[1]
+    o = c0[:, None] + x[..., 2:3] * f0 + x[..., 3:4] * f1
     v = pts[:, None] - o[:, :, None]  # (s, e, n, 3)
     along = np.einsum("senk,sek->sen", v, d)
     r = np.sqrt(np.maximum(np.einsum("senk,senk->sen", v, v) - along * along, 0.0))
@@ -49,6 +53,53 @@ def _profile_residual(pts, w, frame0, c0, x, degree):
     bt = np.swapaxes(basis, -1, -2)
     coef = np.linalg.solve(bt @ basis, bt @ rw[..., None])
     return rw - (basis @ coef)[..., 0], d, o, r
+
+
+def fit_clouds(pts: np.ndarray, w: np.ndarray, frame0: np.ndarray, c0: np.ndarray, radius: float, *,
+               profile_degree: int = 4, max_iterations: int = 50):
+    """Axes of several marker clouds from starting axes, by damped Gauss-Newton on the profile residual.
+
+    Parameters
+    ----------
+    pts : ndarray, shape (s, n, 3)
+        Marker positions (m); entries with zero weight are ignored (must be finite).
+    w : ndarray, shape (s, n)
+        0/1 weights (markers to fit).
+    frame0 : ndarray, shape (s, 3, 3)
+        Starting frames (rows x', y', z'; z' the starting direction).
+    c0 : ndarray, shape (s, 3)
+        Starting origins (m).
+    radius : float
+        Typical radius (m): the cost floor at the rounding level of the radii.
+
+    Returns
+    -------
+    residual (s, n), direction (s, 3), origin (s, 3), radii (s, n) at the solution.
+    """
+    x = np.zeros((len(pts), 4))
+    previous = np.full(len(pts), np.inf)
+    floor = w.sum(axis=1) * (1e-12 * radius) ** 2  # cost at the rounding level of the radii
+    delta = np.zeros_like(x)
+    for _ in range(max_iterations):
+        evaluated = _profile_residual(pts, w, frame0, c0, x[:, None] + _TRIALS[None], profile_degree)
+        res = evaluated[0]
+        cost = np.sum(res[:, 0] ** 2, axis=-1)
+        worse = cost > previous * (1.0 + 1e-9) + floor  # a Gauss-Newton step that overshot: step back halfway
+        if worse.any():
+            delta = np.where(worse[:, None], 0.5 * delta, 0.0)
+            x = x - delta
+            continue
+        if np.all(previous - cost <= 1e-10 * cost + floor):
+            break
+        previous = cost
+        jac = np.swapaxes((res[:, 1:] - res[:, :1]) / _H, 1, 2)  # (s, n, 4)
+        jtj = np.swapaxes(jac, 1, 2) @ jac
+        jtj = jtj + 1e-12 * np.trace(jtj, axis1=1, axis2=2)[:, None, None] * np.eye(4)
+        delta = -np.linalg.solve(jtj, np.swapaxes(jac, 1, 2) @ res[:, 0, :, None])[..., 0]
+        x = x + delta
+    else:  # out of iterations: evaluate where the last step went
+        evaluated = _profile_residual(pts, w, frame0, c0, x[:, None], profile_degree)
+    return tuple(a[:, 0] for a in evaluated)  # the untouched trial set (offset 0) is the solution
 
 
 def refit_axes(points: np.ndarray, observed: np.ndarray, initial: Axis, *, profile_degree: int = 4,
@@ -74,44 +125,29 @@ def refit_axes(points: np.ndarray, observed: np.ndarray, initial: Axis, *, profi
         return axes
     pts = np.where(ok[fit, :, None], points[fit], 0.0)
     w = ok[fit].astype(float)
-    frame0 = _frame(initial.direction)
-    c0 = initial.origin
-    x = np.zeros((len(pts), 4))
-    steps = np.concatenate([np.zeros((1, 4)), _H * np.eye(4)])  # (5, 4) trial offsets
-    previous = np.full(len(pts), np.inf)
-    floor = w.sum(axis=1) * (1e-12 * initial.radius) ** 2  # cost at the rounding level of the radii
-    for _ in range(max_iterations):
-        evaluated = _profile_residual(pts, w, frame0, c0, x[:, None] + steps[None], profile_degree)
-        res = evaluated[0]
-        cost = np.sum(res[:, 0] ** 2, axis=-1)
-        worse = cost > previous * (1.0 + 1e-9) + floor  # a Gauss-Newton step that overshot: step back halfway
-        if worse.any():
-            delta = np.where(worse[:, None], 0.5 * delta, 0.0)
-            x = x - delta
-            continue
-        if np.all(previous - cost <= 1e-10 * cost + floor):
-            break
-        previous = cost
-        jac = np.swapaxes((res[:, 1:] - res[:, :1]) / _H, 1, 2)  # (s, n, 4)
-        jtj = np.swapaxes(jac, 1, 2) @ jac
-        jtj = jtj + 1e-12 * np.trace(jtj, axis1=1, axis2=2)[:, None, None] * np.eye(4)
-        delta = -np.linalg.solve(jtj, np.swapaxes(jac, 1, 2) @ res[:, 0, :, None])[..., 0]
-        x = x + delta
-    else:  # out of iterations: evaluate where the last step went
-        evaluated = _profile_residual(pts, w, frame0, c0, x[:, None], profile_degree)
-    res, d, o, r = (a[:, :1] for a in evaluated)  # the untouched trial set (offset 0) is the solution
-    for k, step in enumerate(np.flatnonzero(fit)):
-        axes[step] = _axis_from(pts[k], w[k] > 0, d[k, 0], o[k, 0], r[k, 0], res[k, 0], initial)
+    n_fit = len(pts)
+    frame0 = np.broadcast_to(_frame(initial.direction), (n_fit, 3, 3))
+    c0 = np.broadcast_to(initial.origin, (n_fit, 3))
+    res, d, o, r = fit_clouds(pts, w, frame0, c0, initial.radius, profile_degree=profile_degree,
+                              max_iterations=max_iterations)
+    for step, axis in zip(np.flatnonzero(fit), axes_from(pts, w, d, o, r, res, initial.direction, initial.basis[0])):
+        axes[step] = axis
     return axes
 
 
-def _axis_from(pts, used, d, o, r, res, initial: Axis) -> Axis:
-    """The ``Axis`` of a fitted direction and origin, oriented and framed as ``mesh.fit_axis`` does."""
-    if d @ initial.direction < 0:
-        d = -d
-    p = pts[used]
-    o = o + ((p - o) @ d).mean() * d
-    x = initial.basis[0] - (initial.basis[0] @ d) * d
-    x /= np.linalg.norm(x)
-    frame = np.stack([x, np.cross(d, x), d])
-    return Axis(origin=o, basis=frame, radius=float(r[used].mean()), rms=float(np.sqrt(np.mean(res[used] ** 2))))
+def axes_from(pts, w, d, o, r, res, toward: np.ndarray, x_hint: np.ndarray) -> list[Axis]:
+    """``Axis`` objects of fitted directions and origins, oriented and framed as ``mesh.fit_axis`` does.
+
+    pts (s, n, 3), w (s, n) 0/1 weights, d and o (s, 3), r and res (s, n). Each direction is turned
+    to have a positive component along ``toward`` (3,); its origin moves to the mean axial position
+    of the fitted markers; the frame's x' is ``x_hint`` (3,) made perpendicular to the axis.
+    """
+    d = np.where((d @ toward < 0)[:, None], -d, d)
+    n_w = w.sum(axis=1)
+    o = o + (np.einsum("snk,sk->sn", pts - o[:, None], d) * w).sum(axis=1, keepdims=True) / n_w[:, None] * d
+    x = x_hint[None] - (d @ x_hint)[:, None] * d
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    frames = np.stack([x, np.cross(d, x), d], axis=1)  # (s, 3, 3)
+    radius = (r * w).sum(axis=1) / n_w
+    rms = np.sqrt((res * res * w).sum(axis=1) / n_w)
+    return [Axis(origin=o[k], basis=frames[k], radius=float(radius[k]), rms=float(rms[k])) for k in range(len(d))]

@@ -238,7 +238,7 @@ def prepare(
         fields = paper_fields(mesh)
     check_fields(fields, mesh)
     aligned, _, _ = align_steps(x, reference)
-    st = surface_state(mesh, aligned, quadrature, smoothing, reject_outliers, marker_weights)
+    st = _cached_surface_state(mesh, aligned, quadrature, smoothing, reject_outliers, marker_weights)
     if not st.valid.any(axis=1).all():
         bad = np.flatnonzero(~st.valid.any(axis=1)).tolist()
         raise DegenerateDataError(f"steps {bad} have no triangle with all three markers observed")
@@ -281,6 +281,41 @@ def _cached_mesh(reference: np.ndarray, toward) -> SurfaceMesh:
             _MESH_CACHE.pop(next(iter(_MESH_CACHE)))
         _MESH_CACHE[key] = mesh
     return mesh
+
+
+#: Surface states (axes, outliers, kinematics of every step) of recently seen data: reprocessing the
+#: same markers with another model or wall form repeats them exactly.
+_STATE_CACHE: dict = {}
+_STATE_CACHE_SIZE = 4
+
+
+def _option_key(value):
+    """A hashable stand-in for an option value; arrays by their bytes (their repr elides long ones)."""
+    if isinstance(value, np.ndarray):
+        return (value.shape, value.dtype.str, value.tobytes())
+    return repr(value)
+
+
+def _cached_surface_state(mesh: SurfaceMesh, aligned: np.ndarray, *options, **keywords):
+    """``kinematics.surface_state(mesh, aligned, *options, **keywords)``, reused for the same mesh object,
+    markers and options.
+
+    The cache holds the mesh it was computed on, so its ``id`` cannot be reused while the entry lives.
+    """
+    key = (id(mesh), _option_key(np.asarray(aligned)), tuple(_option_key(o) for o in options),
+           tuple((k, _option_key(v)) for k, v in sorted(keywords.items())))
+    hit = _STATE_CACHE.get(key)
+    if hit is not None and hit[0] is mesh:
+        st = hit[1]
+        if st.outliers.any():  # say it again: this run's reader has not seen the first run's log
+            log.warning("markers disagreeing with their neighbours (set unobserved) per step: %s",
+                        st.outliers.sum(axis=1).tolist())
+        return st
+    st = surface_state(mesh, aligned, *options, **keywords)
+    if len(_STATE_CACHE) >= _STATE_CACHE_SIZE:
+        _STATE_CACHE.pop(next(iter(_STATE_CACHE)))
+    _STATE_CACHE[key] = (mesh, st)
+    return st
 
 
 @dataclass(frozen=True)
