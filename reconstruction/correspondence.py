@@ -223,7 +223,7 @@ def _ray_box(origins, directions, lo, hi) -> tuple[np.ndarray, np.ndarray]:
     return np.maximum(t0, 1e-6), t1  # 1 um past the origin (a window surface: projects to NaN on it)
 
 
-def _sampled_curve_pairs(i, j, dets, cameras, rays, epipolar_px, bounds, spacing_px: float = 2.0,
+def _sampled_curve_pairs(i, j, dets, cameras, rays, epipolar_px, bounds, spacing_px: float = 6.0,
                          max_samples: int = 400):
     """Pairs along the epipolar curves, searched in the box ``bounds``: each ray of camera i is sampled
     across the box, the samples are projected into camera j in one batch, and the detections of j
@@ -421,7 +421,7 @@ def _triangulate_gated(obs, dets, cameras, gate, min_views, prior, sigma_px, pas
     Returns ``(triangulation, obs)`` of the kept candidates, and with ``with_mask`` also the
     ``(n,) bool`` mask of the input rows kept."""
     for _ in range(passes):
-        tri = triangulate(observed_pixels(dets, obs), cameras, sigma_px=sigma_px)
+        tri = _screen(obs, dets, cameras, sigma_px)
         err = np.linalg.norm(tri.residuals, axis=-1).T  # (n, n_cams)
         bad = (obs >= 0) & ~(err <= gate)
         if not np.any(bad):
@@ -431,7 +431,7 @@ def _triangulate_gated(obs, dets, cameras, gate, min_views, prior, sigma_px, pas
         rows = np.flatnonzero(bad.any(axis=1))
         obs = obs.copy()
         obs[rows, worst[rows]] = -1
-    tri = triangulate(observed_pixels(dets, obs), cameras, sigma_px=sigma_px)
+    tri = _screen(obs, dets, cameras, sigma_px)
     err = np.linalg.norm(tri.residuals, axis=-1).T
     keep = ((obs >= 0).sum(axis=1) >= min_views) & np.all((obs < 0) | (err <= gate), axis=1)
     keep &= np.all(np.isfinite(tri.points), axis=1)
@@ -522,3 +522,9 @@ def _losing_subsets(obs, min_views) -> np.ndarray:
         sub[:, drop] = -1
         out.append(sub[(sub >= 0).sum(axis=1) >= min_views])
     return np.unique(np.concatenate(out), axis=0) if out else np.zeros((0, n_cams), np.int64)
+
+
+def _screen(obs, dets, cameras, sigma_px) -> Triangulation:
+    """Triangulation of candidates ``obs (n, n_cams)`` for gating and ranking: no covariance, converged to
+    0.1 nm (the accepted points are triangulated in full at the end)."""
+    return triangulate(observed_pixels(dets, obs), cameras, sigma_px=sigma_px, tolerance=1e-10, covariance=False)
