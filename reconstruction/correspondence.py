@@ -335,7 +335,6 @@ def match_views(
     Correspondence
     """
     dets = _checked_detections(detections, cameras, min_views)
-    n_cams = len(cameras)
     seeds = _seed_candidates(dets, cameras, epipolar_px, prior, min_pair_angle_deg, max_pair_angle_deg, bounds)
     if not seeds:
         return _empty_correspondence(dets, cameras, 0)

@@ -208,27 +208,7 @@ def triangulate(
     X = _initial_points(pixels, cameras)
     cams = [_Cam(c) for c in cameras]
     active = np.all(np.isfinite(X), axis=1)
-    converged = np.zeros(n_pts, dtype=bool)
-    obs = np.where(ok[..., None], pixels, 0.0)
-    J = np.zeros((n_cams, n_pts, 2, 3))
-    for _ in range(max_iterations):
-        idx = np.flatnonzero(active & ~converged)
-        if idx.size == 0:
-            break
-        Xa = X[idx]
-        proj = _project_all(Xa, cams, ok[:, idx])
-        r = np.where(ok[:, idx, None], proj - obs[:, idx], 0.0)  # (n_cams, m, 2)
-        Ja = np.where(ok[:, idx, None, None], _jacobian(Xa, cams, base=proj, seen=ok[:, idx]), 0.0)  # (n_cams, m, 2, 3)
-        JtJ = np.einsum("cmki,cmkj->mij", Ja, Ja)
-        Jtr = np.einsum("cmki,cmk->mi", Ja, r)
-        try:
-            step = np.linalg.solve(JtJ, -Jtr[..., None])[..., 0]
-        except np.linalg.LinAlgError:  # a degenerate (e.g. coincident-ray) point in the batch
-            step = -(np.linalg.pinv(JtJ) @ Jtr[..., None])[..., 0]
-        bad = ~np.all(np.isfinite(step), axis=1)
-        step[bad] = 0.0
-        X[idx] = Xa + step
-        converged[idx] = np.linalg.norm(step, axis=1) < tolerance
+    converged = _gauss_newton(X, pixels, ok, active, cams, max_iterations, tolerance)
     proj = _project_all(X, cams, ok)
     res = np.where(ok[..., None], proj - pixels, np.nan)  # NaN where unobserved
     with np.errstate(invalid="ignore"):
@@ -255,6 +235,32 @@ def triangulate(
         sigma_px=float(sigma_px),
         converged=converged | ~active,
     )
+
+
+def _gauss_newton(X, pixels, ok, active, cams, max_iterations, tolerance) -> np.ndarray:
+    """Refine the points ``X (n_pts, 3)`` in place on the pixel residuals; returns the (n_pts,) bool
+    converged flags (update below ``tolerance``, m). Converged points leave the batch."""
+    converged = np.zeros(X.shape[0], dtype=bool)
+    obs = np.where(ok[..., None], pixels, 0.0)
+    for _ in range(max_iterations):
+        idx = np.flatnonzero(active & ~converged)
+        if idx.size == 0:
+            break
+        Xa = X[idx]
+        proj = _project_all(Xa, cams, ok[:, idx])
+        r = np.where(ok[:, idx, None], proj - obs[:, idx], 0.0)  # (n_cams, m, 2)
+        Ja = np.where(ok[:, idx, None, None], _jacobian(Xa, cams, base=proj, seen=ok[:, idx]), 0.0)  # (n_cams, m, 2, 3)
+        JtJ = np.einsum("cmki,cmkj->mij", Ja, Ja)
+        Jtr = np.einsum("cmki,cmk->mi", Ja, r)
+        try:
+            step = np.linalg.solve(JtJ, -Jtr[..., None])[..., 0]
+        except np.linalg.LinAlgError:  # a degenerate (e.g. coincident-ray) point in the batch
+            step = -(np.linalg.pinv(JtJ) @ Jtr[..., None])[..., 0]
+        bad = ~np.all(np.isfinite(step), axis=1)
+        step[bad] = 0.0
+        X[idx] = Xa + step
+        converged[idx] = np.linalg.norm(step, axis=1) < tolerance
+    return converged
 
 
 def _covariance(X, cams, ok, active, sigma_px, proj) -> np.ndarray:
