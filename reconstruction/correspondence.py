@@ -175,12 +175,11 @@ def _straight_pairs(i, j, dets, cameras, norm, rays, epipolar_px):
 
 
 def _refracted_pairs(i, j, dets, cameras, rays, epipolar_px, chunk: int = 200_000):
-    """Pairs along the epipolar curves through the windows (see :func:`match_views`).
+    """Pairs along the epipolar curves through the windows (see :func:`match_views`), every pair tested.
 
     A loose 3-D gate on the distance between the rays in the bath (4 pixel footprints per
-    ``epipolar_px``) keeps the candidates few; the exact gate then projects each ray's
-    closest-approach point into the other camera and measures the pixel distance to the detection
-    there. Processed in blocks of about ``chunk`` pairs to bound memory.
+    ``epipolar_px``) keeps the candidates few; the exact gate (:func:`_curve_gate`) follows.
+    Processed in blocks of about ``chunk`` pairs to bound memory.
     """
     (oi, di), (oj, dj) = rays[i], rays[j]
     ci, cj = cameras[i].center, cameras[j].center
@@ -194,12 +193,62 @@ def _refracted_pairs(i, j, dets, cameras, rays, epipolar_px, chunk: int = 200_00
         pa, pb = oi[a] + s[:, None] * di[a], oj[b] + t[:, None] * dj[b]
         foot = np.maximum(np.linalg.norm(pa - ci, axis=1) / fi, np.linalg.norm(pb - cj, axis=1) / fj)
         keep = (s > 0) & (t > 0) & (np.linalg.norm(pa - pb, axis=1) <= 4.0 * epipolar_px * foot)
-        parts.append((a[keep], b[keep], pa[keep], pb[keep]))
-    a, b, pa, pb = (np.concatenate([p[k] for p in parts]) for k in range(4))
+        parts.append((a[keep], b[keep]))
+    a, b = (np.concatenate([p[k] for p in parts]) for k in range(2))
+    return _curve_gate(a, b, i, j, dets, cameras, rays, epipolar_px)
+
+
+def _curve_gate(a, b, i, j, dets, cameras, rays, epipolar_px):
+    """Exact gate of candidate pairs ``(a, b)`` (detection indices in cameras i, j): each ray's
+    closest-approach point, projected into the other camera, within ``epipolar_px`` of the detection
+    there. Returns the kept ``a, b``, their mid-points ``(m, 3)`` and an all-True mask."""
+    (oi, di), (oj, dj) = rays[i], rays[j]
+    _, s, t = _midpoints(oi[a], di[a], oj[b], dj[b])
+    front = (s > 0) & (t > 0)
+    a, b, s, t = a[front], b[front], s[front], t[front]
+    pa, pb = oi[a] + s[:, None] * di[a], oj[b] + t[:, None] * dj[b]
     err_j = np.linalg.norm(cameras[j].project(pa) - dets[j][b], axis=1)
     err_i = np.linalg.norm(cameras[i].project(pb) - dets[i][a], axis=1)
     ok = np.maximum(err_i, err_j) <= epipolar_px
     return a[ok], b[ok], 0.5 * (pa[ok] + pb[ok]), np.ones(int(ok.sum()), bool)
+
+
+def _ray_box(origins, directions, lo, hi) -> tuple[np.ndarray, np.ndarray]:
+    """Ray parameters ``(t0, t1)`` (each (n,)) where rays ``(n, 3)`` cross the box [lo, hi] (t0 > t1: they miss)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ta = (lo - origins) / directions
+        tb = (hi - origins) / directions
+    t0 = np.nanmax(np.minimum(ta, tb), axis=1)
+    t1 = np.nanmin(np.maximum(ta, tb), axis=1)
+    return np.maximum(t0, 1e-6), t1  # 1 um past the origin (a window surface: projects to NaN on it)
+
+
+def _sampled_curve_pairs(i, j, dets, cameras, rays, epipolar_px, bounds, spacing_px: float = 6.0,
+                         max_samples: int = 400):
+    """Pairs along the epipolar curves, searched in the box ``bounds``: each ray of camera i is sampled
+    across the box, the samples are projected into camera j in one batch, and the detections of j
+    within ``epipolar_px`` + half the sample spacing of a sample (KD-trees) are the candidates; the
+    exact gate (:func:`_curve_gate`) follows."""
+    (oi, di) = rays[i]
+    margin = 1e-3  # m: mid-points near a face of the box have closest-approach points just outside it
+    t0, t1 = _ray_box(oi, di, np.asarray(bounds[0]) - margin, np.asarray(bounds[1]) + margin)
+    hit = np.flatnonzero(t1 > t0)
+    if hit.size == 0:
+        return _curve_gate(np.zeros(0, int), np.zeros(0, int), i, j, dets, cameras, rays, epipolar_px)
+    ends = cameras[j].project(np.concatenate([oi[hit] + t0[hit, None] * di[hit], oi[hit] + t1[hit, None] * di[hit]]))
+    length = np.linalg.norm(ends[: hit.size] - ends[hit.size:], axis=1)
+    n_samples = int(np.clip(np.ceil(np.nanmax(length, initial=0.0) / spacing_px), 2, max_samples)) + 1
+    u = np.linspace(0.0, 1.0, n_samples)
+    t = t0[hit, None] + (t1 - t0)[hit, None] * u  # (m, k)
+    pts = oi[hit, None, :] + t[..., None] * di[hit, None, :]
+    px = cameras[j].project(pts.reshape(-1, 3)).reshape(hit.size, n_samples, 2)
+    gap = np.nanmax(np.linalg.norm(np.diff(px, axis=1), axis=-1), initial=0.0)
+    fin = np.all(np.isfinite(px), axis=-1).ravel()
+    owner = np.repeat(hit, n_samples)[fin]
+    near = cKDTree(px.reshape(-1, 2)[fin]).sparse_distance_matrix(
+        cKDTree(dets[j]), epipolar_px + 0.5 * gap + 1e-9, output_type="ndarray")
+    pairs = np.unique(np.stack([owner[near["i"]], near["j"]], axis=1), axis=0)
+    return _curve_gate(pairs[:, 0], pairs[:, 1], i, j, dets, cameras, rays, epipolar_px)
 
 
 def _seed_candidates(dets, cameras, epipolar_px, prior, min_angle, max_angle, bounds) -> list:
@@ -215,9 +264,11 @@ def _seed_candidates(dets, cameras, epipolar_px, prior, min_angle, max_angle, bo
             if len(dets[i]) == 0 or len(dets[j]) == 0:
                 continue
             ang = np.degrees(np.arccos(np.clip(axes[i] @ axes[j], -1, 1)))
-            if ang < min_angle or ang > max_angle:
+            if min(ang, 180.0 - ang if max_angle > 90.0 else ang) < min_angle or ang > max_angle:
                 continue
-            if refracted:
+            if refracted and bounds is not None:
+                a, b, X, ok = _sampled_curve_pairs(i, j, dets, cameras, rays, epipolar_px, bounds)
+            elif refracted:
                 a, b, X, ok = _refracted_pairs(i, j, dets, cameras, rays, epipolar_px)
             else:
                 a, b, X, ok = _straight_pairs(i, j, dets, cameras, norm, rays, epipolar_px)
@@ -265,12 +316,15 @@ def match_views(
     min_pair_angle_deg, max_pair_angle_deg : float
         Camera pairs whose optical axes differ by less or more than these are not used to seed
         candidates (nearly parallel or nearly opposite rays do not fix the depth; opposite
-        cameras cannot both see a marker on an opaque tube anyway).
+        cameras cannot both see a marker on an opaque tube anyway). With ``max_pair_angle_deg``
+        above 90 (a transparent volume seen from both sides), an opposite pair also needs its rays
+        to cross at ``min_pair_angle_deg`` or more (``180 - angle``).
     sigma_px : float, optional
         Pixel noise for the triangulation covariance (default estimated).
     bounds : (ndarray (3,), ndarray (3,)), optional
         World box (m) the points lie in (e.g. a particle measurement volume); candidates outside are
-        dropped. Useful without a prior.
+        dropped. Useful without a prior; with windows it also bounds the search along the epipolar
+        curves (sampled rays, KD-tree), which is much faster than testing every pair.
 
     Cameras with a window (``Camera.window``) are matched along their epipolar *curves*: the rays
     in the bath are intersected, and the distance of each detection to the projection of the
@@ -280,57 +334,71 @@ def match_views(
     -------
     Correspondence
     """
+    dets = _checked_detections(detections, cameras, min_views)
+    seeds = _seed_candidates(dets, cameras, epipolar_px, prior, min_pair_angle_deg, max_pair_angle_deg, bounds)
+    if not seeds:
+        return _empty_correspondence(dets, cameras, 0)
+    X = np.concatenate([s[0] for s in seeds])
+    obs = np.concatenate([s[1] for s in seeds])
+    obs = _support_from_other_cameras(X, obs, dets, cameras, 2.0 * max_reprojection_px, prior)
+    obs = np.unique(obs, axis=0)
+    obs = obs[(obs >= 0).sum(axis=1) >= min_views]
+    tri, obs = _triangulate_gated(obs, dets, cameras, max_reprojection_px, min_views, prior, sigma_px)
+    n_cand = obs.shape[0]
+    chosen = _select(obs, tri, dets, cameras, max_reprojection_px, min_views, prior, sigma_px)
+    if not chosen:
+        return _empty_correspondence(dets, cameras, n_cand)
+    final_obs = np.stack(chosen)
+    final = triangulate(observed_pixels(dets, final_obs), cameras, sigma_px=sigma_px)
+    # deterministic order: by axial then angular position
+    order = np.lexsort((np.arctan2(final.points[:, 1], final.points[:, 0]), np.round(final.points[:, 2], 6)))
+    return Correspondence(final_obs[order], _take(final, order), _unmatched(dets, final_obs[order]), n_cand)
+
+
+def _checked_detections(detections, cameras, min_views) -> list[np.ndarray]:
+    """Detections as float ``(n_i, 2)`` arrays, after checking the arguments of :func:`match_views`."""
     n_cams = len(cameras)
     if len(detections) != n_cams:
         raise ValueError(f"detections must have one array per camera ({n_cams}); got {len(detections)}")
     if min_views < 2:
         raise ValueError(f"min_views must be >= 2; got {min_views}")
-    dets = [np.asarray(d, dtype=float).reshape(-1, 2) for d in detections]
-    trees = [cKDTree(d) if len(d) else None for d in dets]
-    seeds = _seed_candidates(dets, cameras, epipolar_px, prior, min_pair_angle_deg, max_pair_angle_deg, bounds)
-    empty_tri = triangulate(np.zeros((n_cams, 0, 2)), cameras)
-    if not seeds:
-        return Correspondence(np.zeros((0, n_cams), np.int64), empty_tri, [np.arange(len(d)) for d in dets], 0)
-    X = np.concatenate([s[0] for s in seeds])
-    obs = np.concatenate([s[1] for s in seeds])
+    return [np.asarray(d, dtype=float).reshape(-1, 2) for d in detections]
 
-    # 3. support from the other cameras
-    for c in range(n_cams):
-        if trees[c] is None:
-            continue
+
+def _empty_correspondence(dets, cameras, n_cand: int) -> Correspondence:
+    n_cams = len(cameras)
+    empty_tri = triangulate(np.zeros((n_cams, 0, 2)), cameras)
+    return Correspondence(np.zeros((0, n_cams), np.int64), empty_tri, [np.arange(len(d)) for d in dets], n_cand)
+
+
+def _unmatched(dets, final_obs) -> list[np.ndarray]:
+    """Per camera, indices of the detections no accepted point uses."""
+    out = []
+    for c, d in enumerate(dets):
+        used = np.zeros(len(d), bool)
+        used[final_obs[final_obs[:, c] >= 0, c]] = True
+        out.append(np.flatnonzero(~used))
+    return out
+
+
+def _support_from_other_cameras(X, obs, dets, cameras, radius_px, prior) -> np.ndarray:
+    """Step 3 of :func:`match_views`: each candidate point ``X (n, 3)`` takes the nearest detection
+    within ``radius_px`` of its projection in every camera it is not seeded from (and faces)."""
+    obs = obs.copy()
+    for c, cam in enumerate(cameras):
         free = obs[:, c] < 0
-        if not np.any(free):
+        if len(dets[c]) == 0 or not np.any(free):
             continue
-        px = cameras[c].project(X[free])
+        px = cam.project(X[free])
         fin = np.all(np.isfinite(px), axis=1)
-        dist, idx = trees[c].query(np.where(fin[:, None], px, 0.0), distance_upper_bound=2.0 * max_reprojection_px)
+        dist, idx = cKDTree(dets[c]).query(np.where(fin[:, None], px, 0.0), distance_upper_bound=radius_px)
         hit = fin & np.isfinite(dist)
         if prior is not None:
-            hit &= prior.facing(X[free], cameras[c])
+            hit &= prior.facing(X[free], cam)
         col = obs[free, c]
         col[hit] = idx[hit]
         obs[free, c] = col
-    obs = np.unique(obs, axis=0)
-    obs = obs[(obs >= 0).sum(axis=1) >= min_views]
-    tri, obs = _triangulate_gated(obs, dets, cameras, max_reprojection_px, min_views, prior, sigma_px)
-    n_cand = obs.shape[0]
-
-    # 4. global selection with conflict resolution
-    chosen = _select(obs, tri, dets, cameras, max_reprojection_px, min_views, prior, sigma_px)
-    if not chosen:
-        return Correspondence(np.zeros((0, n_cams), np.int64), empty_tri, [np.arange(len(d)) for d in dets], n_cand)
-    final_obs = np.stack(chosen)
-    final = triangulate(observed_pixels(dets, final_obs), cameras, sigma_px=sigma_px)
-    # deterministic order: by axial then angular position
-    order = np.lexsort((np.arctan2(final.points[:, 1], final.points[:, 0]), np.round(final.points[:, 2], 6)))
-    final_obs = final_obs[order]
-    final = _take(final, order)
-    unmatched = []
-    for c in range(n_cams):
-        used = np.zeros(len(dets[c]), bool)
-        used[final_obs[final_obs[:, c] >= 0, c]] = True
-        unmatched.append(np.flatnonzero(~used))
-    return Correspondence(final_obs, final, unmatched, n_cand)
+    return obs
 
 
 def _take(tri: Triangulation, idx) -> Triangulation:
@@ -346,10 +414,13 @@ def _take(tri: Triangulation, idx) -> Triangulation:
     )
 
 
-def _triangulate_gated(obs, dets, cameras, gate, min_views, prior, sigma_px, passes=2):
-    """Triangulate candidates, dropping views beyond ``gate`` px; keep those with >= min_views."""
+def _triangulate_gated(obs, dets, cameras, gate, min_views, prior, sigma_px, passes=2, with_mask=False):
+    """Triangulate candidates, dropping views beyond ``gate`` px; keep those with >= min_views.
+
+    Returns ``(triangulation, obs)`` of the kept candidates, and with ``with_mask`` also the
+    ``(n,) bool`` mask of the input rows kept."""
     for _ in range(passes):
-        tri = triangulate(observed_pixels(dets, obs), cameras, sigma_px=sigma_px)
+        tri = _screen(obs, dets, cameras, sigma_px)
         err = np.linalg.norm(tri.residuals, axis=-1).T  # (n, n_cams)
         bad = (obs >= 0) & ~(err <= gate)
         if not np.any(bad):
@@ -359,18 +430,24 @@ def _triangulate_gated(obs, dets, cameras, gate, min_views, prior, sigma_px, pas
         rows = np.flatnonzero(bad.any(axis=1))
         obs = obs.copy()
         obs[rows, worst[rows]] = -1
-    tri = triangulate(observed_pixels(dets, obs), cameras, sigma_px=sigma_px)
+    tri = _screen(obs, dets, cameras, sigma_px)
     err = np.linalg.norm(tri.residuals, axis=-1).T
     keep = ((obs >= 0).sum(axis=1) >= min_views) & np.all((obs < 0) | (err <= gate), axis=1)
     keep &= np.all(np.isfinite(tri.points), axis=1)
     if prior is not None:
         keep &= prior.admissible(np.nan_to_num(tri.points))
+    if with_mask:
+        return _take(tri, np.flatnonzero(keep)), obs[keep], keep
     return _take(tri, np.flatnonzero(keep)), obs[keep]
 
 
 def _select(obs, tri, dets, cameras, gate, min_views, prior, sigma_px) -> list[np.ndarray]:
-    """Best-first selection over the whole candidate set; losers of a conflict are re-scored."""
-    n_cams = obs.shape[1]
+    """Best-first selection over the whole candidate set; losers of a conflict are re-scored.
+
+    A loser keeps the views nobody took and is re-triangulated from them; these re-triangulations
+    are computed in one batch beforehand for every way a candidate can lose its shared detections
+    (:func:`_rescored_table`), and only the rare deeper cases one at a time.
+    """
     used = [np.zeros(len(d), bool) for d in dets]
     # candidates whose reprojection RMS is far above the typical one are ranked after all others,
     # whatever their number of views (a ghost that picked up a chance third view must not beat a
@@ -381,9 +458,9 @@ def _select(obs, tri, dets, cameras, gate, min_views, prior, sigma_px) -> list[n
     def key(nv, rms):
         return (int(rms > weak_above), -nv, rms)
 
-    heap = []
-    for k in range(obs.shape[0]):
-        heapq.heappush(heap, (*key(int((obs[k] >= 0).sum()), float(tri.reprojection_rms[k])), k, tuple(obs[k])))
+    table = _rescored_table(obs, dets, cameras, gate, min_views, prior, sigma_px)
+    heap = [(*key(int((obs[k] >= 0).sum()), float(tri.reprojection_rms[k])), k, tuple(obs[k])) for k in range(obs.shape[0])]
+    heapq.heapify(heap)
     chosen: list[np.ndarray] = []
     seen: set[tuple] = set()
     while heap:
@@ -404,7 +481,49 @@ def _select(obs, tri, dets, cameras, gate, min_views, prior, sigma_px) -> list[n
         if key2 in seen:
             continue
         seen.add(key2)
-        t2, ob2 = _triangulate_gated(o2[None], dets, cameras, gate, min_views, prior, sigma_px)
-        if ob2.shape[0] == 1:
-            heapq.heappush(heap, (*key(int((ob2[0] >= 0).sum()), float(t2.reprojection_rms[0])), k, tuple(ob2[0])))
+        if key2 not in table:
+            table.update(_rescored_table(o2[None], dets, cameras, gate, min_views, prior, sigma_px, subsets=False))
+        if table[key2] is not None:
+            ob2, rms2 = table[key2]
+            heapq.heappush(heap, (*key(int((np.array(ob2) >= 0).sum()), rms2), k, ob2))
     return chosen
+
+
+def _rescored_table(obs, dets, cameras, gate, min_views, prior, sigma_px, subsets: bool = True) -> dict:
+    """``{views kept: (views after gating, reprojection RMS) or None}`` for candidates ``obs (n, n_cams)``
+    stripped of any combination of their shared detections (``subsets``), or for ``obs`` itself."""
+    rows = _losing_subsets(obs, min_views) if subsets else obs
+    if rows.shape[0] == 0:
+        return {}
+    tri, gated, keep = _triangulate_gated(rows, dets, cameras, gate, min_views, prior, sigma_px, with_mask=True)
+    table = dict.fromkeys(map(tuple, rows))
+    kept = np.flatnonzero(keep)
+    for r, g, rms in zip(rows[kept], gated, tri.reprojection_rms):
+        table[tuple(r)] = (tuple(g), float(rms))
+    return table
+
+
+def _losing_subsets(obs, min_views) -> np.ndarray:
+    """Distinct rows ``obs`` with a non-empty subset of their shared detections removed (>= min_views left)."""
+    n, n_cams = obs.shape
+    shared = np.zeros(obs.shape, bool)
+    for c in range(n_cams):
+        sel = obs[:, c] >= 0
+        counts = np.bincount(obs[sel, c])
+        shared[sel, c] = counts[obs[sel, c]] > 1
+    out = []
+    for mask in range(1, 2**n_cams):
+        drop = np.array([(mask >> c) & 1 for c in range(n_cams)], bool)
+        rows = np.flatnonzero(np.all(shared[:, drop], axis=1))
+        if rows.size == 0:
+            continue
+        sub = obs[rows].copy()
+        sub[:, drop] = -1
+        out.append(sub[(sub >= 0).sum(axis=1) >= min_views])
+    return np.unique(np.concatenate(out), axis=0) if out else np.zeros((0, n_cams), np.int64)
+
+
+def _screen(obs, dets, cameras, sigma_px) -> Triangulation:
+    """Triangulation of candidates ``obs (n, n_cams)`` for gating and ranking: no covariance, converged to
+    0.1 nm (the accepted points are triangulated in full at the end)."""
+    return triangulate(observed_pixels(dets, obs), cameras, sigma_px=sigma_px, tolerance=1e-10, covariance=False)

@@ -157,8 +157,15 @@ def _project_one(c: _Cam, points: np.ndarray) -> np.ndarray:
     return np.where(beyond[..., None], project_points(c.K, c.dist, d), np.nan)
 
 
-def _project_all(points: np.ndarray, cams: list[_Cam]) -> np.ndarray:
-    return np.stack([_project_one(c, points) for c in cams])  # (n_cams, n_pts, 2)
+def _project_all(points: np.ndarray, cams: list[_Cam], seen: np.ndarray | None = None) -> np.ndarray:
+    """Pixels ``(n_cams, n_pts, 2)``; with ``seen`` (n_cams, n_pts) bool, only there (NaN elsewhere)."""
+    if seen is None:
+        return np.stack([_project_one(c, points) for c in cams])
+    out = np.full((len(cams), points.shape[0], 2), np.nan)
+    for c, cam in enumerate(cams):
+        if np.any(seen[c]):
+            out[c, seen[c]] = _project_one(cam, points[seen[c]])
+    return out
 
 
 def triangulate(
@@ -168,6 +175,7 @@ def triangulate(
     sigma_px: float | None = None,
     max_iterations: int = 20,
     tolerance: float = 1e-13,
+    covariance: bool = True,
 ) -> Triangulation:
     """Triangulate points seen in several cameras: DLT, then Gauss-Newton on the pixel residuals.
 
@@ -182,6 +190,8 @@ def triangulate(
     max_iterations : int
     tolerance : float
         Stop when every update is below this, m.
+    covariance : bool
+        Compute ``covariance`` and ``uncertainty`` (False: NaN, faster; for candidate screening).
 
     Returns
     -------
@@ -198,28 +208,9 @@ def triangulate(
     X = _initial_points(pixels, cameras)
     cams = [_Cam(c) for c in cameras]
     active = np.all(np.isfinite(X), axis=1)
-    converged = np.zeros(n_pts, dtype=bool)
-    obs = np.where(ok[..., None], pixels, 0.0)
-    J = np.zeros((n_cams, n_pts, 2, 3))
-    for _ in range(max_iterations):
-        idx = np.flatnonzero(active & ~converged)
-        if idx.size == 0:
-            break
-        Xa = X[idx]
-        r = np.where(ok[:, idx, None], _project_all(Xa, cams) - obs[:, idx], 0.0)  # (n_cams, m, 2)
-        Ja = np.where(ok[:, idx, None, None], _jacobian(Xa, cams), 0.0)  # (n_cams, m, 2, 3)
-        JtJ = np.einsum("cmki,cmkj->mij", Ja, Ja)
-        Jtr = np.einsum("cmki,cmk->mi", Ja, r)
-        try:
-            step = np.linalg.solve(JtJ, -Jtr[..., None])[..., 0]
-        except np.linalg.LinAlgError:  # a degenerate (e.g. coincident-ray) point in the batch
-            step = -(np.linalg.pinv(JtJ) @ Jtr[..., None])[..., 0]
-        bad = ~np.all(np.isfinite(step), axis=1)
-        step[bad] = 0.0
-        X[idx] = Xa + step
-        converged[idx] = np.linalg.norm(step, axis=1) < tolerance
-    res = (_project_all(X, cams) - pixels)  # NaN where unobserved
-    res = np.where(ok[..., None], res, np.nan)
+    converged = _gauss_newton(X, pixels, ok, active, cams, max_iterations, tolerance)
+    proj = _project_all(X, cams, ok)
+    res = np.where(ok[..., None], proj - pixels, np.nan)  # NaN where unobserved
     with np.errstate(invalid="ignore"):
         sq = np.nansum(res**2, axis=(0, 2))
         rms = np.where(n_views > 0, np.sqrt(sq / np.maximum(n_views, 1)), np.nan)
@@ -229,7 +220,10 @@ def triangulate(
         sigma_px = float(np.sqrt(sq[active].sum() / dof)) if dof > 0 else 0.02
         if not np.isfinite(sigma_px) or sigma_px <= 0:
             sigma_px = 0.02
-    cov = _covariance(X, cams, ok, active, sigma_px)
+    if covariance:
+        cov = _covariance(X, cams, ok, active, sigma_px, proj)
+    else:
+        cov = np.full((n_pts, 3, 3), np.nan)
     unc = np.sqrt(np.trace(cov, axis1=1, axis2=2))
     return Triangulation(
         points=X,
@@ -243,9 +237,37 @@ def triangulate(
     )
 
 
-def _covariance(X, cams, ok, active, sigma_px) -> np.ndarray:
-    """``sigma_px^2 (J^T J)^-1`` per point ``(n_pts, 3, 3)``, NaN where not determined."""
-    Jf = np.where(ok[..., None, None] & active[None, :, None, None], _jacobian(np.where(active[:, None], X, 0.0), cams), 0.0)
+def _gauss_newton(X, pixels, ok, active, cams, max_iterations, tolerance) -> np.ndarray:
+    """Refine the points ``X (n_pts, 3)`` in place on the pixel residuals; returns the (n_pts,) bool
+    converged flags (update below ``tolerance``, m). Converged points leave the batch."""
+    converged = np.zeros(X.shape[0], dtype=bool)
+    obs = np.where(ok[..., None], pixels, 0.0)
+    for _ in range(max_iterations):
+        idx = np.flatnonzero(active & ~converged)
+        if idx.size == 0:
+            break
+        Xa = X[idx]
+        proj = _project_all(Xa, cams, ok[:, idx])
+        r = np.where(ok[:, idx, None], proj - obs[:, idx], 0.0)  # (n_cams, m, 2)
+        Ja = np.where(ok[:, idx, None, None], _jacobian(Xa, cams, base=proj, seen=ok[:, idx]), 0.0)  # (n_cams, m, 2, 3)
+        JtJ = np.einsum("cmki,cmkj->mij", Ja, Ja)
+        Jtr = np.einsum("cmki,cmk->mi", Ja, r)
+        try:
+            step = np.linalg.solve(JtJ, -Jtr[..., None])[..., 0]
+        except np.linalg.LinAlgError:  # a degenerate (e.g. coincident-ray) point in the batch
+            step = -(np.linalg.pinv(JtJ) @ Jtr[..., None])[..., 0]
+        bad = ~np.all(np.isfinite(step), axis=1)
+        step[bad] = 0.0
+        X[idx] = Xa + step
+        converged[idx] = np.linalg.norm(step, axis=1) < tolerance
+    return converged
+
+
+def _covariance(X, cams, ok, active, sigma_px, proj) -> np.ndarray:
+    """``sigma_px^2 (J^T J)^-1`` per point ``(n_pts, 3, 3)``, NaN where not determined; ``proj``: the
+    projections of ``X`` (n_cams, n_pts, 2)."""
+    Xa = np.where(active[:, None], X, 0.0)
+    Jf = np.where(ok[..., None, None] & active[None, :, None, None], _jacobian(Xa, cams, base=proj, seen=ok & active), 0.0)
     JtJ = np.einsum("cmki,cmkj->mij", Jf, Jf)
     JtJ = np.where(np.isfinite(JtJ), JtJ, 0.0)  # a refracted point that left a window's bath side
     cov = np.full((X.shape[0], 3, 3), np.nan)
@@ -255,29 +277,37 @@ def _covariance(X, cams, ok, active, sigma_px) -> np.ndarray:
     return cov
 
 
-def _jacobian(points: np.ndarray, cameras: list) -> np.ndarray:
+def _jacobian(points: np.ndarray, cameras: list, base: np.ndarray | None = None,
+              seen: np.ndarray | None = None) -> np.ndarray:
     """d(pixel)/d(X) for every camera and point, shape (n_cams, n_pts, 2, 3): analytic chain rule, or
-    central differences through a window."""
+    finite differences through a window (``base``: the projections ``(n_cams, n_pts, 2)`` of ``points``
+    if already known, which makes them one-sided). With ``seen`` (n_cams, n_pts) bool, only there
+    (NaN elsewhere)."""
     cams = [c if isinstance(c, _Cam) else _Cam(c) for c in cameras]
-    out = np.empty((len(cams), points.shape[0], 2, 3))
+    out = np.full((len(cams), points.shape[0], 2, 3), np.nan)
     for c, cam in enumerate(cams):
-        out[c] = _camera_jacobian(cam, points)
+        sel = slice(None) if seen is None else seen[c]
+        if seen is not None and not np.any(sel):
+            continue
+        out[c, sel] = _camera_jacobian(cam, points[sel], None if base is None else base[c][sel])
     return out
 
 
-def _refracted_jacobian(cam: _Cam, points: np.ndarray, step: float = 1e-6) -> np.ndarray:
-    """Central differences (step in m) through the window: the refracted projection is smooth."""
-    out = np.empty((points.shape[0], 2, 3))
-    for i in range(3):
-        dx = np.zeros(3)
-        dx[i] = step
-        out[:, :, i] = (_project_one(cam, points + dx) - _project_one(cam, points - dx)) / (2 * step)
-    return out
+def _refracted_jacobian(cam: _Cam, points: np.ndarray, base: np.ndarray | None = None, step: float = 1e-6) -> np.ndarray:
+    """Finite differences (step in m) through the window, all perturbed points in one batch: the refracted
+    projection is smooth. Central differences, or forward ones from ``base`` (n_pts, 2) when given (the
+    relative error, ~1e-6, does not move the Gauss-Newton solution, only its path)."""
+    n = points.shape[0]
+    signs = (1.0,) if base is not None else (1.0, -1.0)
+    shifted = np.concatenate([points + sg * step * np.eye(3)[i] for sg in signs for i in range(3)])
+    proj = _project_one(cam, shifted).reshape(len(signs), 3, n, 2)
+    diff = (proj[0] - base) / step if base is not None else (proj[0] - proj[1]) / (2 * step)  # (3, n, 2)
+    return diff.transpose(1, 2, 0)
 
 
-def _camera_jacobian(cam: _Cam, points: np.ndarray) -> np.ndarray:
+def _camera_jacobian(cam: _Cam, points: np.ndarray, base: np.ndarray | None = None) -> np.ndarray:
     if cam.window is not None:
-        return _refracted_jacobian(cam, points)
+        return _refracted_jacobian(cam, points, base)
     R = cam.R
     Xc = points @ R.T + cam.tvec
     z = Xc[:, 2]
