@@ -11,7 +11,10 @@ timing : time to identify Fung and HGO on 300 markers x 8 pressure steps (clampe
 starts : how many least-squares starts are needed (is the first start's minimum the best?).
 thick  : bias of the membrane form vs the thick-wall forms on rig_sim's exact thick-walled tube.
 noise  : parameter bias and scatter over many noise seeds (0.17 mm and 0.01 mm) on the clamped data,
-         without and with displacement smoothing (fixed 4 x 2, and the basis chosen by cross-validation).
+         without and with displacement smoothing (fixed 4 x 2, and the basis chosen by cross-validation);
+         --smoothing variants with +ref / +eiv / +w (see --help).
+noise-sources: the same at 0.17 mm with the noise on the reference step only, the loaded steps only, and
+         one cylindrical component of the loaded steps' noise only (where the scatter comes from).
 coverage: how often the reported 95 % interval contains the true parameters over many noise seeds
          (0.01, 0.05, 0.17 mm): Gauss-Newton (+- 1.96 stderr) vs the parametric bootstrap
          (identification/uncertainty.py), on the paper protocol (one stretch, 8 levels 0-150 mmHg).
@@ -422,14 +425,42 @@ def bench_thick():
         sys.stdout.flush()
 
 
+def _parse_variant(text):
+    """'none', 'AxH', 'auto' (GCV), 'bic', optionally '+ref' (smooth the reference radius), '+eiv' (remove the
+    errors-in-variables bias of the reference noise) and '+w' (noise-weighted gaps)."""
+    base, *extras = text.split("+")
+    unknown = set(extras) - {"ref", "w", "eiv"}
+    if unknown:
+        raise SystemExit(f"--smoothing: unknown variant suffixes {sorted(unknown)} in {text!r} (use +ref, +eiv, +w)")
+    smoothing = None if base == "none" else base if base in ("auto", "bic") else tuple(int(x) for x in base.split("x"))
+    return {"smoothing": smoothing, "smooth_reference": "ref" in extras, "weighted": "w" in extras,
+            "reference_noise_correction": "eiv" in extras, "name": text}
+
+
+def _noise_fit(sim, model, pos, variant, seed, **identify_options):
+    """One fit of the noise / coverage studies for a variant of ``_parse_variant`` (or a bare smoothing)."""
+    from identification import identify
+    from identification.noise_weights import identify_noise_weighted
+
+    if not isinstance(variant, dict):
+        variant = {"smoothing": variant, "smooth_reference": False, "weighted": False,
+                   "reference_noise_correction": False}
+    fit = identify_noise_weighted if variant["weighted"] else identify
+    extra = {"weight_seed": seed} if variant["weighted"] else {}
+    return fit(pos, sim.pressure, sim.axial_force, thickness=sim.thickness, model=model,
+               ends="clamped" if CLAMPED else "free", smoothing=variant["smoothing"],
+               smooth_reference=variant["smooth_reference"],
+               reference_noise_correction=variant["reference_noise_correction"], **extra, **identify_options)
+
+
 def bench_noise(n_seeds, models, smoothings=(None, (4, 2), "auto")):
     print(f"\n## Noise: bias and scatter over {n_seeds} seeds ({'clamped' if CLAMPED else 'homogeneous'} membrane tube, "
           "300 markers, lsq)\n")
     print("median relative error (robust scatter = half the 16-84 % range); 'ok' = fits whose every parameter "
           "except alpha12 is within 10 %; 'flagged' = fits that raised a warning other than a poorly identifiable "
           "alpha12/c.\n")
-    print("| model | noise (mm) | smoothing | parameter | median error | robust scatter | ok | flagged |")
-    print("|---|---|---|---|---|---|---|---|")
+    print("| model | noise (mm) | smoothing | parameter | median error | robust scatter | within 5 % | ok | flagged |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for model in models:
         sim = simulate(model)
         truth = params_of(model)
@@ -441,9 +472,7 @@ def bench_noise(n_seeds, models, smoothings=(None, (4, 2), "auto")):
                     rng = np.random.default_rng([seed, 7])
                     pos = sim.exact_positions + rng.normal(0.0, noise, sim.exact_positions.shape)
                     try:
-                        data = prepare(pos, sim.pressure, sim.axial_force, thickness=sim.thickness,
-                                       smoothing=smoothing, ends="clamped" if CLAMPED else "free")
-                        res = identify_prepared(data, model)
+                        res = _noise_fit(sim, model, pos, smoothing, seed)
                     except Exception as exc:  # a failed fit counts as not ok
                         logging.getLogger("bench").info("seed %d failed: %s", seed, exc)
                         for k in truth:
@@ -458,29 +487,84 @@ def bench_noise(n_seeds, models, smoothings=(None, (4, 2), "auto")):
                                    for f in res.flags)
                 for k in truth:
                     a = np.array(errs[k])
+                    within = np.sum(np.abs(a) < 0.05)  # failed fits (NaN) count as not within
                     a = a[np.isfinite(a)]
                     if len(a):
                         med = np.median(a)
                         spread = 0.5 * (np.percentile(a, 84) - np.percentile(a, 16))
                     else:
                         med = spread = np.nan
-                    sm = ("none" if smoothing is None else smoothing if isinstance(smoothing, str)
-                          else f"{smoothing[0]}x{smoothing[1]}")
+                    sm = (smoothing["name"] if isinstance(smoothing, dict) else "none" if smoothing is None
+                          else smoothing if isinstance(smoothing, str) else f"{smoothing[0]}x{smoothing[1]}")
                     print(f"| {model} | {noise * 1e3:.2f} | {sm} | {k} | {med:+.2%} | {spread:.2%} | "
-                          f"{ok}/{n_seeds} | {flagged}/{n_seeds} |")
+                          f"{within}/{n_seeds} | {ok}/{n_seeds} | {flagged}/{n_seeds} |")
+                sys.stdout.flush()
+
+
+COVERAGE_VARIANT = "auto"
+
+
+NOISE_SOURCES = ("all", "reference", "loaded", "loaded-radial", "loaded-axial", "loaded-circumferential")
+
+
+def _noise_on(source, noise, reference, rng, shape):
+    """Marker noise (m) of ``shape`` (n_steps, n_markers, 3) restricted to a source of ``NOISE_SOURCES``."""
+    n = rng.normal(0.0, noise, shape)
+    if source == "reference":
+        n[1:] = 0.0
+    elif source != "all":
+        n[0] = 0.0
+    if source.startswith("loaded-"):
+        er = np.column_stack([reference[:, :2] / np.linalg.norm(reference[:, :2], axis=1, keepdims=True),
+                              np.zeros(len(reference))])
+        ez = np.broadcast_to([0.0, 0.0, 1.0], er.shape)
+        e = {"radial": er, "axial": ez, "circumferential": np.cross(ez, er)}[source.split("-")[1]]
+        n = np.sum(n * e[None], axis=-1, keepdims=True) * e[None]
+    return n
+
+
+def bench_noise_sources(n_seeds, models, variants):
+    """Where the 0.17 mm scatter comes from: noise on the reference step only, on the loaded steps only
+    (and per cylindrical component), each with the same seeds."""
+    print(f"\n## Noise sources at 0.17 mm ({n_seeds} seeds, {'clamped' if CLAMPED else 'homogeneous'} membrane tube, "
+          "300 markers): median error / robust scatter / within 5 %\n")
+    for model in models:
+        sim = simulate(model)
+        truth = params_of(model)
+        names = [k for k in truth if k not in ("alpha12", "c")]
+        print(f"| model | noise on | variant | {' | '.join(names)} |")
+        print("|---|---|---|" + "---|" * len(names))
+        for source in NOISE_SOURCES:
+            for variant in variants:
+                errs = []
+                for seed in range(n_seeds):
+                    rng = np.random.default_rng([seed, 7])
+                    pos = sim.exact_positions + _noise_on(source, 0.17e-3, sim.exact_positions[0], rng,
+                                                          sim.exact_positions.shape)
+                    try:
+                        e = rel_errors(_noise_fit(sim, model, pos, variant, seed), truth)
+                    except Exception as exc:  # a failed fit counts as not within
+                        logging.getLogger("bench").info("seed %d failed: %s", seed, exc)
+                        e = {k: np.nan for k in truth}
+                    errs.append([e[k] for k in names])
+                a = np.array(errs)
+                cells = []
+                for i in range(len(names)):
+                    col = a[:, i][np.isfinite(a[:, i])]
+                    spread = 0.5 * (np.percentile(col, 84) - np.percentile(col, 16)) if len(col) else np.nan
+                    cells.append(f"{np.median(col) if len(col) else np.nan:+.1%} / {spread:.1%} / "
+                                 f"{np.mean(np.abs(a[:, i]) < 0.05):.0%}")
+                print(f"| {model} | {source} | {variant['name']} | {' | '.join(cells)} |")
                 sys.stdout.flush()
 
 
 def _coverage_fit(sim, model, noise, seed, n_replicates):
     """One noisy fit with bootstrap uncertainty: per parameter (error, GN covers, bootstrap covers, half-width)."""
-    from identification import identify
-
     truth = params_of(model)
     rng = np.random.default_rng([seed, 7])
     pos = sim.exact_positions + rng.normal(0.0, noise, sim.exact_positions.shape)
-    res = identify(pos, sim.pressure, sim.axial_force, thickness=sim.thickness, model=model,
-                   ends="clamped" if CLAMPED else "free", smoothing="auto", uncertainty="bootstrap",
-                   uncertainty_options={"n_replicates": n_replicates, "seed": seed})
+    res = _noise_fit(sim, model, pos, _parse_variant(COVERAGE_VARIANT), seed, uncertainty="bootstrap",
+                     uncertainty_options={"n_replicates": n_replicates, "seed": seed})
     gn = res.uncertainty.gauss_newton_stderr
     out = {}
     for k, v in truth.items():
@@ -560,13 +644,18 @@ def _print_coverage_rows(model, noise, rows, failed, n_seeds):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="fewer repeats and seeds (10 instead of 50)")
-    ap.add_argument("--part", choices=["timing", "starts", "flat", "clamped", "thick", "noise", "coverage", "all"], default="all")
+    ap.add_argument("--part", choices=["timing", "starts", "flat", "clamped", "thick", "noise", "noise-sources", "coverage",
+                                       "all"], default="all")
     ap.add_argument("--no-nelder-mead", action="store_true",
                     help="timing part: leave out the Nelder-Mead fits (20,000 evaluations each)")
     ap.add_argument("--replicates", type=int, default=8, help="bootstrap replicates per fit (coverage part)")
     ap.add_argument("--log", help="coverage part: append one JSON line per fit to this file")
     ap.add_argument("--summarise", metavar="LOG", help="coverage part: only print the table of a --log file")
-    ap.add_argument("--smoothing", default="none,4x2,auto", help="noise part: smoothing variants (none, AxH, auto)")
+    ap.add_argument("--smoothing", default="none,4x2,auto", help="noise part: smoothing variants (none, AxH, auto; "
+                    "bic; suffix +ref: smooth the reference radius too, +eiv: errors-in-variables correction, +w: "
+                    "noise-weighted gaps), e.g. auto,bic+ref+eiv+w")
+    ap.add_argument("--variant", default="auto", help="coverage part: the processing variant (as --smoothing, "
+                    "one of them), e.g. auto+ref+w")
     ap.add_argument("--noise", default="0.17,0.05,0.01", help="marker noise levels in mm (coverage part)")
     ap.add_argument("--seeds", type=int, default=None, help="noise seeds (default 50, --quick 10)")
     ap.add_argument("--models", default=",".join(MODELS), help="models for the noise study")
@@ -574,8 +663,9 @@ def main(argv=None):
                     help="membrane tube clamped on cannulae (rig_sim, default; or the tests' independent solver, "
                          "6 pressures 15-90 mmHg) or homogeneous (timing and noise parts)")
     args = ap.parse_args(argv)
-    global CLAMPED, SYNTH
+    global CLAMPED, SYNTH, COVERAGE_VARIANT
     CLAMPED = args.data != "homogeneous"
+    COVERAGE_VARIANT = args.variant
     SYNTH = args.data == "clamped-synth"
     logging.basicConfig(level=logging.ERROR)
     warnings.simplefilter("ignore", RuntimeWarning)
@@ -599,9 +689,10 @@ def main(argv=None):
     if args.part in ("thick", "all"):
         bench_thick()
     if args.part in ("noise", "all"):
-        variants = [None if v == "none" else v if v == "auto" else tuple(int(x) for x in v.split("x"))
-                    for v in args.smoothing.split(",")]
+        variants = [_parse_variant(v) for v in args.smoothing.split(",")]
         bench_noise(seeds, args.models.split(","), variants)
+    if args.part == "noise-sources":
+        bench_noise_sources(seeds, args.models.split(","), [_parse_variant(v) for v in args.smoothing.split(",")])
     if args.part in ("coverage", "all") and not args.summarise:
         bench_coverage(seeds, [m for m in args.models.split(",") if m != "neohookean"], args.replicates,
                        tuple(float(v) * 1e-3 for v in args.noise.split(",")), args.log)

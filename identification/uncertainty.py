@@ -200,6 +200,7 @@ def bootstrap(
     n_replicates: int = 16,
     seed: int = 0,
     prepare_options: Mapping | None = None,
+    gap_weights: np.ndarray | None = None,
 ) -> Uncertainty:
     """Parametric bootstrap of an identification (see the module docstring).
 
@@ -223,6 +224,9 @@ def bootstrap(
         Of the random generator (results are reproducible).
     prepare_options : mapping, optional
         The further options ``data`` was prepared with (fields, n_layers, quadrature, clamp_radius, toward).
+    gap_weights : ndarray, shape (n_fields, n_steps), optional
+        The weights of the virtual-work gaps ``result`` was fitted with (``noise_weights``): every
+        replicate is weighted alike, so the spread describes the same estimator.
     """
     if int(n_replicates) < 5:
         raise ValueError(f"n_replicates must be at least 5; got {n_replicates!r}")
@@ -251,6 +255,10 @@ def bootstrap(
                 mesh = remeasured_mesh(data.mesh, pos[0])
                 d = prepare(pos, p, f, thickness=data.thickness, wall=data.wall, ends=data.ends, mesh=mesh,
                             smoothing=data.smoothing, reject_outliers=False, **options)
+                if gap_weights is not None:
+                    from .noise_weights import weighted_data
+
+                    d = weighted_data(d, gap_weights)
                 from .optimize import identify_prepared
 
                 res = identify_prepared(d, model, initial=result.parameters, n_starts=1)

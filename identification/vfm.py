@@ -182,6 +182,8 @@ def prepare(
     smoothing: tuple[int, int] | str | None = None,
     reject_outliers: bool = True,
     marker_weights: np.ndarray | None = None,
+    smooth_reference: bool = True,
+    reference_noise_correction: bool = False,
 ) -> VFMData:
     """Build the virtual-work balance from measured data.
 
@@ -221,6 +223,12 @@ def prepare(
     marker_weights : ndarray, shape (n_steps, n_markers), optional
         Relative weights of the markers in the smoothing fit (1 / variance, e.g. from the
         reconstruction's reported uncertainty); default equal.
+    smooth_reference : bool
+        With smoothing (default), also replace the reference radius of the markers by its smooth fit
+        (``kinematics.smooth_reference_radius``); False: the measured reference radius (before issue 10).
+    reference_noise_correction : bool
+        With smoothing, remove the errors-in-variables bias of the reference markers' noise
+        (``kinematics.regressor_noise_correction``).
     reject_outliers : bool
         Treat markers that disagree with their neighbours in a step (mis-tracked) as unobserved
         there (``kinematics.marker_outliers``); counts in ``VFMData.n_outliers``.
@@ -238,7 +246,9 @@ def prepare(
         fields = paper_fields(mesh)
     check_fields(fields, mesh)
     aligned, _, _ = align_steps(x, reference)
-    st = _cached_surface_state(mesh, aligned, quadrature, smoothing, reject_outliers, marker_weights)
+    st = _cached_surface_state(mesh, aligned, quadrature, smoothing, reject_outliers, marker_weights,
+                               smooth_reference=smooth_reference,
+                               reference_noise_correction=reference_noise_correction)
     if not st.valid.any(axis=1).all():
         bad = np.flatnonzero(~st.valid.any(axis=1)).tolist()
         raise DegenerateDataError(f"steps {bad} have no triangle with all three markers observed")
