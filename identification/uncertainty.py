@@ -31,7 +31,7 @@ from dataclasses import dataclass, replace
 from typing import Mapping
 
 import numpy as np
-from scipy import stats
+from scipy.special import stdtrit  # scipy.stats costs ~0.4 s of import for one quantile
 
 from .errors import IdentificationError
 from .kinematics import align_steps, marker_outliers, smooth_cylindrical, smoothing_basis, step_cylindrical
@@ -297,7 +297,7 @@ def _summarise(model, estimate, reps, rms, result, level, pressure_noise, force_
     gn = np.array([result.stderr[k] for k in names], dtype=float)
     gn = np.where(pos, gn / np.where(estimate != 0, np.abs(estimate), 1.0), gn)
     sd = np.maximum(np.sqrt(np.clip(np.diag(cov), 0.0, None)), np.nan_to_num(gn))
-    t = float(stats.t.ppf(0.5 + CONFIDENCE / 2, n - 1))
+    t = float(stdtrit(n - 1, 0.5 + CONFIDENCE / 2))
     lo, hi = x_hat - t * sd, x_hat + t * sd
     lo, hi = np.where(pos, np.exp(lo), lo), np.where(pos, np.exp(hi), hi)
     stderr = np.where(pos, np.abs(estimate) * sd, sd)
