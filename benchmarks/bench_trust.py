@@ -108,10 +108,11 @@ FE_PRESSURES = tuple(np.linspace(0, 150, 8)[1:] * MMHG)
 def _fe_fit(fe, model, ends, wall, fields="paper", margin=4e-3, n_markers=300, **options):
     """Fit markers (seed 0, ``margin`` m clear of the clamps) of an FE tube: (result, RMS gap, errors)."""
     from identification.thick_fields import flat_end_fields
+    from identification.virtual_fields import paper_fields
 
     pos = _fe_markers(fe, margin, n_markers)
     mesh = build_mesh(pos[0])
-    kw = {"fields": flat_end_fields(mesh)} if fields == "flat-end" else {}
+    kw = {"fields": flat_end_fields(mesh) if fields == "flat-end" else paper_fields(mesh)}
     r = identify(pos, fe.pressure, fe.wall_force, thickness=fe.thickness, model=model, wall=wall, ends=ends, mesh=mesh,
                  **kw, **options)
     truth = PAPER_PARAMETERS[model]
