@@ -297,10 +297,11 @@ def prepare_regional(positions: np.ndarray, pressure: np.ndarray, axial_force: n
 
 
 def reprepare(rd: RegionalData, positions: np.ndarray, pressure: np.ndarray, axial_force: np.ndarray,
-              mesh: SurfaceMesh) -> RegionalData:
-    """``rd``'s preparation (same bands, basis, smoothing degrees, no outlier rejection, no homogeneous fields) of
-    other measurements on ``mesh`` (the bootstrap's re-simulated ones; shapes as ``prepare_regional``)."""
-    options = dict(rd.options, smoothing=rd.data.smoothing, reject_outliers=False, ends=rd.data.ends)
+              mesh: SurfaceMesh, smoothing=None, reject_outliers: bool = False) -> RegionalData:
+    """``rd``'s preparation (same bands, basis, smoothing degrees unless ``smoothing`` is given, no homogeneous
+    fields) of other measurements on ``mesh`` (the bootstrap's re-simulated ones; shapes as ``prepare_regional``)."""
+    options = dict(rd.options, smoothing=rd.data.smoothing if smoothing is None else smoothing,
+                   reject_outliers=reject_outliers, ends=rd.data.ends)
     spec = {"n_bands": rd.n_bands} if rd.kind == "bands" else {"legendre": rd.n_coefficients}
     edges = rd.field_edges.copy()  # the same inner edges; the outer ones follow the re-measured boundary
     edges[0], edges[-1] = mesh.z_bottom, mesh.z_top
