@@ -134,6 +134,8 @@ def main(argv=None) -> int:
     ap.add_argument("--only", choices=("bands", "auto", "legendre"), action="append",
                     help="tables to print (default all; repeatable)")
     ap.add_argument("--noisy-only", action="store_true", help="skip the exact-data rows")
+    ap.add_argument("--bands", default="2,3,4,6,8", help="band counts of the bands table (default 2,3,4,6,8)")
+    ap.add_argument("--ks", default="2,3,5,7", help="Legendre coefficient counts of the legendre table (default 2,3,5,7)")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)
     tables = args.only or ["bands", "auto", "legendre"]
@@ -146,7 +148,7 @@ def main(argv=None) -> int:
               "BS \\|e\\|/se | BS cover 95 % | found | false |")
         print("|---|---|---|---|---|---|---|---|---|---|---|---|")
         for noise in noises:
-            for n in (2, 4) if args.quick else (2, 3, 4, 6, 8):
+            for n in (2, 4) if args.quick else [int(v) for v in args.bands.split(",")]:
                 print(bands_row(n, noise, range(1 if noise == 0 else n_seeds)), flush=True)
         print()
     if "auto" in tables:
@@ -161,7 +163,7 @@ def main(argv=None) -> int:
         print("|---|---|---|---|---|---|---|---|")
         for name, profile in (("30 % gradient", GRADIENT), ("40 % weakening", WEAK)):
             for noise in noises:
-                for k in (2, 4) if args.quick else (2, 3, 5, 7):
+                for k in (2, 4) if args.quick else [int(v) for v in args.ks.split(",")]:
                     print(legendre_row(name, profile, k, noise, range(1 if noise == 0 else n_seeds)), flush=True)
     print(f"\n{time.perf_counter() - t0:.0f} s")
     return 0
