@@ -17,9 +17,11 @@ The 95 % interval is ``estimate -+ t(0.975, n - 1) sd``.
 
 Band count (``choose_bands``): the finest candidate (``n_max`` bands) is fitted with its bootstrap errors; every
 coarser count n is fitted as a step profile to it (weighted least squares on log beta of the fine bands, each fine band
-given to the coarse band holding its centre), and the fewest bands whose misfit is within chi-square's 99 % quantile
-of (n_max - n) degrees of freedom are chosen. The fine-band errors are floored at ``METHOD_ERROR`` (relative): the
-method's own error on exact data (1-3 % at 3-6 bands), which is not evidence of heterogeneity.
+given to the coarse band holding its centre), and the count with the least Akaike criterion chi2(n) + 2 n (per
+regional parameter) is chosen. The fine-band errors are floored at ``METHOD_ERROR`` (relative): the method's own error
+on exact data (1-3 % at 3-6 bands), which is not evidence of heterogeneity. Measured at 0.05 mm (4 seeds): the
+40 % weakening gets 3 bands in 4 of 4 seeds with this rule, 2 in 3 of 4 with the first rule tried (the fewest bands
+within chi-square's 99 % quantile); the homogeneous tube 1 band with both.
 
 Pure functions over arrays; SI units.
 """
@@ -45,8 +47,6 @@ log = logging.getLogger(__name__)
 #: Relative error of a band's beta on exact data at 3-6 bands (measured: 1-3 %), a floor of the fine profile's errors
 #: when choosing the band count.
 METHOD_ERROR = 0.02
-#: Level of the chi-square test that a coarser profile explains the fine one.
-CHOICE_LEVEL = 0.99
 
 
 @dataclass(frozen=True)
@@ -207,8 +207,8 @@ class BandChoice:
     candidates : ndarray, shape (n_candidates,) int
     chi2 : ndarray, shape (n_candidates,)
         Misfit of each count's step profile to the finest profile (in its standard errors).
-    threshold : ndarray, shape (n_candidates,)
-        ``CHOICE_LEVEL`` quantile of chi-square with (n_max - n) degrees of freedom (inf for n_max itself).
+    criterion : ndarray, shape (n_candidates,)
+        chi2 + 2 x (number of band values): the least is chosen.
     finest : RegionalResult
         The finest fit, with its bootstrap errors.
     """
@@ -216,7 +216,7 @@ class BandChoice:
     n_bands: int
     candidates: np.ndarray
     chi2: np.ndarray
-    threshold: np.ndarray
+    criterion: np.ndarray
     finest: RegionalResult
 
 
@@ -246,15 +246,15 @@ def choose_bands(positions: np.ndarray, pressure: np.ndarray, axial_force: np.nd
     fine = identify_regional(rd, model)
     fine = with_bootstrap(fine, rd, positions, **(bootstrap_options or {}))
     m = get_model(model)
-    names = [n for n in fine.regional if m.positive[m.parameter_names.index(n)]] or list(fine.regional)
+    positive = {n: m.positive[m.parameter_names.index(n)] for n in fine.regional}
     candidates = np.arange(1, int(n_max) + 1)
     chi2 = np.zeros(candidates.size)
-    for n in names:
-        y = np.log(fine.profiles[n]) if n in names else fine.profiles[n]
-        sd = np.hypot(fine.stderr[n] / np.abs(fine.profiles[n]), METHOD_ERROR)
+    for n in fine.regional:
+        v, se = fine.profiles[n], fine.stderr[n]
+        # log scale (relative errors, floored at the method's error) for positive parameters
+        y, sd = (np.log(v), np.hypot(se / np.abs(v), METHOD_ERROR)) if positive[n] else (v, se)
         for i, k in enumerate(candidates):
             chi2[i] += _step_misfit(y, sd, fine.centres, np.linspace(rd.edges[0], rd.edges[-1], k + 1))
-    dof = (int(n_max) - candidates) * len(names)
-    threshold = np.where(dof > 0, stats.chi2.ppf(CHOICE_LEVEL, np.maximum(dof, 1)), np.inf)
-    chosen = int(candidates[np.flatnonzero(chi2 <= threshold)[0]])
-    return BandChoice(n_bands=chosen, candidates=candidates, chi2=chi2, threshold=threshold, finest=fine)
+    criterion = chi2 + 2.0 * candidates * len(fine.regional)
+    chosen = int(candidates[int(np.argmin(criterion))])
+    return BandChoice(n_bands=chosen, candidates=candidates, chi2=chi2, criterion=criterion, finest=fine)

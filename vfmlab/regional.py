@@ -79,8 +79,8 @@ def _result_arrays(model, result, rd, rows, choice) -> tuple[dict, dict]:
                               model.parameter_names.index(n)] else units[n]})
     if choice is not None:
         arrays.update({"auto_candidates": choice.candidates, "auto_chi2": choice.chi2,
-                       "auto_threshold": np.where(np.isfinite(choice.threshold), choice.threshold, -1.0)})
-        out_units.update({"auto_candidates": "1", "auto_chi2": "1", "auto_threshold": "1 (-1: none)"})
+                       "auto_criterion": choice.criterion})
+        out_units.update({"auto_candidates": "1", "auto_chi2": "1", "auto_criterion": "1"})
     return arrays, out_units
 
 

@@ -17,9 +17,7 @@ def _json(group, result, model_units, choice):
         "parameter_stderr": result.parameter_stderr,
         "homogeneous": result.homogeneous.parameters, "units": model_units, "cost": result.cost,
         "auto": None if choice is None else {"n_bands": choice.n_bands, "candidates": choice.candidates.tolist(),
-                                             "chi2": choice.chi2.tolist(),
-                                             "threshold": [None if t == float("inf") else t for t in
-                                                           choice.threshold.tolist()]},
+                                             "chi2": choice.chi2.tolist(), "criterion": choice.criterion.tolist()},
         "converged": result.converged, "flags": list(result.flags), "result_group": group})
 
 
@@ -47,10 +45,9 @@ def _table(result, model_units):
 
 
 def _print_choice(choice) -> None:
-    rows = ", ".join(f"{k}: {c:.3g}{'' if t == float('inf') else f' (limit {t:.3g})'}"
-                     for k, c, t in zip(choice.candidates, choice.chi2, choice.threshold))
-    console.print(f"--regions auto chose {choice.n_bands} band(s): the fewest whose step profile explains the "
-                  f"{choice.candidates[-1]}-band profile within its uncertainty (misfit chi-square per band count: "
+    rows = ", ".join(f"{k}: {c:.3g}" for k, c in zip(choice.candidates, choice.criterion))
+    console.print(f"--regions auto chose {choice.n_bands} band(s): the least misfit of a step profile to the "
+                  f"{choice.candidates[-1]}-band profile in its uncertainty, plus 2 per band (Akaike; per band count: "
                   f"{rows})")
 
 
