@@ -362,3 +362,44 @@ def with_uncertainty(result, data: VFMData, positions: np.ndarray, **options):
                               units=dict(zip(model.parameter_names, model.units)))
     stderr = {k: (v if np.isfinite(v) else result.stderr[k]) for k, v in unc.stderr.items()}
     return replace(result, stderr=stderr, flags=tuple(result.flags) + tuple(flags), uncertainty=unc)
+
+
+def resimulated_measurements(data: VFMData, positions: np.ndarray, *, marker_sigma: np.ndarray | None = None,
+                             pressure_noise: float = 0.0, force_noise: float = 0.0, n_replicates: int = 16,
+                             seed: int = 0):
+    """The measurements ``bootstrap`` re-simulates, for identifications other than ``identify_prepared``
+    (e.g. ``identification.regional``): the fitted field plus noise at the level the data show.
+
+    Parameters are those of ``bootstrap``. Returns ``(level, replicates)``: the simulated per-coordinate
+    marker noise (m) and a generator of ``(positions (n_steps, n_markers, 3) m, pressure (n_steps,) Pa,
+    axial_force (n_steps,) N, mesh)`` with ``mesh`` the same triangulation on the replicate's reference
+    (``remeasured_mesh``; an ``IdentificationError`` when a replicate loses markers of the mesh).
+    """
+    if int(n_replicates) < 5:
+        raise ValueError(f"n_replicates must be at least 5; got {n_replicates!r}")
+    fitted, residual = fitted_positions(data, positions)
+    level = marker_noise_level(data, residual, _n_basis(data.smoothing))
+    shape = np.ones(fitted.shape[:2])
+    if marker_sigma is not None:
+        ms = np.asarray(marker_sigma, dtype=float)
+        if ms.shape != fitted.shape[:2]:
+            raise ValueError(f"marker_sigma must have shape {fitted.shape[:2]} (n_steps, n_markers); got {ms.shape}")
+        med = np.nanmedian(ms)
+        if np.isfinite(med) and med > 0:
+            shape = np.where(np.isfinite(ms) & (ms > 0), ms / med, 1.0)
+    sigma = level * shape
+
+    def replicates():
+        rng = np.random.default_rng(seed)
+        for _ in range(int(n_replicates)):
+            pos = fitted + sigma[..., None] * rng.standard_normal(fitted.shape)
+            p = data.pressure + pressure_noise * rng.standard_normal(data.pressure.shape) * (data.pressure != 0)
+            f = data.axial_force + force_noise * rng.standard_normal(data.axial_force.shape)
+            try:
+                with np.errstate(all="ignore"):
+                    mesh = remeasured_mesh(data.mesh, pos[0])
+            except IdentificationError:
+                mesh = None
+            yield pos, p, f, mesh
+
+    return level, replicates()

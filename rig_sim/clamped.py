@@ -295,98 +295,132 @@ def solve_clamped(model: str, params: Mapping[str, float], pressures, stretch: f
         If a step cannot be solved even after halving the increment ``max_halvings`` times.
     """
     params = check_params(model, params)
-    law = get_law(model)
+    rc, pr = _check_setting(stretch, radius, clamp_radius, pressures)
+    t0 = time.perf_counter()
+    cont = _Continuation(model, params, stretch, rc, radius, thickness, length, float(np.max(pr, initial=0.0)),
+                         stress_scale, dict(n_nodes=int(n_nodes), tol=tol, max_halvings=max_halvings,
+                                            max_nodes=max_nodes, n_sub=n_sub, coarse_tol=coarse_tol))
+    out = _solve_pressures(cont, cont.unpressurised(), pr)
+    log.debug("clamped %s: %d pressures at stretch %g solved in %.3f s", model, pr.size, stretch,
+              time.perf_counter() - t0)
+    return out
+
+
+def _check_setting(stretch: float, radius: float, clamp_radius: float | None, pressures) -> tuple[float, np.ndarray]:
+    """Validated clamp radius (m) and pressures (n,) Pa of ``solve_clamped``."""
     if not stretch > 1.0:
         raise ValueError(f"stretch must exceed 1 for the clamped membrane (a slack meridian is singular); "
                          f"got {stretch!r}")
     rc = float(radius if clamp_radius is None else clamp_radius)
     if not rc > 0:
         raise ValueError(f"clamp_radius must be positive in m; got {clamp_radius!r}")
-    pr = np.atleast_1d(np.asarray(pressures, dtype=float))
-    half = 0.5 * length / radius
-    u = np.linspace(-1.0, 1.0, int(n_nodes))
-    x0 = half * (0.5 * u + 0.5 * np.sin(0.5 * np.pi * u))  # denser towards the cannulae
+    return rc, np.atleast_1d(np.asarray(pressures, dtype=float))
 
-    def straight(lam):
-        ss = float(_meridional_pk2(law, params, np.array([rc / radius]), np.array([lam]))[1][0])
-        return np.vstack([np.full_like(x0, rc / radius), lam * x0, np.full_like(x0, ss * lam / s_straight),
-                          np.zeros_like(x0)])
 
-    # stress scale [Pa]: the larger of the meridional PK2 of the straight unpressurised tube and the Laplace hoop
-    # stress at the highest pressure. With it the hoop-equilibrium residual, a difference of two large terms, is
-    # measured against the stress level of the test rather than against 1 (fewer spurious mesh refinements).
-    s_straight = float(_meridional_pk2(law, params, np.array([rc / radius]), np.array([stretch]))[1][0])
-    if not s_straight > 0:
-        raise MechanicsError(f"clamped {model} tube: no meridional tension at stretch {stretch}")
-    s0 = max(s_straight, float(np.max(pr, initial=0.0)) * radius / thickness)
-    y0 = straight(stretch)
+class _Continuation:
+    """The scaled BVP of one clamped tube at one stretch, and its continuation in pressure (``solve_clamped``)."""
 
-    def attempt(p, x, y, lam=stretch, tol_=tol, s=None):
-        s = s0 if s is None else s
-        fun, bc, fun_jac, bc_jac = _make_problem(law, params, p * radius / (thickness * s), rc / radius,
-                                                 lam * half, s, stress_scale, radius)
+    def __init__(self, model, params, stretch, rc, radius, thickness, length, p_max, stress_scale, settings):
+        self.model, self.params, self.law = model, params, get_law(model)
+        self.stretch, self.rc, self.radius, self.thickness = stretch, rc, radius, thickness
+        self.length, self.stress_scale, self.settings = length, stress_scale, settings
+        self.half = 0.5 * length / radius
+        u = np.linspace(-1.0, 1.0, settings["n_nodes"])
+        self.x0 = self.half * (0.5 * u + 0.5 * np.sin(0.5 * np.pi * u))  # denser towards the cannulae
+        # stress scale [Pa]: the larger of the meridional PK2 of the straight unpressurised tube and the Laplace hoop
+        # stress at the highest pressure. With it the hoop-equilibrium residual, a difference of two large terms, is
+        # measured against the stress level of the test rather than against 1 (fewer spurious mesh refinements).
+        self.s_straight = self._meridional(stretch)
+        if not self.s_straight > 0:
+            raise MechanicsError(f"clamped {model} tube: no meridional tension at stretch {stretch}")
+        self.s0 = max(self.s_straight, p_max * radius / thickness)
+
+    def _meridional(self, lam: float) -> float:
+        return float(_meridional_pk2(self.law, self.params, np.array([self.rc / self.radius]), np.array([lam]))[1][0])
+
+    def straight(self, lam: float) -> np.ndarray:
+        """Initial guess: the straight tube at stretch ``lam`` on the base mesh, shape (4, n_nodes)."""
+        x0 = self.x0
+        return np.vstack([np.full_like(x0, self.rc / self.radius), lam * x0,
+                          np.full_like(x0, self._meridional(lam) * lam / self.s_straight), np.zeros_like(x0)])
+
+    def attempt(self, p, x, y, lam=None, tol_=None, s=None):
+        """One ``solve_bvp`` at pressure ``p`` Pa from (x, y); the result, or None when it failed."""
+        lam = self.stretch if lam is None else lam
+        tol_ = self.settings["tol"] if tol_ is None else tol_
+        s = self.s0 if s is None else s
+        fun, bc, fun_jac, bc_jac = _make_problem(self.law, self.params, p * self.radius / (self.thickness * s),
+                                                 self.rc / self.radius, lam * self.half, s, self.stress_scale,
+                                                 self.radius)
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            res = solve_bvp(fun, bc, x, y, tol=tol_, bc_tol=tol_, max_nodes=max_nodes, fun_jac=fun_jac,
-                            bc_jac=bc_jac)
+            res = solve_bvp(fun, bc, x, y, tol=tol_, bc_tol=tol_, max_nodes=self.settings["max_nodes"],
+                            fun_jac=fun_jac, bc_jac=bc_jac)
         ok = (res.status == 0 and np.all(np.isfinite(res.y)) and np.all(res.y[0] > 0)
               and np.all(np.hypot(res.y[2], res.y[3]) > 0))
         if not ok:
-            log.debug("clamped %s: p=%g stretch=%g failed: %s", model, p, lam, res.message)
+            log.debug("clamped %s: p=%g stretch=%g failed: %s", self.model, p, lam, res.message)
         return res if ok else None
 
-    def on_base(res):
+    def on_base(self, res):
         """Previous solution resampled on the base mesh (keeps the mesh from growing step after step)."""
-        y = res.sol(x0)
-        y[2:] *= getattr(res, "stress_scale", s0) / s0
-        return x0, y
+        y = res.sol(self.x0)
+        y[2:] *= getattr(res, "stress_scale", self.s0) / self.s0
+        return self.x0, y
 
-    def advance(p_from, p_to, res_from, depth=0):
+    def advance(self, p_from, p_to, res_from, depth=0):
         """Coarse continuation p_from -> p_to in n_sub steps, then one solve at the requested tolerance."""
+        st = self.settings
         res, p_cur = res_from, p_from
-        for p_k in np.linspace(p_from, p_to, n_sub + 1)[1:]:
-            nxt = attempt(p_k, *on_base(res), tol_=coarse_tol)
+        for p_k in np.linspace(p_from, p_to, st["n_sub"] + 1)[1:]:
+            nxt = self.attempt(p_k, *self.on_base(res), tol_=st["coarse_tol"])
             if nxt is None:
-                if depth >= max_halvings:
+                if depth >= st["max_halvings"]:
                     raise MechanicsError(
-                        f"clamped {model} tube: no convergence from p={p_cur:.6g} Pa to p={p_k:.6g} Pa at stretch "
-                        f"{stretch} after {max_halvings} halvings of the pressure increment")
-                nxt = advance(p_cur, p_k, res, depth + 1)
+                        f"clamped {self.model} tube: no convergence from p={p_cur:.6g} Pa to p={p_k:.6g} Pa at "
+                        f"stretch {self.stretch} after {st['max_halvings']} halvings of the pressure increment")
+                nxt = self.advance(p_cur, p_k, res, depth + 1)
             res, p_cur = nxt, p_k
-        final = attempt(p_to, *on_base(res))
+        final = self.attempt(p_to, *self.on_base(res))
         if final is None:
-            final = attempt(p_to, res.x, res.y)
+            final = self.attempt(p_to, res.x, res.y)
         if final is None:
-            raise MechanicsError(f"clamped {model} tube: no convergence at p={p_to:.6g} Pa, stretch {stretch} "
-                                 f"with tol={tol}")
+            raise MechanicsError(f"clamped {self.model} tube: no convergence at p={p_to:.6g} Pa, stretch "
+                                 f"{self.stretch} with tol={st['tol']}")
         return final
 
-    t0 = time.perf_counter()
-    # p = 0 is solved with the unpressurised stress scale (much better conditioned there)
-    base = attempt(0.0, x0, y0, s=s_straight)
-    if base is None:  # continuation in stretch from a small pre-stretch
-        for k, lam in enumerate(np.linspace(1.0, stretch, 9)[1:]):
-            res = attempt(0.0, x0, straight(lam) if k == 0 else res.sol(x0), lam, s=s_straight)
-            if res is None:
-                raise MechanicsError(f"clamped {model} tube: no convergence at p=0, stretch {lam:.4g}")
-        base = res
-    base.stress_scale = s_straight
+    def unpressurised(self):
+        """The solution at p = 0, solved with the unpressurised stress scale (much better conditioned there), by
+        continuation in stretch from a small pre-stretch when the direct solve fails."""
+        base = self.attempt(0.0, self.x0, self.straight(self.stretch), s=self.s_straight)
+        if base is None:
+            res = None
+            for k, lam in enumerate(np.linspace(1.0, self.stretch, 9)[1:]):
+                res = self.attempt(0.0, self.x0, self.straight(lam) if k == 0 else res.sol(self.x0), lam,
+                                   s=self.s_straight)
+                if res is None:
+                    raise MechanicsError(f"clamped {self.model} tube: no convergence at p=0, stretch {lam:.4g}")
+            base = res
+        base.stress_scale = self.s_straight
+        return base
+
+
+def _solve_pressures(cont: _Continuation, base, pr: np.ndarray) -> list[ClampedSolution]:
+    """Continuation through the pressures ``pr`` (n,) Pa from the unpressurised ``base``; packaged solutions."""
     out = []
     p_prev, res = 0.0, base
     t_prev = time.perf_counter()
     for p in pr:
-        res = base if p == 0.0 and p_prev == 0.0 else advance(p_prev, float(p), res)
+        res = base if p == 0.0 and p_prev == 0.0 else cont.advance(p_prev, float(p), res)
         now = time.perf_counter()
-        sol = _package(res, model, (law, params, stress_scale), float(p), stretch, rc, radius, thickness, length,
-                       now - t_prev, getattr(res, "stress_scale", s0))
+        sol = _package(res, cont.model, (cont.law, cont.params, cont.stress_scale), float(p), cont.stretch, cont.rc,
+                       cont.radius, cont.thickness, cont.length, now - t_prev, getattr(res, "stress_scale", cont.s0))
         if sol.min_dzdZ <= 0:
             log.warning("clamped %s tube at p=%.6g Pa, stretch %g: the membrane folds back next to the cannulae "
-                        "(min dz/dZ = %.3g); the end regions are not physical for a real artery", model, p, stretch,
-                        sol.min_dzdZ)
+                        "(min dz/dZ = %.3g); the end regions are not physical for a real artery", cont.model, p,
+                        cont.stretch, sol.min_dzdZ)
         out.append(sol)
         t_prev = now
         p_prev = float(p)
-    log.debug("clamped %s: %d pressures at stretch %g solved in %.3f s", model, pr.size, stretch,
-              time.perf_counter() - t0)
     return out
 
 

@@ -8,6 +8,11 @@
   written at their reference position), vector ``displacement`` (m). A ``<prefix>.vtk.series``
   file (ParaView's JSON file-series format, time = step index) groups the steps; ParaView also
   groups ``<prefix>_NNN.vtk`` files as a series by their names.
+- profiles (``export_profile``, a stored "regional" result): ``<prefix>_profile.csv`` (one row per band or
+  profile point: axial position Z in m, world x/y/z in m, each regional parameter, its standard error and 95 %
+  interval in Pa, whether the band differs; units in the header names and a leading ``#`` comment) and
+  ``<prefix>_profile.vtk``, a legacy VTK polyline along the specimen axis through the band centres (world frame, m)
+  with the same values as point data, to show beside the surface in ParaView.
 - ``ply``: binary PLY through trimesh: the same geometry with face colours from E11 and the scalar
   fields as extra float face properties (ParaView shows the colours; the scalars are read by
   trimesh, plyfile, Open3D, MeshLab).
@@ -25,7 +30,7 @@ from vfmlab.fields import SurfaceFields
 
 log = logging.getLogger(__name__)
 
-__all__ = ["FORMATS", "export_fields", "write_vtk_polydata"]
+__all__ = ["FORMATS", "export_fields", "export_profile", "write_vtk_polydata"]
 
 FORMATS = ("vtk", "ply")
 
@@ -45,18 +50,23 @@ def _fmt_rows(a: np.ndarray, fmt: str) -> str:
 
 def write_vtk_polydata(path: Path, points: np.ndarray, triangles: np.ndarray, *, title: str,
                        point_data: dict[str, np.ndarray], cell_data: dict[str, np.ndarray],
-                       vectors: dict[str, np.ndarray] | None = None) -> None:
+                       vectors: dict[str, np.ndarray] | None = None, line: bool = False) -> None:
     """Write a legacy ASCII VTK (4.2) polydata file.
 
     points (n, 3) float; triangles (m, 3) int; point_data {name: (n,) int or float};
     cell_data {name: (m,) float}; vectors {name: (n, 3) float} as point data. NaN is written as "nan".
+    ``line``: instead of triangles, one polyline through all the points (``triangles`` ignored; one cell).
     """
     lines = ["# vtk DataFile Version 4.2", title.replace("\n", " ")[:250], "ASCII", "DATASET POLYDATA",
              f"POINTS {len(points)} double", _fmt_rows(np.asarray(points, float), "%.9g")]
     tri = np.asarray(triangles, int)
-    lines.append(f"POLYGONS {len(tri)} {4 * len(tri)}")
-    if len(tri):
-        lines.append(_fmt_rows(np.column_stack([np.full(len(tri), 3), tri]), "%d"))
+    if line:
+        tri = np.arange(len(points))[None]
+        lines += [f"LINES 1 {len(points) + 1}", " ".join(str(v) for v in [len(points), *range(len(points))])]
+    else:
+        lines.append(f"POLYGONS {len(tri)} {4 * len(tri)}")
+        if len(tri):
+            lines.append(_fmt_rows(np.column_stack([np.full(len(tri), 3), tri]), "%d"))
     lines.append(f"POINT_DATA {len(points)}")
     for name, values in point_data.items():
         values = np.asarray(values)
@@ -134,3 +144,43 @@ def _write_ply(path: Path, points, tri, cells, marker_id, visible) -> None:
     mesh.vertex_attributes["marker_id"] = marker_id
     mesh.vertex_attributes["visible"] = visible.astype(np.int32)
     path.write_bytes(trimesh.exchange.ply.export_ply(mesh, encoding="binary", include_attributes=True))
+
+
+def _profile_columns(result) -> dict[str, np.ndarray]:
+    """Columns of a stored "regional" result's profile, named with their units (SI)."""
+    a, units = result["arrays"], result.get("units", {})
+    cols = {"Z_m": np.asarray(a["band_centres"], float), "Z_from_m": np.asarray(a["band_edges"], float)[:-1],
+            "Z_to_m": np.asarray(a["band_edges"], float)[1:]}
+    world = np.asarray(a["band_centres_world"], float) if "band_centres_world" in a else None
+    if world is not None:
+        cols.update({"x_m": world[:, 0], "y_m": world[:, 1], "z_m": world[:, 2]})
+    for n in [str(v) for v in np.atleast_1d(a["regional_names"])]:
+        u = units.get(n, "1")
+        for key, label in ((n, n), (f"{n}_stderr", f"{n}_stderr"), (f"{n}_interval_low", f"{n}_low95"),
+                           (f"{n}_interval_high", f"{n}_high95")):
+            if key in a:
+                cols[f"{label}_{u}"] = np.asarray(a[key], float)
+    cols["differs"] = np.asarray(a["differs"], int)
+    return cols
+
+
+def export_profile(result, out_dir: str | Path, *, prefix: str = "surface", specimen: str = "") -> list[Path]:
+    """Write a stored "regional" result (``Session.result`` dict) as ``<prefix>_profile.csv`` and
+    ``<prefix>_profile.vtk`` (module docstring) into ``out_dir``; returns the two paths."""
+    out = Path(out_dir)
+    out.mkdir(exist_ok=True)
+    cols = _profile_columns(result)
+    attrs = result.get("attrs", {})
+    what = (f"vfmlab {specimen} {result.get('name', 'regional')}: {attrs.get('model', '')} profile along the axis "
+            f"({attrs.get('profile_kind', 'bands')}, errors {attrs.get('uncertainty', 'gauss-newton')}, 95 % "
+            "intervals); Z = reference axial coordinate from the mean marker position; SI units (m, Pa)")
+    csv = out / f"{prefix}_profile.csv"
+    body = np.column_stack([np.asarray(v, float) for v in cols.values()])
+    lines = [f"# {what}", ",".join(cols)] + [",".join("%.9g" % v for v in row) for row in body]
+    csv.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    vtk = out / f"{prefix}_profile.vtk"
+    points = np.column_stack([cols["x_m"], cols["y_m"], cols["z_m"]]) if "x_m" in cols else \
+        np.column_stack([np.zeros_like(cols["Z_m"]), np.zeros_like(cols["Z_m"]), cols["Z_m"]])
+    data = {k: v for k, v in cols.items() if k not in ("x_m", "y_m", "z_m")}
+    write_vtk_polydata(vtk, points, np.zeros((0, 3), int), title=what, point_data=data, cell_data={}, line=True)
+    return [csv, vtk]

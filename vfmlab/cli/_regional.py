@@ -1,57 +1,79 @@
-"""``vfmlab identify --regions N``: per-band parameter profiles (output of ``vfmlab.regional``)."""
+"""``vfmlab identify --regions N|auto|legendre:K``: parameter profiles along the axis (output of ``vfmlab.regional``)."""
 
 from __future__ import annotations
 
-from vfmlab.cli._common import CliError, console, display_quantity, esc, num, print_json
+from vfmlab.cli._common import CliError, CliInputError, console, display_quantity, esc, num, print_json
 
 
-def _json(group, result, model_units):
+def _json(group, result, model_units, choice):
     print_json({
-        "model": result.model, "regional": list(result.regional), "band_edges_m": result.edges.tolist(),
-        "band_centres_m": result.centres.tolist(),
+        "model": result.model, "regional": list(result.regional), "profile_kind": result.kind,
+        "band_edges_m": result.edges.tolist(), "band_centres_m": result.centres.tolist(),
         "profiles": {n: v.tolist() for n, v in result.profiles.items()},
         "stderr": {n: v.tolist() for n, v in result.stderr.items()},
+        "interval_95": {n: v.tolist() for n, v in result.interval.items()}, "uncertainty": result.uncertainty,
         "z_score": {n: v.tolist() for n, v in result.z_score.items()},
         "differs": result.differs.tolist(), "parameters": result.parameters,
         "parameter_stderr": result.parameter_stderr,
         "homogeneous": result.homogeneous.parameters, "units": model_units, "cost": result.cost,
+        "auto": None if choice is None else {"n_bands": choice.n_bands, "candidates": choice.candidates.tolist(),
+                                             "chi2": choice.chi2.tolist(), "criterion": choice.criterion.tolist()},
         "converged": result.converged, "flags": list(result.flags), "result_group": group})
 
 
 def _table(result, model_units):
     from rich.table import Table
 
-    table = Table(title=f"{result.model}: {', '.join(result.regional)} per axial band (shared: "
+    what = "per axial band" if result.kind == "bands" else "along the axis (Legendre profile of the log)"
+    table = Table(title=f"{result.model}: {', '.join(result.regional)} {what} (shared: "
                         f"{', '.join(result.parameters) or 'none'})")
-    for col, just in (("band", "right"), ("from", "right"), ("to", "right"), ("parameter", "left"),
-                      ("value", "right"), ("std. error", "right"), ("unit", "left"), ("vs median", "right")):
+    for col, just in (("band" if result.kind == "bands" else "point", "right"), ("from", "right"), ("to", "right"),
+                      ("parameter", "left"), ("value", "right"), ("std. error", "right"), ("95 % interval", "right"),
+                      ("unit", "left"), ("vs median", "right")):
         table.add_column(col, justify=just)
     for n in result.regional:
         for b in range(result.n_bands):
             v, unit = display_quantity(result.profiles[n][b], model_units[n])
             s, _ = display_quantity(result.stderr[n][b], model_units[n])
+            lo, _ = display_quantity(result.interval[n][b, 0], model_units[n])
+            hi, _ = display_quantity(result.interval[n][b, 1], model_units[n])
             mark = " *" if result.differs[b] else ""
             table.add_row(str(b), f"{result.edges[b] * 1e3:.1f} mm", f"{result.edges[b + 1] * 1e3:.1f} mm", esc(n),
-                          num(v, 4), num(s, 2), unit or "–", f"{result.contrast[n][b]:+.1%}{mark}")
+                          num(v, 4), num(s, 2), f"{num(lo, 3)} to {num(hi, 3)}", unit or "–",
+                          f"{result.contrast[n][b]:+.1%}{mark}")
     return table
 
 
-def run_regional(session_path, model, wall, ends, smoothing, regions, as_json) -> None:
+def _print_choice(choice) -> None:
+    rows = ", ".join(f"{k}: {c:.3g}" for k, c in zip(choice.candidates, choice.criterion))
+    console.print(f"--regions auto chose {choice.n_bands} band(s): the least misfit of a step profile to the "
+                  f"{choice.candidates[-1]}-band profile in its uncertainty, plus 2 per band (Akaike; per band count: "
+                  f"{rows})")
+
+
+def run_regional(session_path, model, wall, ends, smoothing, regions, uncertainty, as_json) -> None:
     """Identify, store and print a regional result (``--regions``)."""
     from identification import get_model
     from vfmlab.pipeline import StageError
-    from vfmlab.regional import identify_regional_stored
+    from vfmlab.regional import identify_regional_stored, parse_regions
 
     try:
-        group, result, data = identify_regional_stored(session_path, n_bands=regions, model=model, wall=wall,
-                                                       ends=ends, smoothing=smoothing, invoked_by="identify")
+        spec = parse_regions(regions)
+    except ValueError as exc:
+        raise CliInputError(str(exc)) from None
+    try:
+        group, result, data = identify_regional_stored(session_path, regions=spec, model=model, wall=wall, ends=ends,
+                                                       smoothing=smoothing, uncertainty=uncertainty,
+                                                       invoked_by="identify")
     except StageError as exc:
         raise CliError(str(exc)) from None
     m = get_model(model)
     model_units = dict(zip(m.parameter_names, m.units))
     if as_json:
-        _json(group, result, model_units)
+        _json(group, result, model_units, data.get("choice"))
         return
+    if data.get("choice") is not None:
+        _print_choice(data["choice"])
     console.print(_table(result, model_units))
     for n, v in result.parameters.items():
         val, unit = display_quantity(v, model_units[n])
@@ -60,8 +82,8 @@ def run_regional(session_path, model, wall, ends, smoothing, regions, as_json) -
     for n in result.regional:
         val, unit = display_quantity(hom[n], model_units[n])
         console.print(f"homogeneous fit for comparison: {esc(n)} = {num(val, 4)} {unit or ''}".rstrip())
-    console.print("band positions: reference axial coordinate from the mean marker position, towards the load cell; "
-                  "* = differs from the median band")
+    console.print("positions: reference axial coordinate from the mean marker position, towards the load cell; "
+                  f"errors: {result.uncertainty}; * = differs from the median band")
     for note in data["notes"]:
         console.print(f"[dim]{esc(note)}[/]")
     for flag in result.flags:

@@ -31,8 +31,9 @@ Examples:
 @click.option("--json", "as_json", is_flag=True, help="Print the files written as JSON.")
 def command(session, out, fmt, markers_name, force, as_json):
     """Export the marker mesh of SESSION at every step, with E11/E22/E12 strains and each identified
-    model's stresses as cell data, in files ParaView opens. Lengths in m, stresses in Pa."""
-    from vfmlab.export import export_fields
+    model's stresses as cell data, in files ParaView opens, and the latest parameter profile along the axis
+    ('vfmlab identify --regions') as CSV and a VTK polyline. Lengths in m, stresses in Pa."""
+    from vfmlab.export import export_fields, export_profile
     from vfmlab.fields import FieldsError, compute_fields
 
     path = Path(session)
@@ -55,18 +56,25 @@ def command(session, out, fmt, markers_name, force, as_json):
         except (FieldsError, ValueError) as exc:  # MeshError is a ValueError
             raise CliInputError(f"{path}: cannot build the surface fields from {markers['name']}: {exc}") from None
         specimen = s.specimen.specimen_id
+        regional = s.latest("regional") if s.results("regional") else None
     try:
         files = export_fields(fields, out_dir, fmt=fmt, specimen=specimen)
+        profile = [] if regional is None else export_profile(regional, out_dir, specimen=specimen)
     except OSError as exc:
         raise CliError(f"cannot write to {out_dir}: {exc}") from None
     n_steps = len(fields.positions)
     cell = ["E11", "E22", "E12"] + [f"{n}_s11/_s22 ({st['model']})" for n, st in fields.stress.items()]
     if as_json:
         print_json({"out": str(out_dir), "format": fmt, "markers_result": markers["name"], "n_steps": n_steps,
-                    "files": [str(f) for f in files], "units": {"length": "m", "stress": "Pa", "strain": "1"}})
+                    "files": [str(f) for f in files], "profile_files": [str(f) for f in profile],
+                    "profile_result": None if regional is None else regional["name"],
+                    "units": {"length": "m", "stress": "Pa", "strain": "1"}})
         return
     console.print(f"Exported {n_steps} steps ({len(fields.mesh.triangles)} triangles, from {esc(markers['name'])}) "
                   f"as {fmt.upper()} to [bold]{esc(out_dir)}[/]; cell data: {esc(', '.join(cell))} "
                   "(files in SI: lengths in m, stresses in Pa, strains dimensionless).")
+    if profile:
+        console.print(f"Parameter profile along the axis ({esc(regional['name'])}): {esc(profile[0].name)} and "
+                      f"{esc(profile[1].name)} (Z and positions in m, parameters in Pa, 95 % intervals).")
     if fmt == "vtk":
         console.print(f"Open {esc(files[-1].name)} (or the {esc(files[0].stem[:-4])}_*.vtk group) in ParaView.")

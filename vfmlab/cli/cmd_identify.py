@@ -19,6 +19,8 @@ Examples:
   vfmlab identify a1.h5 --model hgo --wall thick --smooth 4,2
   vfmlab identify a1.h5 --model delfino --json > delfino.json
   vfmlab identify a1.h5 --regions 4                       # beta per axial band (where is the wall weaker?)
+  vfmlab identify a1.h5 --regions auto                    # band count chosen from the data
+  vfmlab identify a1.h5 --regions legendre:4              # smooth profile of log beta along the axis
 """
 
 
@@ -43,9 +45,11 @@ Examples:
 @click.option("--uncertainty", type=click.Choice(["bootstrap", "gauss-newton"]), default="bootstrap",
               show_default=True, help="bootstrap: standard errors and 95 % intervals from re-simulated measurements "
                                       "(a few seconds); gauss-newton: instant, but too small on noisy markers.")
-@click.option("--regions", type=click.IntRange(1, 12), default=None, metavar="N",
-              help="Identify the stress-like parameter (beta) per band of N equal axial bands, the others shared, "
-                   "with standard errors and the bands that differ; stored as a 'regional' result.")
+@click.option("--regions", default=None, metavar="N|auto|legendre:K",
+              help="Identify the stress-like parameter (beta) along the axis, the others shared: per band of N equal "
+                   "axial bands (1-12), with the band count chosen from the data (auto: 1-6 bands), or as a smooth "
+                   "profile of K Legendre coefficients of log beta (legendre:K, 1-8); with standard errors and 95 % "
+                   "intervals (--uncertainty) and the bands that differ; stored as a 'regional' result.")
 @click.option("--json", "as_json", is_flag=True,
               help="Print the result as JSON for scripts (SI; the unit of each parameter under 'units').")
 def command(session_path, model, wall, ends, optimizer, smooth, uncertainty, regions, as_json):
@@ -59,7 +63,7 @@ def command(session_path, model, wall, ends, optimizer, smooth, uncertainty, reg
     if regions is not None:
         from vfmlab.cli._regional import run_regional
 
-        return run_regional(session_path, model, wall, ends, smoothing, regions, as_json)
+        return run_regional(session_path, model, wall, ends, smoothing, regions, uncertainty, as_json)
     group, result, data = identify_stored(session_path, model=model, wall=wall, ends=ends, optimizer=optimizer,
                                           smoothing=smoothing, uncertainty=uncertainty, invoked_by="identify")
     names = list(result.parameters)

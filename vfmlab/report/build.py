@@ -19,7 +19,7 @@ from acquisition.session import DamagedSessionError, Session, open_session
 from vfmlab import __version__
 from vfmlab.display import display_quantity, fixed, num, quantity, settings_text
 from vfmlab.fields import FieldsError, SurfaceFields, compute_fields, stress_strain_curves
-from vfmlab.report import figures
+from vfmlab.report import figures, profile
 from vfmlab.results import parameter_units
 
 log = logging.getLogger(__name__)
@@ -451,6 +451,7 @@ _SECTIONS: list[tuple[str, str, Callable[[_Context, _Report], str]]] = [
     ("calibration", "Calibration quality", _sec_calibration),
     ("markers", "Marker reconstruction", _sec_markers),
     ("strain", "Strain maps", _sec_strain),
+    ("regional", "Parameters along the axis", lambda ctx, rep: profile.section(ctx, rep)),
     ("stress", "Stress maps", _sec_stress),
     ("virtual-work", "Internal vs external virtual work", _sec_virtual_work),
     ("pressure-radius", "Pressure–radius at mid-span", _sec_pressure_radius),
