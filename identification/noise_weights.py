@@ -125,7 +125,7 @@ def identify_noise_weighted(positions, pressure, axial_force, *, thickness: floa
                             uncertainty=uncertainty, uncertainty_options=uncertainty_options, **prepare_options)
         return first
     options = {k: v for k, v in prepare_options.items() if k not in ("mesh", "smoothing", "reject_outliers",
-                                                                      "marker_weights", "wall", "ends")}
+                                                                      "marker_weights", "wall", "ends", "n_starts")}
     sd = gap_noise(data, _used_positions(first, positions), first.parameters, model,
                    n_replicates=n_weight_replicates, seed=weight_seed, prepare_options=options)
     w = weights_from_noise(sd)

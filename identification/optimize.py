@@ -524,6 +524,7 @@ def identify(
     n_starts: int = 3,
     uncertainty: str = "gauss-newton",
     uncertainty_options: Mapping | None = None,
+    weighting: str = "paper",
     **prepare_options,
 ) -> IdentificationResult:
     """Identify constitutive parameters from marker positions, pressure and axial force.
@@ -550,6 +551,11 @@ def identify(
         which are too small when the markers are noisy.
     uncertainty_options : mapping, optional
         Passed to ``uncertainty.bootstrap`` (marker_sigma, pressure_noise, force_noise, n_replicates, seed).
+    weighting : {"paper", "noise"}
+        "paper": the paper's cost (one scale per field). "noise": each virtual-work gap weighted by
+        the inverse of its measured noise (``noise_weights.identify_noise_weighted``; smoothed data
+        only, ``optimizer="lsq"``): at 0.17 mm marker noise Fung beta within 5 % in 80 % of seeds
+        instead of 38 % (docs/identification.md "Noise").
     prepare_options
         Passed to ``prepare`` (fields, mesh, n_layers, quadrature, clamp_radius, smoothing...).
         ``smoothing="auto"`` smooths with a basis chosen from the data (generalised
@@ -557,6 +563,17 @@ def identify(
     """
     if uncertainty not in ("gauss-newton", "bootstrap"):
         raise ValueError(f"uncertainty must be 'gauss-newton' or 'bootstrap'; got {uncertainty!r}")
+    if weighting not in ("paper", "noise"):
+        raise ValueError(f"weighting must be 'paper' or 'noise'; got {weighting!r}")
+    if weighting == "noise":
+        if optimizer != "lsq" or initial is not None:
+            raise ValueError(f"weighting='noise' needs optimizer='lsq' and no initial guess; got "
+                             f"optimizer={optimizer!r}, initial={initial!r}")
+        from .noise_weights import identify_noise_weighted
+
+        return identify_noise_weighted(positions, pressure, axial_force, thickness=thickness, model=model, wall=wall,
+                                       ends=ends, uncertainty=uncertainty, uncertainty_options=uncertainty_options,
+                                       n_starts=n_starts, **prepare_options)
     n_input = np.shape(positions)[0]
     positions, pressure, axial_force, dropped = drop_partial_steps(positions, pressure, axial_force)
     data = prepare(positions, pressure, axial_force, thickness=thickness, wall=wall, ends=ends, **prepare_options)

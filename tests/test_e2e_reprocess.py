@@ -34,7 +34,8 @@ def test_reprocess_twice_keeps_both_results_readable(tmp_path, capsys):
     session = make_session(tmp_path / "s.h5", n_markers=120)
     with open_session(session) as s:
         before = s.results("identification")
-    assert main(["reprocess", str(session), "--model", "delfino", "--optimizer", "lsq"]) == 0
+    # the paper's cost for both, so that only the optimiser differs
+    assert main(["reprocess", str(session), "--model", "delfino", "--optimizer", "lsq", "--weighting", "paper"]) == 0
     assert main(["reprocess", str(session), "--model", "delfino", "--optimizer", "nelder-mead"]) == 0
     capsys.readouterr()
     with open_session(session) as s:
@@ -57,6 +58,11 @@ def test_reprocess_twice_keeps_both_results_readable(tmp_path, capsys):
     assert main(["results", str(session)]) == 0
     out = capsys.readouterr().out
     assert new[1] in out and "nelder-mead" in out
+    # the default weights the gaps by their noise (smoothed markers) and records it
+    assert main(["reprocess", str(session), "--model", "delfino"]) == 0
+    with open_session(session) as s:
+        latest = s.result(s.results("identification")[-1])
+    assert latest["parameters"]["weighting"] == "noise" and a["parameters"]["weighting"] == "paper"
 
 
 def test_stage_registry_is_the_identify_function():

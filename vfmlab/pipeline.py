@@ -136,7 +136,7 @@ def resolve_ends(session_ends: dict[str, str], requested: str | None) -> tuple[s
 
 def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str = "membrane", ends: str | None = None,
                     optimizer: str = "lsq", smoothing: str | tuple[int, int] | None = "auto", markers: str | None = None,
-                    uncertainty: str = "bootstrap", check: bool = True,
+                    uncertainty: str = "bootstrap", check: bool = True, weighting: str = "noise",
                     invoked_by: str = "pipeline") -> tuple[str, Any, dict[str, Any]]:
     """Identify ``model`` from the session's marker tracks with the VFM and store an "identification" result.
 
@@ -156,6 +156,8 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
     markers : markers result to use (default: the latest).
     uncertainty : "bootstrap" (default, intervals that cover the truth; ~16 re-identifications) or
         "gauss-newton" (fast, too small on noisy data).
+    weighting : "noise" (default: each virtual-work gap weighted by the inverse of its measured noise;
+        smoothed data and ``optimizer="lsq"`` only, else the paper's cost) or "paper".
     check : run the setting checks (``identification.checks``: end conditions and wall form
         against the data's own evidence) and add their warnings to the flags.
     invoked_by : recorded in the result's attributes (e.g. "identify", "reprocess").
@@ -178,6 +180,9 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
         if len(smoothing) != 2 or min(smoothing) < 0:
             raise StageError(f"smoothing must be 'auto' or two non-negative integers (axial, harmonics); "
                              f"got {smoothing!r}")
+    if weighting not in ("noise", "paper"):
+        raise StageError(f"weighting must be 'noise' or 'paper'; got {weighting!r}")
+    weighting = weighting if optimizer == "lsq" else "paper"  # Nelder-Mead: the paper's method, for comparison
     data = read_identification_inputs(path, markers)
     ends, ends_source, ends_notes, warnings = resolve_ends(data["session_ends"], ends)
     force_notes = list(data["notes"])
@@ -185,7 +190,7 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
     try:
         result = identify(data["positions"], data["pressure"], data["force"], thickness=data["thickness"],
                           model=model, wall=wall, ends=ends, optimizer=optimizer, smoothing=smoothing,
-                          uncertainty=uncertainty, uncertainty_options={
+                          uncertainty=uncertainty, weighting=weighting, uncertainty_options={
                               "marker_sigma": data["uncertainty"], "pressure_noise": PRESSURE_NOISE,
                               "force_noise": FORCE_NOISE} if uncertainty == "bootstrap" else None)
     except (IdentificationError, ValueError) as exc:
@@ -196,7 +201,10 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
     if result.data is not None:
         data["notes"].append(describe_dropped(result.data.mesh.dropped))
     settings = {"model": model, "wall": wall, "ends": ends, "ends_source": ends_source, "optimizer": optimizer,
-                "smoothing": smoothing, "markers_result": data["markers_result"], "thickness": data["thickness"],
+                "smoothing": smoothing, "markers_result": data["markers_result"],
+                # what was used: exact-looking (unsmoothed) data keep the paper's cost
+                "weighting": weighting if result.smoothing is not None else "paper",
+                "thickness": data["thickness"],
                 "force_correction": force_notes}
     arrays, _, attrs = identification_arrays(result, data["rows"], checks)
     attrs.update({"model": model, "wall": wall, "invoked_by": invoked_by, "notes": data["notes"]})

@@ -45,6 +45,9 @@ Examples:
 @click.option("--uncertainty", type=click.Choice(["bootstrap", "gauss-newton"]), default="bootstrap",
               show_default=True, help="bootstrap: standard errors and 95 % intervals from re-simulated measurements "
                                       "(a few seconds); gauss-newton: instant, but too small on noisy markers.")
+@click.option("--weighting", type=click.Choice(["noise", "paper"]), default="noise", show_default=True,
+              help="noise: each virtual-work gap weighted by the inverse of its measured noise (smoothed data, lsq; "
+                   "at 0.17 mm marker noise the errors about halve); paper: the paper's cost, one scale per field.")
 @click.option("--regions", default=None, metavar="N|auto|legendre:K",
               help="Identify the stress-like parameter (beta) along the axis, the others shared: per band of N equal "
                    "axial bands (1-12), with the band count chosen from the data (auto: 1-6 bands), or as a smooth "
@@ -52,7 +55,7 @@ Examples:
                    "intervals (--uncertainty) and the bands that differ; stored as a 'regional' result.")
 @click.option("--json", "as_json", is_flag=True,
               help="Print the result as JSON for scripts (SI; the unit of each parameter under 'units').")
-def command(session_path, model, wall, ends, optimizer, smooth, uncertainty, regions, as_json):
+def command(session_path, model, wall, ends, optimizer, smooth, uncertainty, weighting, regions, as_json):
     """Identify MODEL parameters from the latest marker tracks of SESSION and store the result in it.
 
     Units: parameters in SI (Pa, rad); the table shows kPa and degrees.
@@ -65,7 +68,8 @@ def command(session_path, model, wall, ends, optimizer, smooth, uncertainty, reg
 
         return run_regional(session_path, model, wall, ends, smoothing, regions, uncertainty, as_json)
     group, result, data = identify_stored(session_path, model=model, wall=wall, ends=ends, optimizer=optimizer,
-                                          smoothing=smoothing, uncertainty=uncertainty, invoked_by="identify")
+                                          smoothing=smoothing, uncertainty=uncertainty, weighting=weighting,
+                                          invoked_by="identify")
     names = list(result.parameters)
     if as_json:
         settings = data.get("settings", {})

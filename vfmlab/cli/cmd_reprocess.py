@@ -62,6 +62,9 @@ Examples:
               help="Optimiser (identify).")
 @click.option("--smooth", default="auto", show_default=True, metavar="auto|none|AXIAL,HARMONICS",
               help="Smooth the measured displacements before identifying (as 'vfmlab identify --smooth').")
+@click.option("--weighting", type=click.Choice(["noise", "paper"]), default="noise", show_default=True,
+              help="Virtual-work gaps weighted by their measured noise, or the paper's cost (as 'vfmlab identify "
+                   "--weighting'; Nelder-Mead always uses the paper's).")
 @click.option("--set", "set_pairs", multiple=True, metavar="KEY=VALUE",
               help="Extra setting for the reconstruct stage (JSON value), repeatable.")
 @click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
@@ -73,8 +76,8 @@ Examples:
                    "the unit in each column name, e.g. beta_Pa).")
 @click.option("--force", is_flag=True, help="Overwrite the --summary file if it exists.")
 @click.option("--json", "as_json", is_flag=True, help="Print the outcomes as JSON.")
-def command(sessions, stages, models, walls, ends, optimizer, smooth, set_pairs, workers, scheduler, summary, force,
-            as_json):
+def command(sessions, stages, models, walls, ends, optimizer, smooth, weighting, set_pairs, workers, scheduler, summary,
+            force, as_json):
     """Re-run STAGES on each SESSION with the given settings, appending new results (nothing is overwritten).
 
     A session that fails (corrupt file, missing markers, failed fit) is reported and the others go on;
@@ -91,7 +94,8 @@ def command(sessions, stages, models, walls, ends, optimizer, smooth, set_pairs,
     try:
         runs = plan_runs(stage_list, models=_split(models, "--model", ("fung", "delfino", "hgo", "neohookean")),
                          walls=_split(walls, "--wall", ("membrane", "thick")),
-                         identify_settings={"ends": ends, "optimizer": optimizer, "smoothing": smoothing},
+                         identify_settings={"ends": ends, "optimizer": optimizer, "smoothing": smoothing,
+                                            "weighting": weighting},
                          reconstruct_settings=_parse_set(set_pairs))
     except ValueError as exc:
         raise CliError(f"--set: {exc}" if set_pairs else str(exc)) from None
