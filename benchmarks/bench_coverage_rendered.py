@@ -4,8 +4,8 @@
         --log rendered.jsonl --work /tmp/rendered
 
 For every seed: ``vfmlab run examples/paper-protocol.toml --specimen examples/specimen.toml --sim --sim-seed N
---yes`` (the built-in simulated rig: 4 cameras, 640 x 480), ``vfmlab reconstruct`` and ``vfmlab identify --model
-fung --json``, every option at its default. One JSON line per seed is appended to ``--log`` as it finishes (seeds
+--yes`` (the built-in simulated rig: 4 cameras, 640 x 480), ``vfmlab calibrate`` (from the session's board views),
+``vfmlab reconstruct`` and ``vfmlab identify --model fung --json``, every option at its default. One JSON line per seed is appended to ``--log`` as it finishes (seeds
 already in the log are skipped, so a cut run resumes); ``--summarise LOG`` prints the table. The seed changes the
 marker layout, the camera-ring imperfections and every noise of the simulated rig; the specimen (homogeneous Fung
 tube, the seed paper's Table-1 parameters) is the same. Prints markdown (docs/identification.md, "Coverage").
@@ -52,6 +52,9 @@ def one_seed(seed: int, work: Path, model: str = "fung") -> dict:
         log_file.flush()
         if run.returncode != 0:
             return {"seed": seed, "error": f"run exit {run.returncode}"}
+        cal = _vfmlab(["calibrate", str(session)], log_file)  # from the session's board views, defaults
+        if cal.returncode != 0:
+            return {"seed": seed, "error": f"calibrate exit {cal.returncode}"}
         rec = _vfmlab(["reconstruct", str(session)], log_file)
         if rec.returncode != 0:
             return {"seed": seed, "error": f"reconstruct exit {rec.returncode}"}
@@ -128,7 +131,7 @@ def main(argv=None) -> None:
     log_path, work = Path(args.log), Path(args.work)
     if not args.summarise:
         work.mkdir(parents=True, exist_ok=True)
-        done = {r["seed"] for r in read_log(log_path)}
+        done = {r["seed"] for r in read_log(log_path) if "fit" in r}  # failed runs are tried again
         for seed in parse_seeds(args.seeds):
             if seed in done:
                 continue

@@ -2,6 +2,7 @@
 noise (coverage on rendered rigs, docs/identification.md "Coverage")."""
 
 import numpy as np
+import pytest
 
 from acquisition.protocol import MMHG, parse_protocol, parse_rig, parse_specimen
 from vfmlab.cli import main
@@ -56,3 +57,18 @@ def test_sim_seed_without_sim_is_bad_input(tmp_path, capsys):
     assert rc == 2
     assert "--sim-seed" in capsys.readouterr().err
     assert not (tmp_path / "a.h5").exists()
+
+
+def test_board_texture_survives_a_square_size_opencv_rejects():
+    """--sim-seed 2 put the ring's magnification at 145 px per board square, which OpenCV 5's ChArUco
+    generateImage rejects; the texture then uses the next size up."""
+    from reconstruction.targets import BoardSpec
+    from rig_sim.board import _board_texture
+
+    spec = BoardSpec()
+    tex, off, used = _board_texture(spec, 145 / spec.square_size)
+    sq = round(used * spec.square_size)
+    assert sq in (145, 146)
+    n_cols, n_rows = (round(e / spec.square_size) for e in spec.extent)
+    assert tex.shape == ((n_rows + 2) * sq, (n_cols + 2) * sq)  # one square of white margin around
+    assert off == pytest.approx(-spec.square_size)
