@@ -40,14 +40,14 @@ def _vfmlab(args: list[str], log_file) -> subprocess.CompletedProcess:
                           stderr=log_file, text=True, cwd=ROOT)
 
 
-def one_seed(seed: int, work: Path, model: str = "fung") -> dict:
+def one_seed(seed: int, work: Path, model: str = "fung", protocol: str = "examples/paper-protocol.toml") -> dict:
     """Run, reconstruct and identify one simulated session; the record of the coverage table."""
     session = work / f"paper-seed{seed}.h5"
     if session.exists():
         session.unlink()  # a run cut before this seed's record was written
     t0 = time.perf_counter()
     with open(work / f"paper-seed{seed}.log", "w") as log_file:
-        run = _vfmlab(["run", "examples/paper-protocol.toml", "--specimen", "examples/specimen.toml", "--out",
+        run = _vfmlab(["run", protocol, "--specimen", "examples/specimen.toml", "--out",
                        str(session), "--sim", "--sim-seed", str(seed), "--yes", "--json"], log_file)
         log_file.flush()
         if run.returncode != 0:
@@ -126,6 +126,7 @@ def main(argv=None) -> None:
     ap.add_argument("--seeds", default="0-9", help="seeds, e.g. 0-9 or 1,4,7")
     ap.add_argument("--log", default="rendered-coverage.jsonl", help="JSON lines, one per seed (appended)")
     ap.add_argument("--work", default="rendered-coverage", help="folder for the session files")
+    ap.add_argument("--protocol", default="examples/paper-protocol.toml", help="protocol file (a variant to compare)")
     ap.add_argument("--summarise", action="store_true", help="only print the table of --log")
     args = ap.parse_args(argv)
     log_path, work = Path(args.log), Path(args.work)
@@ -135,7 +136,7 @@ def main(argv=None) -> None:
         for seed in parse_seeds(args.seeds):
             if seed in done:
                 continue
-            record = one_seed(seed, work)
+            record = one_seed(seed, work, protocol=str(Path(args.protocol).resolve()))
             with open(log_path, "a") as fh:
                 fh.write(json.dumps(record) + "\n")
             print(json.dumps(record), flush=True)
