@@ -15,6 +15,7 @@ noise  : parameter bias and scatter over many noise seeds (0.17 mm and 0.01 mm) 
 coverage: how often the reported 95 % interval contains the true parameters over many noise seeds
          (0.01, 0.05, 0.17 mm): Gauss-Newton (+- 1.96 stderr) vs the parametric bootstrap
          (identification/uncertainty.py), on the paper protocol (one stretch, 8 levels 0-150 mmHg).
+         --log LOG keeps every fit and resumes a cut run; --summarise LOG prints the table of a log.
 """
 
 from __future__ import annotations
@@ -406,6 +407,8 @@ def bench_coverage(n_seeds, models, n_replicates, noises=(0.17e-3, 0.05e-3, 0.01
     if done:
         logging.getLogger("bench").warning("resuming: %d fits already in %s", len(done), log_path)
     out = open(log_path, "a") if log_path else None
+    if out and out.tell() > 0:
+        out.write("\n")  # a run killed mid-line left a torn line: start on a new one (blank lines are skipped)
     try:
         for seed in range(n_seeds):
             for model in models:
@@ -487,7 +490,8 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="fewer repeats and seeds (10 instead of 50)")
     ap.add_argument("--part", choices=["timing", "starts", "flat", "clamped", "thick", "noise", "coverage", "all"], default="all")
     ap.add_argument("--replicates", type=int, default=8, help="bootstrap replicates per fit (coverage part)")
-    ap.add_argument("--log", help="coverage part: append one JSON line per fit to this file")
+    ap.add_argument("--log", help="coverage part: append one JSON line per fit (with its flags) to this file; "
+                                        "fits already in it are skipped, so a cut run resumes")
     ap.add_argument("--summarise", metavar="LOG", help="coverage part: only print the table of a --log file")
     ap.add_argument("--smoothing", default="none,4x2,auto", help="noise part: smoothing variants (none, AxH, auto)")
     ap.add_argument("--noise", default="0.17,0.05,0.01", help="marker noise levels in mm (coverage part)")
