@@ -106,9 +106,10 @@ def summarise(records: list[dict]) -> None:
               f"| {cov.sum()}/{len(ok)} ({cov.mean():.0%}) | {cov[~flagged].sum()}/{(~flagged).sum()} "
               f"| {two.sum()}/{len(ok)} | {np.median(half):.1%} |")
     for r in ok:
-        extra = [f for f in r["flags"]]
+        extra = [f for f in r["flags"] if not f.startswith("alpha12 ")]
+        notes = "; ".join(extra) if extra else ("only the alpha12 note" if r["flags"] else "none")
         print(f"- seed {r['seed']}: " + ", ".join(f"{k} {r['fit'][k]['error']:+.2%}" for k in COVERED)
-              + f"; ends {r['ends']}; {r['failed_capture_warnings']} capture warnings; flags: {extra or 'none'}")
+              + f"; ends {r['ends']}; {r['failed_capture_warnings']} capture-retry warnings; flags: {notes}")
     for r in errors:
         print(f"- seed {r['seed']}: {r['error']}")
 
