@@ -114,6 +114,61 @@ def summarise(records: list[dict]) -> None:
         print(f"- seed {r['seed']}: {r['error']}")
 
 
+def image_pressures(session: Path, seed: int, protocol: str = "examples/paper-protocol.toml") -> tuple:
+    """The pressure each step's images show: the simulator's truth (same seed) matched marker by marker to the
+    reconstruction of the reference step, and the pressure at which the true mean radius of those markers equals the
+    measured one (less the reference step's radius offset). Returns (recorded, image-implied) pressures, Pa."""
+    from scipy.optimize import brentq
+    from scipy.spatial import cKDTree
+
+    from acquisition.protocol import MMHG, load_protocol, load_specimen
+    from acquisition.session import open_session
+    from vfmlab.simrig import SimScene
+
+    with open_session(session) as s:
+        positions = s.latest("markers")["arrays"]["positions"]
+        recorded, stretch = np.asarray(s.steps["pressure"]), np.asarray(s.steps["stretch"])
+    scene = SimScene(load_specimen(ROOT / "examples" / "specimen.toml"), load_protocol(ROOT / protocol),
+                     [f"cam{i}" for i in range(4)], (640, 480), 300, seed)
+    seen = np.isfinite(positions[0]).all(1)
+    dist, idx = cKDTree(scene.markers(0.0, 1.0)[0]).query(positions[0][seen])
+    match = np.full(len(seen), -1)
+    match[np.flatnonzero(seen)] = np.where(dist < 0.5e-3, idx, -1)
+
+    def radii(k, p):
+        ok = (match >= 0) & np.isfinite(positions[k]).all(1)
+        true = np.hypot(*scene.markers(p, stretch[k])[0][match[ok], :2].T)
+        return np.mean(np.hypot(*positions[k][ok, :2].T)), np.mean(true)
+
+    measured0, true0 = radii(0, 0.0)
+    implied = recorded.copy()
+    for k in range(1, len(recorded)):
+        if recorded[k] > 1.0 * MMHG:
+            measured = radii(k, 0.0)[0]
+            implied[k] = brentq(lambda p: radii(k, p)[1] + (measured0 - true0) - measured, 0.0, 200 * MMHG)
+    return recorded, implied
+
+
+def diagnose(session: Path, seed: int) -> None:
+    """Print recorded vs image-implied pressures and the Fung fit with each (``--diagnose``)."""
+    from acquisition.protocol import MMHG
+    from identification import identify
+    from vfmlab.pipeline import FORCE_NOISE, PRESSURE_NOISE, read_identification_inputs
+
+    recorded, implied = image_pressures(session, seed)
+    print(f"{session} (seed {seed}): image-implied minus recorded pressure, mmHg: "
+          + ", ".join(f"{(b - a) / MMHG:+.2f}" for a, b in zip(recorded, implied)))
+    data = read_identification_inputs(str(session), None)
+    for name, pressure in (("recorded", data["pressure"]), ("image-implied", implied)):
+        res = identify(data["positions"], pressure, data["force"], thickness=data["thickness"], model="fung",
+                       ends=data["session_ends"].get("ends") or "free", smoothing="auto", uncertainty="bootstrap",
+                       uncertainty_options={"marker_sigma": data["uncertainty"], "pressure_noise": PRESSURE_NOISE,
+                                            "force_noise": FORCE_NOISE})
+        print(f"  {name} pressures: " + ", ".join(
+            f"{k} {res.parameters[k] / TRUTH[k] - 1:+.2%} (95 %: {res.uncertainty.interval[k][0] / TRUTH[k] - 1:+.2%}"
+            f" to {res.uncertainty.interval[k][1] / TRUTH[k] - 1:+.2%})" for k in COVERED))
+
+
 def parse_seeds(text: str) -> list[int]:
     seeds = []
     for part in text.split(","):
@@ -129,7 +184,13 @@ def main(argv=None) -> None:
     ap.add_argument("--work", default="rendered-coverage", help="folder for the session files")
     ap.add_argument("--protocol", default="examples/paper-protocol.toml", help="protocol file (a variant to compare)")
     ap.add_argument("--summarise", action="store_true", help="only print the table of --log")
+    ap.add_argument("--diagnose", nargs=2, metavar=("SESSION", "SEED"),
+                    help="compare the recorded pressures of a reconstructed session of this bench with the pressures "
+                         "its images show, and identify with each")
     args = ap.parse_args(argv)
+    if args.diagnose:
+        diagnose(Path(args.diagnose[0]), int(args.diagnose[1]))
+        return
     log_path, work = Path(args.log), Path(args.work)
     if not args.summarise:
         work.mkdir(parents=True, exist_ok=True)
