@@ -92,7 +92,7 @@ def summarise(records: list[dict]) -> None:
     ok = [r for r in records if "fit" in r]
     errors = [r for r in records if "fit" not in r]
     flagged = np.array([is_flagged(r) for r in ok], bool)
-    print(f"\n## Coverage on the rendered default rig (paper protocol, `--sim`, 4 cameras 640 x 480, every default; "
+    print(f"\n## Coverage on the rendered default rig (`--sim`, 4 cameras 640 x 480, every default; "
           f"{len(ok)} seeds: {', '.join(str(r['seed']) for r in ok)}; {len(errors)} failed runs)\n")
     print("| parameter | median error | max abs error | within 3 % | truth in 95 % interval | same, unflagged "
           "| within 2 stderr | median 95 % half-width |")
