@@ -114,14 +114,15 @@ def summarise(records: list[dict]) -> None:
         print(f"- seed {r['seed']}: {r['error']}")
 
 
-def image_pressures(session: Path, seed: int, protocol: str = "examples/paper-protocol.toml") -> tuple:
-    """The pressure each step's images show: the simulator's truth (same seed) matched marker by marker to the
-    reconstruction of the reference step, and the pressure at which the true mean radius of those markers equals the
-    measured one (less the reference step's radius offset). Returns (recorded, image-implied) pressures, Pa."""
-    from scipy.optimize import brentq
+def _matched_truth(session: Path, seed: int, protocol: str = "examples/paper-protocol.toml"):
+    """A reconstructed session of this bench and the simulator's truth of the same seed, marker by marker.
+
+    Returns positions (n_steps, n_markers, 3) m, stretch (n_steps,), recorded pressure (n_steps,) Pa, the SimScene,
+    and match (n_markers,): the truth index of each reconstructed marker (-1: none within 0.5 mm in the reference).
+    """
     from scipy.spatial import cKDTree
 
-    from acquisition.protocol import MMHG, load_protocol, load_specimen
+    from acquisition.protocol import load_protocol, load_specimen
     from acquisition.session import open_session
     from vfmlab.simrig import SimScene
 
@@ -134,6 +135,15 @@ def image_pressures(session: Path, seed: int, protocol: str = "examples/paper-pr
     dist, idx = cKDTree(scene.markers(0.0, 1.0)[0]).query(positions[0][seen])
     match = np.full(len(seen), -1)
     match[np.flatnonzero(seen)] = np.where(dist < 0.5e-3, idx, -1)
+    return positions, stretch, recorded, scene, match
+
+
+def image_pressures(positions, stretch, recorded, scene, match) -> np.ndarray:
+    """The pressure each step's images show (Pa): where the true mean radius of the matched markers equals the
+    measured one (less the reference step's radius offset)."""
+    from scipy.optimize import brentq
+
+    from acquisition.protocol import MMHG
 
     def radii(k, p):
         ok = (match >= 0) & np.isfinite(positions[k]).all(1)
@@ -146,7 +156,23 @@ def image_pressures(session: Path, seed: int, protocol: str = "examples/paper-pr
         if recorded[k] > 1.0 * MMHG:
             measured = radii(k, 0.0)[0]
             implied[k] = brentq(lambda p: radii(k, p)[1] + (measured0 - true0) - measured, 0.0, 200 * MMHG)
-    return recorded, implied
+    return implied
+
+
+def error_persistence(positions, stretch, pressure, scene, match) -> tuple[np.ndarray, np.ndarray, float]:
+    """Reconstruction errors against the truth at ``pressure``: per-step RMS 3-D error (m), correlation of the
+    markers' errors between the reference and each later step, and the RMS displacement error over what
+    independent errors of the same size would give (sqrt(2) x the RMS position error; 1 = independent)."""
+    errors = np.full(positions.shape, np.nan)
+    ok = match >= 0
+    for k in range(len(positions)):
+        errors[k, ok] = positions[k, ok] - scene.markers(pressure[k], stretch[k])[0][match[ok]]
+        errors[k] -= np.nanmean(errors[k], axis=0)  # a rigid offset of the frame is no error
+    e = errors[:, np.isfinite(errors).all((0, 2))]
+    rms = np.sqrt(np.mean(np.sum(e**2, -1), 1))
+    corr = np.array([np.corrcoef(e[0].ravel(), e[k].ravel())[0, 1] for k in range(1, len(e))])
+    ratio = float(np.sqrt(np.mean(np.sum((e[1:] - e[0]) ** 2, -1))) / (np.sqrt(2) * np.sqrt(np.mean(rms**2))))
+    return rms, corr, ratio
 
 
 def diagnose(session: Path, seed: int) -> None:
@@ -155,7 +181,13 @@ def diagnose(session: Path, seed: int) -> None:
     from identification import identify
     from vfmlab.pipeline import FORCE_NOISE, PRESSURE_NOISE, read_identification_inputs
 
-    recorded, implied = image_pressures(session, seed)
+    matched = _matched_truth(session, seed)
+    recorded = matched[2]
+    implied = image_pressures(*matched)
+    rms, corr, ratio = error_persistence(*matched[:2], implied, *matched[3:])
+    print(f"{session} (seed {seed}): RMS 3-D marker error per step {', '.join(f'{v * 1e3:.3f}' for v in rms)} mm; "
+          f"correlation with the reference step's errors {', '.join(f'{c:.2f}' for c in corr)}; displacement error "
+          f"{ratio:.2f} x that of independent errors")
     print(f"{session} (seed {seed}): image-implied minus recorded pressure, mmHg: "
           + ", ".join(f"{(b - a) / MMHG:+.2f}" for a, b in zip(recorded, implied)))
     data = read_identification_inputs(str(session), None)
