@@ -79,6 +79,24 @@ def board_image(spec: BoardSpec, px_per_m: float, margin: float = 1.0) -> tuple[
     return img, -m / px_per_m
 
 
+def _board_texture(spec: BoardSpec, px_per_m: float) -> tuple[np.ndarray, float, float]:
+    """``board_image`` at about ``px_per_m`` (a whole number of pixels per square), and the px/m used.
+
+    OpenCV's ``generateImage`` rejects a few square sizes (its marker ROI rounds past the image: 145 px for the
+    default ChArUco board, hit by camera rings whose seed puts the ring's magnification there); the next size up
+    samples the board as finely and is used instead.
+    """
+    sq_px = max(1, int(round(spec.square_size * px_per_m)))
+    for extra in range(4):
+        try:
+            used = (sq_px + extra) / spec.square_size
+            tex, off = board_image(spec, used)
+            return tex, off, used
+        except cv2.error as exc:
+            error = exc
+    raise error
+
+
 def _board_coords_refracted(rays, Rc: np.ndarray, tc: np.ndarray, band: int = 256):
     """Board-plane coordinates (m) hit by refracted rays ``(origins, directions)``, each ``(H, W, 3)`` camera frame."""
     o_all, d_all = rays
@@ -187,9 +205,7 @@ def render_board_views(
     n_cam, n_view = len(cameras), len(rvecs)
     # board texture sampled ~2.5x finer than the finest camera sampling, pre-filtered
     mag = max(c.K[0, 0] / np.linalg.norm(c.center) for c in cameras)  # px per m at the ring centre
-    px_per_m = 2.5 * mag
-    tex, off = board_image(spec, px_per_m)
-    px_per_m = round(spec.square_size * px_per_m) / spec.square_size
+    tex, off, px_per_m = _board_texture(spec, 2.5 * mag)
     tex = cv2.GaussianBlur(tex, (0, 0), 1.0)
     seen = np.zeros((n_cam, n_view), bool)
     points = np.full((n_cam, n_view, len(obj), 2), np.nan)

@@ -70,7 +70,7 @@ def _sim_bench(rig: RigConfig, specimen: SpecimenFile, protocol: Protocol, sim_s
     return SimBench(rig, specimen, protocol, time_scale=sim_speed)
 
 
-def _load_rig(rig_path: str | None, sim: bool) -> RigConfig:
+def _load_rig(rig_path: str | None, sim: bool, sim_seed: int | None = None) -> RigConfig:
     if rig_path:
         rig = load_rig(rig_path)
     elif sim:
@@ -79,7 +79,22 @@ def _load_rig(rig_path: str | None, sim: bool) -> RigConfig:
         raise OperateError("no rig: give --rig RIG.toml (ports, cameras, limits) or --sim")
     if rig.simulated and not sim:
         raise OperateError(f"{rig.source} describes the simulated rig (port = \"sim\"); add --sim")
+    if sim_seed is not None:
+        rig = _with_sim_seed(rig, sim_seed)
     return rig
+
+
+def _with_sim_seed(rig: RigConfig, seed: int) -> RigConfig:
+    """``rig`` with ``[simulation] seed = seed`` written into its text too, so that the session records the
+    seed it ran with and ``vfmlab resume`` re-creates the same simulated rig."""
+    import tomllib
+
+    import tomli_w
+
+    data = tomllib.loads(rig.text) if rig.text else {}
+    data.setdefault("simulation", {})["seed"] = int(seed)
+    text = f"# {rig.source} with [simulation] seed = {int(seed)} (vfmlab run --sim-seed)\n" + tomli_w.dumps(data)
+    return parse_rig(text, text=text, source=rig.source)
 
 
 def _camera_specs(bench: Bench) -> list[CameraSpec]:
@@ -178,18 +193,20 @@ def specimen_ends(rig, specimen, sim: bool, console: Console | None = None) -> t
 
 def run_session(protocol_path: str, specimen_path: str, out: str, *, rig_path: str | None = None,
                 sim: bool = False, yes: bool = False, sim_speed: float = 1.0, console: Console,
-                detector: Callable[[np.ndarray], int] | None = None,
+                detector: Callable[[np.ndarray], int] | None = None, sim_seed: int | None = None,
                 observer: Callable[[RunnerState, Bench], None] | None = None, live_models: tuple[str, ...] = (),
                 live_options: dict[str, Any] | None = None, **runner_kwargs: Any) -> Outcome:
     """``vfmlab run``: validate, assemble the rig, create the session file and run the protocol.
 
     ``observer(state, bench)`` is called at every runner update (tests inject faults with it).
+    ``sim_seed``: with ``sim``, replaces the rig file's ``[simulation] seed`` (marker layout, camera-ring
+    imperfections, image and instrument noise of the simulated rig); None keeps the file's.
     ``live_models``: models identified while the test runs (:mod:`vfmlab.live_results`; keyword
     arguments of :class:`~vfmlab.live_results.LiveResults` in ``live_options``); their final
     estimates are stored as "identification" results.
     """
     try:
-        rig = _load_rig(rig_path, sim)
+        rig = _load_rig(rig_path, sim, sim_seed if sim else None)
         protocol = load_protocol(protocol_path, rig)
         specimen = load_specimen(specimen_path)
     except ConfigError as exc:

@@ -13,6 +13,7 @@ EPILOG = """
 \b
 Examples:
   vfmlab run examples/paper-protocol.toml --specimen examples/specimen.toml -o a1.h5 --sim --yes
+  vfmlab run examples/paper-protocol.toml --specimen examples/specimen.toml -o a2.h5 --sim --sim-seed 2 --yes
   vfmlab run protocol.toml --specimen artery-07.toml -o artery-07.h5 --rig lab-rig.toml
 
 Ctrl-C pauses at the next safe point and offers: resume, retake the last step, quit (resume later
@@ -42,6 +43,10 @@ def require_answers(yes: bool) -> None:
 @click.option("--sim", is_flag=True, help="Use the simulated rig (instruments on pseudo-terminals, rendered cameras).")
 @click.option("--sim-speed", type=click.FloatRange(min=0.1, max=100.0), default=1.0, show_default=True,
               help="With --sim: how much faster than real time the simulated pressure settles.")
+@click.option("--sim-seed", type=click.IntRange(min=0), default=None, metavar="N",
+              help="With --sim: seed of the simulated rig (marker layout, camera-ring imperfections, image and "
+                   "instrument noise), replacing the rig file's [simulation] seed (default 0); the session records it. "
+                   "Repeat a simulated test with other noise by changing it.")
 @click.option("--speed", "old_speed", type=click.FloatRange(min=0.1, max=100.0), default=None, hidden=True,
               help="Same as --sim-speed (the demo's old spelling).")
 @click.option("--yes", "-y", is_flag=True,
@@ -55,11 +60,14 @@ def require_answers(yes: bool) -> None:
 @click.option("--json", "as_json", is_flag=True,
               help="Progress on stderr; print the outcome (status, path, n_steps, elapsed_s) as JSON on stdout.")
 def command(protocol: str, specimen: str, out: str, rig: str | None, sim: bool, sim_speed: float,
-            old_speed: float | None, yes: bool, detect: bool, live_models: str, as_json: bool) -> None:
+            sim_seed: int | None, old_speed: float | None, yes: bool, detect: bool, live_models: str, as_json: bool) -> None:
     """Run PROTOCOL (TOML) on the rig, writing every step to the session file --out as it happens."""
     from vfmlab.operate import detector_from_reconstruction, run_session
 
     require_answers(yes)
+    if sim_seed is not None and not sim:
+        raise CliInputError(f"--sim-seed sets the simulated rig's seed and needs --sim; got --sim-seed {sim_seed} "
+                            "without --sim")
     check_output_path(out, force=False, inputs=[protocol, specimen, rig], can_force=False, leftover_ok=True)
     models = tuple(m.strip() for m in live_models.split(",") if m.strip() and m.strip() != "none")
     unknown = [m for m in models if m not in ("fung", "delfino", "hgo", "neohookean")]
@@ -67,7 +75,7 @@ def command(protocol: str, specimen: str, out: str, rig: str | None, sim: bool, 
         raise CliInputError(f"--live-models must be among fung, delfino, hgo, neohookean or 'none'; got {unknown}")
     finish_session(lambda: run_session(protocol, specimen, out, rig_path=rig, sim=sim, yes=yes,
                                        sim_speed=old_speed if old_speed is not None else sim_speed,
-                                       console=err_console if as_json else console,
+                                       console=err_console if as_json else console, sim_seed=sim_seed,
                                        detector=detector_from_reconstruction() if detect else None,
                                        live_models=models), as_json)
 
