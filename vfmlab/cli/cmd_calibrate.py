@@ -78,7 +78,7 @@ def _refine_on_body(folder: Path, cams: list, focal: str) -> tuple[list, dict]:
     """Refine the imported cameras on the calibration body, through the window; refuse an ill-posed result."""
     from vfmlab import openptv
 
-    res = openptv.calibrate_body_folder(folder, cams, fix_focal=focal == "fixed", refine_k2=True, refine_window=True)
+    res = openptv.calibrate_body_folder(folder, cams, **{**openptv.BODY_FIT, "fix_focal": focal == "fixed"})
     for r in res:
         err_console.print(r.message)
     bad = [r.camera.name for r in res if not r.well_posed]
