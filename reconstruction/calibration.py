@@ -589,20 +589,24 @@ def _bundle_adjust(x_cam, x_view, cam_free, ci, vi, X, uv, loss, f_scale):
         max_nfev=200,
     )
     cam, view = unpack(sol.x)
-    # standard deviations of the camera parameters from the Gauss-Newton covariance s^2 (J^T J)^-1
-    cam_std = np.full((n_cams, _N_CAM), np.nan)
-    dof = 2 * n_obs - x0.size
+    cam_std = _camera_std(jac(sol.x), fun(sol.x), cam_idx, (n_cams, _N_CAM), 2 * n_obs - x0.size)
+    return dict(cam=cam, view=view, success=sol.status > 0, message=sol.message, cost=sol.cost, cam_std=cam_std)
+
+
+def _camera_std(J, r: np.ndarray, cam_idx: np.ndarray, shape: tuple[int, int], dof: int) -> np.ndarray:
+    """Standard deviations ``shape`` of the free camera parameters (columns ``0..len(cam_idx)`` of ``J``, at
+    ``cam_idx`` of the flattened array) from the Gauss-Newton covariance s^2 (J^T J)^-1; NaN = fixed."""
+    cam_std = np.full(shape, np.nan)
     if dof > 0:
-        J = jac(sol.x)
         JtJ = J.T @ J
         JtJ = JtJ.toarray() if sp.issparse(JtJ) else np.asarray(JtJ)
-        s2 = float(np.sum(fun(sol.x) ** 2)) / dof
+        s2 = float(np.sum(r**2)) / dof
         try:
-            cov_diag = np.diag(np.linalg.inv(JtJ))[:n_cf]
+            cov_diag = np.diag(np.linalg.inv(JtJ))[: cam_idx.size]
             cam_std.ravel()[cam_idx] = np.sqrt(np.clip(cov_diag * s2, 0, None))
         except np.linalg.LinAlgError:
             log.warning("bundle adjustment: singular normal matrix; parameter uncertainties unavailable")
-    return dict(cam=cam, view=view, success=sol.status > 0, message=sol.message, cost=sol.cost, cam_std=cam_std)
+    return cam_std
 
 
 def reprojection_errors(cameras: list[Camera], board_rvecs, board_tvecs, image_points, object_points) -> np.ndarray:
