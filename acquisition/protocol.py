@@ -35,6 +35,7 @@ from typing import Any
 
 __all__ = [
     "ConfigError",
+    "WindowConfig",
     "PRESSURE_UNITS",
     "Preconditioning",
     "Stability",
@@ -295,6 +296,28 @@ class SafetyLimits:
 
 
 @dataclass(frozen=True)
+class WindowConfig:
+    """A flat window between the cameras and the bath (rig file ``[window]`` table); SI.
+
+    The air-side surface of the glass is the plane ``normal . X = plane_distance`` in the world
+    frame (the calibration's), ``normal`` (unit) pointing from the cameras into the bath; the glass
+    (``glass_thickness``, ``glass_index``) follows, then the bath (``bath_index``).
+    """
+
+    glass_thickness: float
+    glass_index: float
+    bath_index: float
+    plane_distance: float
+    normal: tuple[float, float, float]
+    air_index: float = 1.0
+
+    def to_dict(self) -> dict[str, Any]:
+        """The session's record, in the keys of ``reconstruction.refraction.Window.to_dict`` (SI)."""
+        return {"normal": list(self.normal), "offset_m": self.plane_distance, "thicknesses_m": [self.glass_thickness],
+                "indices": [self.glass_index], "n_bath": self.bath_index, "n_air": self.air_index}
+
+
+@dataclass(frozen=True)
 class SimulationConfig:
     """The simulated specimen behind a ``port = "sim"`` rig (ignored by real rigs).
 
@@ -324,6 +347,8 @@ class RigConfig:
     source: str = field(default="<rig>", compare=False, repr=False)
     #: How this rig holds its specimens: "clamped" (tied on cannulae), "free", or "" (not said).
     ends: str = ""
+    #: The flat window the cameras look through into the bath (``[window]``), None = none.
+    window: WindowConfig | None = None
 
     @property
     def simulated(self) -> bool:
@@ -735,8 +760,27 @@ def parse_rig(data: dict | str, text: str = "", source: str = "<rig>") -> RigCon
                                       t.get("clamped", simulation.clamped, bool),
                                       t.integer("seed", simulation.seed))
         t.done()
+    window = _window(top.table("window"))
     top.done()
-    return RigConfig(name, pressure, load_cell, tuple(cams), safety, simulation, text, source, ends)
+    return RigConfig(name, pressure, load_cell, tuple(cams), safety, simulation, text, source, ends, window)
+
+
+def _window(t: _Table | None) -> WindowConfig | None:
+    """The rig's ``[window]`` table: lengths in mm in the file, m in the result."""
+    if t is None:
+        return None
+    thickness = t.number("glass_thickness_mm", lo=0.0) * 1e-3
+    indices = [t.number(k, default, lo=1.0) for k, default in (("glass_index", ...), ("bath_index", ...),
+                                                               ("air_index", 1.0))]
+    distance = t.number("plane_distance_mm") * 1e-3
+    normal = t.get("normal", kind=list)
+    if len(normal) != 3 or not all(_is(v, (int, float)) and math.isfinite(float(v)) for v in normal):
+        t.fail("normal", f"expected 3 finite numbers (world frame, from the cameras into the bath); got {normal!r}")
+    norm = math.sqrt(sum(float(v) ** 2 for v in normal))
+    if norm == 0:
+        t.fail("normal", f"expected a non-zero vector; got {normal!r}")
+    t.done()
+    return WindowConfig(thickness, indices[0], indices[1], distance, tuple(float(v) / norm for v in normal), indices[2])
 
 
 def _ends(t: _Table) -> str:

@@ -5,8 +5,10 @@ window, triangulate, and compare with OpenPTV's own 3-D result (res/rt_is.1000F;
 truth), with three calibrations:
 
 - ``imported``: OpenPTV's calibration with its media (refraction);
-- ``own``: ours from the calibration body (cal/camN.tif + target_on_a_side.txt), seeded by the imported one,
-  focal length kept (one view of this body does not fix it), window position refined;
+- ``own``: ours from the calibration body (cal/camN.tif + target_on_a_side.txt), seeded by the imported one:
+  dot centres refined on the image, outlying dots dropped, focal length kept (one view of this body does not fix
+  it), k1-k3, p1, p2, aspect and the window's tilt refined, ptv.par's indices in physical order
+  (vfmlab.openptv.BODY_FIT, PHYSICAL_MEDIA);
 - ``no_refraction``: the imported calibration with the media ignored (straight rays). Its reprojection RMS
   is that of the same correspondences as ``imported``, triangulated with straight rays.
 
@@ -101,7 +103,7 @@ def _openptv_reprojection(P, tgt, dets, cams) -> float:
 def run(frames: list[int]) -> dict:
     imported = openptv.load_cameras(DATA)
     straight = [c.without_window() for c in imported]
-    body = openptv.calibrate_body_folder(DATA, imported, refine_window=True, fix_focal=True, refine_k2=True)
+    body = openptv.calibrate_body_folder(DATA, imported, media=openptv.PHYSICAL_MEDIA, **openptv.BODY_FIT)
     own = [b.camera for b in body]
     out = {"imported": {}, "own": {}, "no_refraction": {},
            "calibration_body_rms_px": {b.camera.name: b.rms for b in body},

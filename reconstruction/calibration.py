@@ -306,8 +306,32 @@ def calibrate_cameras(
     -------
     CalibrationResult
     """
+    uv, obj, names, counts, usable = _checked_inputs(image_points, object_points, image_sizes, camera_names,
+                                                     reference, min_points)
+    n_cams, n_views = uv.shape[:2]
+    Ks, dists, poses, init_rms = _initialise_cameras(uv, obj, image_sizes, min_points, names, fix_k3)
+    Rw, tw, flip = _pose_graph(obj, names, counts, usable, poses, reference, resolve_flips)
+    if flip is not None:
+        uv = _resolve_flips(uv, counts, usable, poses, Rw, flip)
+    view_ok = usable.any(0)
+    Vp = _board_poses(n_views, counts, usable, poses, Rw, tw)
+    cam_free = np.ones((n_cams, _N_CAM), bool)
+    cam_free[reference, 9:] = False
+    if fix_k3:
+        cam_free[:, 8] = False
+    views_used = np.flatnonzero(view_ok)
+    vmap = -np.ones(n_views, int)
+    vmap[views_used] = np.arange(views_used.size)
+    ba = _adjust_rejecting_outliers(_camera_vectors(Ks, dists, Rw, tw), Vp[views_used].copy(), cam_free, vmap, obj, uv,
+                                    loss=loss, f_scale=f_scale, outlier_sigma=outlier_sigma,
+                                    min_outlier_px=min_outlier_px, max_rounds=max_rounds)
+    return _result(ba, names, image_sizes, n_views, views_used, view_ok, world_view, init_rms)
+
+
+def _checked_inputs(image_points, object_points, image_sizes, camera_names, reference, min_points):
+    """Normalised arrays, camera names, points per (camera, view) and the usable (camera, view) pairs."""
     uv, obj = _normalise_inputs(image_points, object_points)
-    n_cams, n_views, n_points, _ = uv.shape
+    n_cams = uv.shape[0]
     names = list(camera_names) if camera_names is not None else [f"cam{i}" for i in range(n_cams)]
     if len(names) != n_cams or len(image_sizes) != n_cams:
         raise CalibrationError(f"camera_names and image_sizes need {n_cams} entries; got {len(names)} and {len(image_sizes)}")
@@ -316,10 +340,13 @@ def calibrate_cameras(
     counts = np.isfinite(uv).all(-1).sum(-1)  # (n_cams, n_views)
     usable = counts >= min_points
     uv = np.where(usable[:, :, None, None], uv, np.nan)
+    return uv, obj, names, counts, usable
 
-    # 1. per-camera initialisation
+
+def _initialise_cameras(uv, obj, image_sizes, min_points, names, fix_k3):
+    """Step 1: each camera on its own (OpenCV): K, distortion, board poses per view, RMS."""
     Ks, dists, poses, init_rms = [], [], [], []
-    for c in range(n_cams):
+    for c in range(uv.shape[0]):
         K, d, p, r = _init_camera(uv[c], obj, image_sizes[c], min_points, names[c])
         if fix_k3:
             d[4] = 0.0
@@ -328,8 +355,13 @@ def calibrate_cameras(
         poses.append(p)
         init_rms.append(r)
         log.info("camera %s: initial RMS %.3f px over %d views", names[c], r, len(p))
+    return Ks, dists, poses, init_rms
 
-    # 2. pose graph
+
+def _pose_graph(obj, names, counts, usable, poses, reference, resolve_flips):
+    """Step 2: every camera's pose in the reference camera's frame, chained along the spanning tree of shared
+    views; and the target's reversal symmetry when ``resolve_flips``."""
+    n_cams = len(names)
     shared = np.zeros((n_cams, n_cams))
     for i in range(n_cams):
         for j in range(n_cams):
@@ -350,49 +382,57 @@ def calibrate_cameras(
     missing = [names[c] for c in range(n_cams) if c not in Rw]
     if missing:
         raise CalibrationError(f"cameras {missing} share no board view with the others (directly or through other cameras)")
+    return Rw, tw, flip
+
+
+def _resolve_flips(uv, counts, usable, poses, Rw, flip):
+    """Reverse the point order of the camera views that disagree with the camera seeing most of the view
+    (updates ``poses`` in place; returns the re-ordered copy of ``uv``)."""
+    uv = uv.copy()
     n_flipped = 0
-    if flip is not None:
-        uv = uv.copy()
-        for v in np.flatnonzero(usable.sum(0) > 1):
-            a = int(np.argmax(np.where(usable[:, v], counts[:, v], -1)))
-            Ra = Rw[a].T @ poses[a][v][0]
-            for c in np.flatnonzero(usable[:, v]):
-                if c == a:
-                    continue
-                Rc0 = Rw[c].T @ poses[c][v][0]
-                Rc1 = Rc0 @ flip[0]
-                if _angle(Rc1, Ra) < _angle(Rc0, Ra):
-                    Rcv, tcv = poses[c][v]
-                    poses[c][v] = (Rcv @ flip[0], Rcv @ flip[1] + tcv)
-                    uv[c, v] = uv[c, v, ::-1]
-                    n_flipped += 1
-        if n_flipped:
-            log.info("resolve_flips: reversed the point order of %d camera views to match the other cameras", n_flipped)
-    # board poses in the world from the camera seeing most points
-    view_ok = usable.any(0)
+    for v in np.flatnonzero(usable.sum(0) > 1):
+        a = int(np.argmax(np.where(usable[:, v], counts[:, v], -1)))
+        Ra = Rw[a].T @ poses[a][v][0]
+        for c in np.flatnonzero(usable[:, v]):
+            if c == a:
+                continue
+            Rc0 = Rw[c].T @ poses[c][v][0]
+            Rc1 = Rc0 @ flip[0]
+            if _angle(Rc1, Ra) < _angle(Rc0, Ra):
+                Rcv, tcv = poses[c][v]
+                poses[c][v] = (Rcv @ flip[0], Rcv @ flip[1] + tcv)
+                uv[c, v] = uv[c, v, ::-1]
+                n_flipped += 1
+    if n_flipped:
+        log.info("resolve_flips: reversed the point order of %d camera views to match the other cameras", n_flipped)
+    return uv
+
+
+def _board_poses(n_views, counts, usable, poses, Rw, tw) -> np.ndarray:
+    """Board poses ``(n_views, 6)`` (Rodrigues, t) in the world, from the camera seeing most points; NaN = unseen."""
     Vp = np.full((n_views, 6), np.nan)
-    for v in np.flatnonzero(view_ok):
+    for v in np.flatnonzero(usable.any(0)):
         c = int(np.argmax(np.where(usable[:, v], counts[:, v], -1)))
         Rcv, tcv = poses[c][v]
         R = Rw[c].T @ Rcv
         t = Rw[c].T @ (tcv - tw[c])
         Vp[v] = np.concatenate([cv2.Rodrigues(R)[0].ravel(), t])
+    return Vp
 
-    # 3. bundle adjustment
-    Cp = np.zeros((n_cams, _N_CAM))
-    for c in range(n_cams):
-        K = Ks[c]
+
+def _camera_vectors(Ks, dists, Rw, tw) -> np.ndarray:
+    """The adjustment's camera parameters ``(n_cams, _N_CAM)``: fx fy cx cy, k1 k2 p1 p2 k3, rvec, tvec."""
+    Cp = np.zeros((len(Ks), _N_CAM))
+    for c, K in enumerate(Ks):
         Cp[c] = np.concatenate([[K[0, 0], K[1, 1], K[0, 2], K[1, 2]], dists[c], cv2.Rodrigues(Rw[c])[0].ravel(), tw[c]])
-    cam_free = np.ones((n_cams, _N_CAM), bool)
-    cam_free[reference, 9:] = False
-    if fix_k3:
-        cam_free[:, 8] = False
-    views_used = np.flatnonzero(view_ok)
-    vmap = -np.ones(n_views, int)
-    vmap[views_used] = np.arange(views_used.size)
+    return Cp
+
+
+def _adjust_rejecting_outliers(x_cam, x_view, cam_free, vmap, obj, uv, *, loss, f_scale, outlier_sigma,
+                               min_outlier_px, max_rounds) -> dict:
+    """Step 3: bundle adjustment (robust loss first), then rounds of outlier rejection and re-solve."""
     ci_all, vi_all, pi_all = np.nonzero(np.isfinite(uv).all(-1))
     inlier = np.ones(ci_all.size, bool)
-    x_cam, x_view = Cp.copy(), Vp[views_used].copy()
     converged, message = False, ""
     n_out_prev = -1
     for rnd in range(max_rounds + 1):
@@ -416,8 +456,15 @@ def calibrate_cameras(
         if n_out == n_out_prev and rnd > 0:
             break
         n_out_prev = n_out
+    return {"cam": x_cam, "view": x_view, "inlier": inlier, "res": res, "converged": converged, "message": message,
+            "cam_std": cam_std, "ci": ci_all, "vi": vi_all, "pi": pi_all}
 
-    # results
+
+def _result(ba, names, image_sizes, n_views, views_used, view_ok, world_view, init_rms) -> CalibrationResult:
+    """Cameras, board poses (optionally in the board frame of ``world_view``) and the RMS figures."""
+    x_cam, x_view, inlier, res = ba["cam"], ba["view"], ba["inlier"], ba["res"]
+    ci_all, vi_all, pi_all = ba["ci"], ba["vi"], ba["pi"]
+    n_cams = len(names)
     cams = []
     for c in range(n_cams):
         p = x_cam[c]
@@ -449,10 +496,10 @@ def calibrate_cameras(
         n_observations=int(inlier.sum()),
         n_outliers=int((~inlier).sum()),
         outliers=np.stack([ci_all[~inlier], vi_all[~inlier], pi_all[~inlier]], -1),
-        converged=bool(converged),
-        message=str(message),
+        converged=bool(ba["converged"]),
+        message=str(ba["message"]),
         initial_rms=np.array(init_rms),
-        parameter_std=cam_std,
+        parameter_std=ba["cam_std"],
     )
 
 
@@ -542,20 +589,24 @@ def _bundle_adjust(x_cam, x_view, cam_free, ci, vi, X, uv, loss, f_scale):
         max_nfev=200,
     )
     cam, view = unpack(sol.x)
-    # standard deviations of the camera parameters from the Gauss-Newton covariance s^2 (J^T J)^-1
-    cam_std = np.full((n_cams, _N_CAM), np.nan)
-    dof = 2 * n_obs - x0.size
+    cam_std = _camera_std(jac(sol.x), fun(sol.x), cam_idx, (n_cams, _N_CAM), 2 * n_obs - x0.size)
+    return dict(cam=cam, view=view, success=sol.status > 0, message=sol.message, cost=sol.cost, cam_std=cam_std)
+
+
+def _camera_std(J, r: np.ndarray, cam_idx: np.ndarray, shape: tuple[int, int], dof: int) -> np.ndarray:
+    """Standard deviations ``shape`` of the free camera parameters (columns ``0..len(cam_idx)`` of ``J``, at
+    ``cam_idx`` of the flattened array) from the Gauss-Newton covariance s^2 (J^T J)^-1; NaN = fixed."""
+    cam_std = np.full(shape, np.nan)
     if dof > 0:
-        J = jac(sol.x)
         JtJ = J.T @ J
         JtJ = JtJ.toarray() if sp.issparse(JtJ) else np.asarray(JtJ)
-        s2 = float(np.sum(fun(sol.x) ** 2)) / dof
+        s2 = float(np.sum(r**2)) / dof
         try:
-            cov_diag = np.diag(np.linalg.inv(JtJ))[:n_cf]
+            cov_diag = np.diag(np.linalg.inv(JtJ))[: cam_idx.size]
             cam_std.ravel()[cam_idx] = np.sqrt(np.clip(cov_diag * s2, 0, None))
         except np.linalg.LinAlgError:
             log.warning("bundle adjustment: singular normal matrix; parameter uncertainties unavailable")
-    return dict(cam=cam, view=view, success=sol.status > 0, message=sol.message, cost=sol.cost, cam_std=cam_std)
+    return cam_std
 
 
 def reprojection_errors(cameras: list[Camera], board_rvecs, board_tvecs, image_points, object_points) -> np.ndarray:

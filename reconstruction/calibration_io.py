@@ -206,8 +206,17 @@ def cameras_from_yaml(text: str, *, units: str | None = None) -> tuple[list[Came
         raise CalibrationFileError(f"calibration YAML: cannot parse ({exc.err})") from None
     if not fs.isOpened():
         raise CalibrationFileError("calibration YAML: cannot parse")
-    root = fs.root()
-    keys = list(root.keys())
+    keys = list(fs.root().keys())
+    meta = _yaml_scalars(fs, keys)
+    file_units = meta.get("units")
+    scale = _scale(file_units if file_units is not None else (units or "mm"), "calibration YAML units")
+    cams = _yaml_cameras(fs, keys, scale)
+    fs.release()
+    return cams, meta
+
+
+def _yaml_scalars(fs, keys: list[str]) -> dict:
+    """The top-level strings and numbers of a FileStorage (``units``, ``n_cameras``, ...)."""
     meta = {}
     for k in keys:
         node = fs.getNode(k)
@@ -215,67 +224,75 @@ def cameras_from_yaml(text: str, *, units: str | None = None) -> tuple[list[Came
             meta[k] = node.string()
         elif node.isReal() or node.isInt():
             meta[k] = node.real()
-    file_units = meta.get("units")
-    scale = _scale(file_units if file_units is not None else (units or "mm"), "calibration YAML units")
+    return meta
 
-    def mat(node, where):
-        if node.empty():
-            return None
-        if node.isMap() and not node.getNode("data").empty() and node.mat() is None:
-            data = node.getNode("data")
-            vals = [data.at(i).real() for i in range(data.size())]
-            rows = int(node.getNode("rows").real())
-            return np.asarray(vals, float).reshape(rows, -1)
-        m = node.mat()
-        if m is None:
-            raise CalibrationFileError(f"calibration YAML: {where} is not a matrix")
-        return np.asarray(m, float)
 
-    def size_of(node, where):
-        w, h = node.getNode("image_width"), node.getNode("image_height")
-        if w.empty() or h.empty():
-            sz = node.getNode("image_size")
-            if not sz.empty():
-                m = mat(sz, where + " image_size")
-                return m.ravel()[:2]
-            raise CalibrationFileError(f"calibration YAML: {where} needs image_width and image_height")
-        return [w.real(), h.real()]
+def _yaml_mat(node, where: str):
+    """A FileStorage matrix (or ROS ``{rows, cols, data}`` map) as an array; None when absent."""
+    if node.empty():
+        return None
+    if node.isMap() and not node.getNode("data").empty() and node.mat() is None:
+        data = node.getNode("data")
+        vals = [data.at(i).real() for i in range(data.size())]
+        rows = int(node.getNode("rows").real())
+        return np.asarray(vals, float).reshape(rows, -1)
+    m = node.mat()
+    if m is None:
+        raise CalibrationFileError(f"calibration YAML: {where} is not a matrix")
+    return np.asarray(m, float)
 
+
+def _yaml_size(node, where: str):
+    """``[width, height]`` px from ``image_width``/``image_height`` or ``image_size``."""
+    w, h = node.getNode("image_width"), node.getNode("image_height")
+    if w.empty() or h.empty():
+        sz = node.getNode("image_size")
+        if not sz.empty():
+            m = _yaml_mat(sz, where + " image_size")
+            return m.ravel()[:2]
+        raise CalibrationFileError(f"calibration YAML: {where} needs image_width and image_height")
+    return [w.real(), h.real()]
+
+
+def _yaml_pose(node, where: str) -> tuple[np.ndarray, np.ndarray]:
+    """``rvec`` (or ``R``) and ``tvec`` of a camera map; zeros when absent."""
+    r = _yaml_mat(node.getNode("rvec"), f"{where}rvec")
+    if r is None:
+        r = _yaml_mat(node.getNode("R"), f"{where}R")
+    t = _yaml_mat(node.getNode("tvec"), f"{where}tvec")
+    return (r if r is not None else np.zeros(3)), (t if t is not None else np.zeros(3))
+
+
+def _yaml_cameras(fs, keys: list[str], scale: float) -> list[Camera]:
+    """The cameras of one of the three layouts: ``cam_N`` maps, stereo ``M1 D1 M2 D2 R T``, one top-level camera."""
+    root = fs.root()
     cams = []
     cam_keys = sorted((k for k in keys if k.startswith("cam_")), key=lambda k: int(k[4:]) if k[4:].isdigit() else 1 << 30)
     if cam_keys:
         for k in cam_keys:
             n = fs.getNode(k)
             name = n.getNode("name").string() if not n.getNode("name").empty() else k
-            K = mat(n.getNode("camera_matrix"), f"{k}.camera_matrix")
+            K = _yaml_mat(n.getNode("camera_matrix"), f"{k}.camera_matrix")
             if K is None:
                 raise CalibrationFileError(f"calibration YAML: {k} has no camera_matrix")
-            dist = mat(n.getNode("distortion_coefficients"), f"{k}.distortion_coefficients")
-            r = mat(n.getNode("rvec"), f"{k}.rvec")
-            if r is None:
-                r = mat(n.getNode("R"), f"{k}.R")
-            t = mat(n.getNode("tvec"), f"{k}.tvec")
-            cams.append(_cam_from_parts(name, size_of(n, k), K, dist if dist is not None else np.zeros(5),
-                                        r if r is not None else np.zeros(3), t if t is not None else np.zeros(3), scale, k))
+            dist = _yaml_mat(n.getNode("distortion_coefficients"), f"{k}.distortion_coefficients")
+            r, t = _yaml_pose(n, f"{k}.")
+            cams.append(_cam_from_parts(name, _yaml_size(n, k), K, dist if dist is not None else np.zeros(5), r, t, scale, k))
     elif not fs.getNode("M1").empty():
-        size = size_of(root, "stereo file") if not fs.getNode("image_width").empty() else [0, 0]
-        cams.append(_cam_from_parts("cam0", size, mat(fs.getNode("M1"), "M1"), mat(fs.getNode("D1"), "D1"), np.zeros(3), np.zeros(3), scale, "M1"))
-        cams.append(_cam_from_parts("cam1", size, mat(fs.getNode("M2"), "M2"), mat(fs.getNode("D2"), "D2"),
-                                    mat(fs.getNode("R"), "R"), mat(fs.getNode("T"), "T"), scale, "M2"))
+        size = _yaml_size(root, "stereo file") if not fs.getNode("image_width").empty() else [0, 0]
+        cams.append(_cam_from_parts("cam0", size, _yaml_mat(fs.getNode("M1"), "M1"), _yaml_mat(fs.getNode("D1"), "D1"),
+                                    np.zeros(3), np.zeros(3), scale, "M1"))
+        cams.append(_cam_from_parts("cam1", size, _yaml_mat(fs.getNode("M2"), "M2"), _yaml_mat(fs.getNode("D2"), "D2"),
+                                    _yaml_mat(fs.getNode("R"), "R"), _yaml_mat(fs.getNode("T"), "T"), scale, "M2"))
     elif not fs.getNode("camera_matrix").empty():
         name = fs.getNode("camera_name").string() if not fs.getNode("camera_name").empty() else "cam0"
-        r = mat(fs.getNode("rvec"), "rvec")
-        if r is None:
-            r = mat(fs.getNode("R"), "R")
-        t = mat(fs.getNode("tvec"), "tvec")
-        dist = mat(fs.getNode("distortion_coefficients"), "distortion_coefficients")
-        cams.append(_cam_from_parts(name, size_of(root, "top level"), mat(fs.getNode("camera_matrix"), "camera_matrix"),
-                                    dist if dist is not None else np.zeros(5), r if r is not None else np.zeros(3),
-                                    t if t is not None else np.zeros(3), scale, "top level"))
+        r, t = _yaml_pose(root, "")
+        dist = _yaml_mat(fs.getNode("distortion_coefficients"), "distortion_coefficients")
+        cams.append(_cam_from_parts(name, _yaml_size(root, "top level"), _yaml_mat(fs.getNode("camera_matrix"), "camera_matrix"),
+                                    dist if dist is not None else np.zeros(5), r, t, scale, "top level"))
     else:
         raise CalibrationFileError("calibration YAML: found neither cam_N maps, M1/M2 stereo matrices nor a camera_matrix")
-    fs.release()
-    return cams, meta
+    return cams
 
 
 # ---------------------------------------------------------------------------------------------- session arrays

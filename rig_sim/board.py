@@ -165,6 +165,52 @@ def _camera_maps(cam: Camera, sensor: SensorModel, phase: int) -> tuple[np.ndarr
     return _MAPS[key]
 
 
+def _refracted_pixel_rays(cam: Camera, win, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Refracted rays (origin, direction in the water) of every pixel, float32 (~1e-4 px at the board), by bands."""
+    h, w = xy.shape[:2]
+    o32 = np.empty((h, w, 3), np.float32)
+    d32 = np.empty((h, w, 3), np.float32)
+    for r0 in range(0, h, 256):
+        o, d = rays_in_water(cam, win, xy[r0 : r0 + 256])
+        o32[r0 : r0 + 256], d32[r0 : r0 + 256] = o, d
+    return o32, d32
+
+
+def _render_view(cam, win, xy, rays, texture, obj, rvec, tvec, bath_albedo, max_view_angle):
+    """Radiance ``(h, w)`` of one board pose in one camera, and the board points' pixels ``(n, 2)`` when they are
+    all well inside the image (else None)."""
+    tex, off, px_per_m = texture
+    w, h = cam.image_size
+    Rb = rotation_matrix(rvec)
+    Rc = cam.R @ Rb
+    tc = cam.R @ tvec + cam.tvec
+    normal_c = Rc[:, 2]
+    facing = -normal_c @ (-tc) / np.linalg.norm(tc)  # board z points away from a camera seeing its face
+    if not facing > np.cos(max_view_angle):
+        return np.full((h, w), bath_albedo, np.float32), None
+    if win is None:
+        H = np.column_stack([Rc[:, 0], Rc[:, 1], tc])
+        Hi = np.linalg.inv(H)
+        X = Hi[0, 0] * xy[..., 0] + Hi[0, 1] * xy[..., 1] + Hi[0, 2]
+        Y = Hi[1, 0] * xy[..., 0] + Hi[1, 1] * xy[..., 1] + Hi[1, 2]
+        W = Hi[2, 0] * xy[..., 0] + Hi[2, 1] * xy[..., 1] + Hi[2, 2]
+        bx, by = X / W, Y / W
+    else:
+        bx, by = _board_coords_refracted(rays, Rc, tc)
+    mx = ((bx - off) * px_per_m - 0.5).astype(np.float32)
+    my = ((by - off) * px_per_m - 0.5).astype(np.float32)
+    sample = cv2.remap(tex, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=-1.0)
+    on = sample >= 0
+    # soften the sheet's outline so it is not a hard aliased edge
+    shade = 0.85 + 0.15 * facing
+    radiance = np.where(on, 0.06 + 0.84 * sample * shade, bath_albedo).astype(np.float32)
+    Xw = obj @ Rb.T + tvec
+    uv = cam.project(Xw) if win is None else project_refracted(cam, win, Xw)
+    inside = np.isfinite(uv).all() and (uv[:, 0] > 2).all() and (uv[:, 1] > 2).all()
+    inside = inside and (uv[:, 0] < w - 3).all() and (uv[:, 1] < h - 3).all()
+    return radiance, (uv if inside else None)
+
+
 def render_board_views(
     cameras: list[Camera],
     spec: BoardSpec,
@@ -213,47 +259,16 @@ def render_board_views(
     windows = list(windows) if windows is not None else [None] * n_cam
     if len(windows) != n_cam:
         raise ValueError(f"render_board_views: windows needs one entry (FlatWindow or None) per camera ({n_cam}); got {len(windows)}")
+    texture = (tex, off, px_per_m)
     for ci, cam in enumerate(cameras):
-        w, h = cam.image_size
         win = windows[ci]
         xy, illum = _camera_maps(cam, sensor, ci)
-        if win is not None:  # refracted rays of every pixel, float32 (~1e-4 px at the board), by bands
-            o32 = np.empty((h, w, 3), np.float32)
-            d32 = np.empty((h, w, 3), np.float32)
-            for r0 in range(0, h, 256):
-                o, d = rays_in_water(cam, win, xy[r0 : r0 + 256])
-                o32[r0 : r0 + 256], d32[r0 : r0 + 256] = o, d
-            rays = (o32, d32)
+        rays = _refracted_pixel_rays(cam, win, xy) if win is not None else None
         for k in range(n_view):
-            Rb = rotation_matrix(rvecs[k])
-            Rc = cam.R @ Rb
-            tc = cam.R @ tvecs[k] + cam.tvec
-            normal_c = Rc[:, 2]
-            facing = -normal_c @ (-tc) / np.linalg.norm(tc)  # board z points away from a camera seeing its face
-            radiance = np.full((h, w), bath_albedo, np.float32)
-            if facing > np.cos(max_view_angle):
-                if win is None:
-                    H = np.column_stack([Rc[:, 0], Rc[:, 1], tc])
-                    Hi = np.linalg.inv(H)
-                    X = Hi[0, 0] * xy[..., 0] + Hi[0, 1] * xy[..., 1] + Hi[0, 2]
-                    Y = Hi[1, 0] * xy[..., 0] + Hi[1, 1] * xy[..., 1] + Hi[1, 2]
-                    W = Hi[2, 0] * xy[..., 0] + Hi[2, 1] * xy[..., 1] + Hi[2, 2]
-                    bx, by = X / W, Y / W
-                else:
-                    bx, by = _board_coords_refracted(rays, Rc, tc)
-                mx = ((bx - off) * px_per_m - 0.5).astype(np.float32)
-                my = ((by - off) * px_per_m - 0.5).astype(np.float32)
-                sample = cv2.remap(tex, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=-1.0)
-                on = sample >= 0
-                # soften the sheet's outline so it is not a hard aliased edge
-                shade = 0.85 + 0.15 * facing
-                radiance = np.where(on, 0.06 + 0.84 * sample * shade, bath_albedo).astype(np.float32)
-                Xw = obj @ Rb.T + tvecs[k]
-                uv = cam.project(Xw) if win is None else project_refracted(cam, win, Xw)
-                inside = np.isfinite(uv).all() and (uv[:, 0] > 2).all() and (uv[:, 1] > 2).all()
-                inside = inside and (uv[:, 0] < w - 3).all() and (uv[:, 1] < h - 3).all()
-                if inside:
-                    seen[ci, k] = True
-                    points[ci, k] = uv
+            radiance, uv = _render_view(cam, win, xy, rays, texture, obj, rvecs[k], tvecs[k], bath_albedo,
+                                        max_view_angle)
+            if uv is not None:
+                seen[ci, k] = True
+                points[ci, k] = uv
             images[cam.name].append(expose(radiance * illum, sensor, rng))
     return BoardViews(images, np.asarray(rvecs, float), np.asarray(tvecs, float), seen, points)

@@ -58,8 +58,11 @@ class Bench:
 
     def rig_record(self) -> dict[str, Any]:
         """``rig=`` for SessionWriter.create: the rig file as run and the cameras' read-back settings."""
-        return {"name": self.config.name, "config_text": self.config.text, "simulated": self.sim is not None,
-                "cameras": [c.describe() for c in self.cameras]}
+        out = {"name": self.config.name, "config_text": self.config.text, "simulated": self.sim is not None,
+               "cameras": [c.describe() for c in self.cameras]}
+        if self.config.window is not None:  # reconstruction.refraction.Window.from_dict reads it back
+            out["window"] = self.config.window.to_dict()
+        return out
 
     def close(self) -> None:
         self._stack.close()

@@ -7,6 +7,7 @@ OpenCV pixels.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -76,6 +77,13 @@ def read_target_file(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
 PARTICLE_SETTINGS = {"polarity": "bright", "threshold": 9.0, "pixels_range": (4, 500), "min_sum": 150.0}
 #: Calibration-body dots: large bright dots on a dark background.
 BODY_DOT_SETTINGS = {"polarity": "bright", "background_px": 41, "threshold": 20.0, "pixels_range": (10, 2000)}
+#: Camera model refined on the calibration body (focal length fixed: one view of this body does not fix it; the
+#: window's position along its normal fixed: it trades off with the camera's distance, its tilt refined).
+BODY_FIT = {"fix_focal": True, "refine_k2": True, "refine_k3": True, "refine_tangential": True, "refine_aspect": True,
+            "refine_window_tilt": True}
+#: test_cavity's media with ptv.par's two indices swapped back to the physical order (glass 1.46, water 1.33):
+#: 0.06-0.14 px lower body RMS in cameras 3 and 4 than as written (OpenPTV's own calibration used them as written).
+PHYSICAL_MEDIA = {"indices": (1.46,), "n_bath": 1.33}
 
 
 def detect_frame(folder: str | Path, frame: int, n_cameras: int = 4, **settings) -> list[np.ndarray]:
@@ -86,18 +94,29 @@ def detect_frame(folder: str | Path, frame: int, n_cameras: int = 4, **settings)
     return [detect_particles(read_image(frame_path(folder, c + 1, frame)), **opts).centres for c in range(n_cameras)]
 
 
-def calibrate_body_folder(folder: str | Path, seeds: list, **options) -> list:
+def calibrate_body_folder(folder: str | Path, seeds: list, *, dot_radius_px: float | None = 6.0,
+                          media: dict | None = None, **options) -> list:
     """:func:`~reconstruction.calibration_body.calibrate_from_body` of every camera on ``cal/camN.tif`` and
-    ``cal/target_on_a_side.txt``, seeded by ``seeds`` (e.g. the imported calibration)."""
-    from reconstruction.calibration_body import calibrate_from_body, match_body_points
+    ``cal/target_on_a_side.txt``, seeded by ``seeds`` (e.g. the imported calibration). The dots' centres are
+    refined on the image (:func:`~reconstruction.calibration_body.refine_dot_centres`, ``dot_radius_px``;
+    None keeps the detector's threshold centroids). ``media``: refractive indices for the fine fit instead of the
+    seeds' (keys ``indices`` (tuple, one per layer) and/or ``n_bath``): the seeds only give the matching."""
+    from reconstruction.calibration_body import calibrate_from_body, match_body_points, refine_dot_centres
     from reconstruction.particles import detect_particles
 
     folder = Path(folder)
     _, body = read_target_file(folder / "cal" / "target_on_a_side.txt")
     out = []
     for i, seed in enumerate(seeds):
-        dots = detect_particles(read_image(folder / "cal" / f"cam{i + 1}.tif"), **BODY_DOT_SETTINGS).centres
+        image = read_image(folder / "cal" / f"cam{i + 1}.tif")
+        dots = detect_particles(image, **BODY_DOT_SETTINGS).centres
         # coarse: a wide gate (dots are ~50 px apart) and a fixed focal length, then the fine match
         coarse = calibrate_from_body(match_body_points(dots, seed, body, gate_px=20.0), body, seed, fix_focal=True)
-        out.append(calibrate_from_body(match_body_points(dots, coarse.camera, body, gate_px=4.0), body, seed, **options))
+        px = match_body_points(dots, coarse.camera, body, gate_px=4.0)
+        if dot_radius_px is not None:
+            px = refine_dot_centres(image, px, radius_px=dot_radius_px)
+        fine_seed = coarse.camera
+        if media and fine_seed.window is not None:
+            fine_seed = replace(fine_seed, window=replace(fine_seed.window, **media))
+        out.append(calibrate_from_body(px, body, fine_seed, **options))
     return out

@@ -78,7 +78,7 @@ def _refine_on_body(folder: Path, cams: list, focal: str) -> tuple[list, dict]:
     """Refine the imported cameras on the calibration body, through the window; refuse an ill-posed result."""
     from vfmlab import openptv
 
-    res = openptv.calibrate_body_folder(folder, cams, fix_focal=focal == "fixed", refine_k2=True, refine_window=True)
+    res = openptv.calibrate_body_folder(folder, cams, **{**openptv.BODY_FIT, "fix_focal": focal == "fixed"})
     for r in res:
         err_console.print(r.message)
     bad = [r.camera.name for r in res if not r.well_posed]
@@ -196,11 +196,7 @@ def command(session, images_dir, board, squares, square_size_mm, marker_size_mm,
     and all camera and board poses together, rejecting outliers. Prints the RMS reprojection error
     per camera; writes --out and/or stores the result in SESSION.
     """
-    import cv2
-
     from reconstruction.calibration import CalibrationError, calibrate_from_detections
-    from reconstruction.calibration_io import cameras_to_arrays, cameras_to_toml, cameras_to_yaml
-    from reconstruction.targets import detect_board
 
     if out is not None and out.suffix.lower() not in (".toml", ".yaml", ".yml"):
         raise CliInputError(f"--out must end in .toml, .yaml or .yml; got {out.name!r}")
@@ -214,54 +210,15 @@ def command(session, images_dir, board, squares, square_size_mm, marker_size_mm,
     if session is None and images_dir is None:
         raise CliInputError("give a SESSION (its calibration images) or --images DIR")
     spec = _board_spec(board, squares, square_size_mm, marker_size_mm, dictionary, subpix_window)
-
-    detections: dict = {}
-    sizes: dict = {}
     if images_dir is not None:
-        cams, stems, files = _folder_views(images_dir)
-        with Progress(console=err_console, transient=True) as progress:
-            task = progress.add_task("detecting board", total=len(cams) * len(stems))
-            for c in cams:
-                dets = []
-                for stem in stems:
-                    path = files[c].get(stem)
-                    if path is None:
-                        from reconstruction.targets import BoardDetection
-
-                        dets.append(BoardDetection.empty())
-                    else:
-                        img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-                        if img is None:
-                            raise CliInputError(f"cannot read image {path}")
-                        sizes.setdefault(c, (img.shape[1], img.shape[0]))
-                        dets.append(detect_board(img, spec))
-                    progress.advance(task)
-                detections[c] = dets
-        source = str(images_dir)
+        detections, sizes, source = _detect_in_folder(images_dir, spec)
     else:
-        from vfmlab.cli._sessions import cli_session
-
-        with cli_session(session) as s:
-            cams = s.camera_names
-            with Progress(console=err_console, transient=True) as progress:
-                task = progress.add_task("detecting board", total=None)
-                for c in cams:
-                    imgs = s.calibration_images(c)
-                    if len(imgs) == 0:
-                        raise CliInputError(f"{session}: no calibration images for camera {c!r}; use --images DIR")
-                    sizes[c] = (imgs.shape[2], imgs.shape[1])
-                    detections[c] = [detect_board(im, spec) for im in imgs]
-                    progress.advance(task)
-        source = f"{session} (calibration images)"
+        detections, sizes, source = _detect_in_session(session, spec)
     for c in detections:
         if c not in sizes:
             raise CliInputError(f"camera {c!r}: no readable images")
     names = list(detections)
-    ref = 0
-    if reference is not None:
-        if reference not in names:
-            raise CliInputError(f"--reference must be one of {names}; got {reference!r}")
-        ref = names.index(reference)
+    ref = _reference_index(names, reference)
     found = {c: sum(len(d) > 0 for d in detections[c]) for c in names}
     log.info("board found per camera: %s", ", ".join(f"{c} in {n} views" for c, n in found.items()))
     try:
@@ -269,32 +226,102 @@ def command(session, images_dir, board, squares, square_size_mm, marker_size_mm,
     except CalibrationError as exc:
         raise CliError(f"calibration failed: {exc} (board views found per camera: "
                        f"{', '.join(f'{c} {n}' for c, n in found.items())})") from None
-
-    stored = None
     if out is not None:
-        meta = {"created_by": "vfmlab calibrate", "source": source, "rms_px": result.rms.tolist(),
-                "board": f"{board} {squares} {square_size_mm} mm"}
-        text = (cameras_to_toml if out.suffix.lower() == ".toml" else cameras_to_yaml)(result.cameras, units=units, metadata=meta)
-        out.write_text(text)
+        _write_file(out, result, units, {"created_by": "vfmlab calibrate", "source": source,
+                                         "rms_px": result.rms.tolist(), "board": f"{board} {squares} {square_size_mm} mm"})
+    stored = None
     if session is not None and store:
-        from acquisition.session import SessionError, write_result
-
-        arrays = cameras_to_arrays(result.cameras, result.rms)
-        arrays["rms_per_view"] = result.rms_per_view
-        arrays["board_rvecs"] = result.board_rvecs
-        arrays["board_tvecs"] = result.board_tvecs
         params = dict(board=board, squares=squares, square_size_m=spec.square_size, marker_size_m=spec.marker_size,
                       dictionary=dictionary, subpix_window=subpix_window, reference=names[ref], world_view=world_view,
                       fix_k3=fix_k3, source=source)
-        attrs = dict(rms_total=result.rms_total, n_observations=result.n_observations, n_outliers=result.n_outliers,
-                     converged=result.converged, message=result.message)
-        try:
-            stored = write_result(session, "calibration", arrays, params, attrs,
-                                  units={"K": "px", "tvec": "m", "rvec": "rad", "rms": "px", "rms_per_view": "px",
-                                         "image_size": "px", "board_tvecs": "m", "board_rvecs": "rad"})
-        except SessionError as exc:
-            raise CliError(str(exc)) from None
+        stored = _store(session, result, params)
+    _report(result, found, out, session, stored, as_json)
 
+
+def _detect_in_folder(images_dir: Path, spec) -> tuple[dict, dict, str]:
+    """Board detections ``{camera: [BoardDetection per view]}``, image sizes and the source, from DIR/<camera>/<view>."""
+    import cv2
+
+    from reconstruction.targets import BoardDetection, detect_board
+
+    detections: dict = {}
+    sizes: dict = {}
+    cams, stems, files = _folder_views(images_dir)
+    with Progress(console=err_console, transient=True) as progress:
+        task = progress.add_task("detecting board", total=len(cams) * len(stems))
+        for c in cams:
+            dets = []
+            for stem in stems:
+                path = files[c].get(stem)
+                if path is None:
+                    dets.append(BoardDetection.empty())
+                else:
+                    img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+                    if img is None:
+                        raise CliInputError(f"cannot read image {path}")
+                    sizes.setdefault(c, (img.shape[1], img.shape[0]))
+                    dets.append(detect_board(img, spec))
+                progress.advance(task)
+            detections[c] = dets
+    return detections, sizes, str(images_dir)
+
+
+def _detect_in_session(session: Path, spec) -> tuple[dict, dict, str]:
+    """Board detections, image sizes and the source, from the calibration images stored in SESSION."""
+    from reconstruction.targets import detect_board
+    from vfmlab.cli._sessions import cli_session
+
+    detections: dict = {}
+    sizes: dict = {}
+    with cli_session(session) as s:
+        with Progress(console=err_console, transient=True) as progress:
+            task = progress.add_task("detecting board", total=None)
+            for c in s.camera_names:
+                imgs = s.calibration_images(c)
+                if len(imgs) == 0:
+                    raise CliInputError(f"{session}: no calibration images for camera {c!r}; use --images DIR")
+                sizes[c] = (imgs.shape[2], imgs.shape[1])
+                detections[c] = [detect_board(im, spec) for im in imgs]
+                progress.advance(task)
+    return detections, sizes, f"{session} (calibration images)"
+
+
+def _reference_index(names: list[str], reference: str | None) -> int:
+    if reference is None:
+        return 0
+    if reference not in names:
+        raise CliInputError(f"--reference must be one of {names}; got {reference!r}")
+    return names.index(reference)
+
+
+def _write_file(out: Path, result, units: str, meta: dict) -> None:
+    from reconstruction.calibration_io import cameras_to_toml, cameras_to_yaml
+
+    text = (cameras_to_toml if out.suffix.lower() == ".toml" else cameras_to_yaml)(result.cameras, units=units, metadata=meta)
+    out.write_text(text)
+
+
+def _store(session: Path, result, params: dict) -> str:
+    """Store the board calibration as a new 'calibration' result of SESSION; its name."""
+    from acquisition.session import SessionError, write_result
+    from reconstruction.calibration_io import cameras_to_arrays
+
+    arrays = cameras_to_arrays(result.cameras, result.rms)
+    arrays["rms_per_view"] = result.rms_per_view
+    arrays["board_rvecs"] = result.board_rvecs
+    arrays["board_tvecs"] = result.board_tvecs
+    attrs = dict(rms_total=result.rms_total, n_observations=result.n_observations, n_outliers=result.n_outliers,
+                 converged=result.converged, message=result.message)
+    try:
+        return write_result(session, "calibration", arrays, params, attrs,
+                            units={"K": "px", "tvec": "m", "rvec": "rad", "rms": "px", "rms_per_view": "px",
+                                   "image_size": "px", "board_tvecs": "m", "board_rvecs": "rad"})
+    except SessionError as exc:
+        raise CliError(str(exc)) from None
+
+
+def _report(result, found: dict, out, session, stored, as_json: bool) -> None:
+    """Print the per-camera table (or JSON); exit 1 when a camera kept no observation."""
     summary = {"cameras": result.summary(), "rms_total_px": result.rms_total, "n_observations": result.n_observations,
                "n_outliers": result.n_outliers, "converged": result.converged, "views_found": found,
                "out": str(out) if out else None, "stored_as": stored}

@@ -60,6 +60,45 @@ def _read(path: Path) -> np.ndarray:
     return img
 
 
+def _first_images(cams: list, files: dict) -> tuple[dict, str]:
+    """The step-0 image of every camera that has one (at least two, of the calibration's size) and the session's
+    pixel type ("uint16" when any image is 16-bit)."""
+    first = {c.name: _read(files[c.name][0]) for c in cams if 0 in files[c.name]}
+    if len(first) < 2:
+        raise CliInputError(f"IMAGES_DIR: step 0 needs images from at least two cameras; found {sorted(first)}")
+    for c in cams:
+        if c.name in first and first[c.name].shape != (c.image_size[1], c.image_size[0]):
+            raise CliInputError(
+                f"{files[c.name][0]}: image is {first[c.name].shape[1]}x{first[c.name].shape[0]} px but the "
+                f"calibration of {c.name} is for {c.image_size[0]}x{c.image_size[1]}"
+            )
+    dtypes = {c: str(first[c].dtype) for c in first}
+    return first, "uint16" if "uint16" in dtypes.values() else "uint8"
+
+
+def _measure_tube(first: dict, cams: list, marker_diameter_mm: float, polarity: str, radius_mm, length_mm,
+                  notes: list) -> tuple[float, float]:
+    """Radius and length (mm) not given, measured from the step-0 markers (a tube, or an error); says so in ``notes``."""
+    from reconstruction.pipeline import ReconstructionSettings, reconstruct_step
+    from reconstruction.surface import fit_cylinder
+
+    settings = ReconstructionSettings(marker_diameter=marker_diameter_mm * 1e-3, detection={"polarity": polarity})
+    pts, _ = reconstruct_step(first, cams, settings)
+    if pts.centres.shape[0] < 8:
+        raise CliInputError("could not measure the specimen from the step-0 images (fewer than 8 markers "
+                            "reconstructed); give --radius-mm and --length-mm")
+    cyl = fit_cylinder(pts.centres)
+    _check_tube(cyl, pts.centres)
+    _, _, z = cyl.cylindrical(pts.centres)
+    if radius_mm is None:
+        radius_mm = (cyl.radius - 0.5 * marker_diameter_mm * 1e-3) * 1e3
+        notes.append(f"radius measured from step-0 markers ({pts.centres.shape[0]} markers)")
+    if length_mm is None:
+        length_mm = float(np.ptp(z)) * 1e3
+        notes.append("length = axial extent of the step-0 markers")
+    return radius_mm, length_mm
+
+
 def _check_tube(cyl, centres: np.ndarray) -> None:
     """The specimen's radius and length are measured assuming the step-0 markers lie on a tube: refuse when they do not."""
     extent = float(np.ptp(centres, axis=0).max())
@@ -119,7 +158,6 @@ def command(images_dir, calibration, polarity, calibration_units, loads_csv, out
     from acquisition.markers_csv import read_loads_csv
     from acquisition.session import CameraSpec, SessionError, SessionWriter, SpecimenInfo, StepRecord, write_result
     from reconstruction.calibration_io import cameras_to_arrays
-    from reconstruction.pipeline import ReconstructionSettings, reconstruct_step
 
     check_output_path(out, force=overwrite, inputs=[calibration, loads_csv])
     if not marker_diameter_mm > 0:
@@ -135,36 +173,11 @@ def command(images_dir, calibration, polarity, calibration_units, loads_csv, out
     if missing:
         raise CliInputError(f"{loads_csv}: no loads for step(s) {missing} that have images in {images_dir}")
     rows = np.searchsorted(loads["step"], steps)
-    first = {c: _read(files[c][0]) for c in names if 0 in files[c]}
-    if len(first) < 2:
-        raise CliInputError(f"IMAGES_DIR: step 0 needs images from at least two cameras; found {sorted(first)}")
-    for c in cams:
-        if c.name in first and first[c.name].shape != (c.image_size[1], c.image_size[0]):
-            raise CliInputError(
-                f"{files[c.name][0]}: image is {first[c.name].shape[1]}x{first[c.name].shape[0]} px but the "
-                f"calibration of {c.name} is for {c.image_size[0]}x{c.image_size[1]}"
-            )
-    dtypes = {c: str(first[c].dtype) for c in first}
-    dtype = "uint16" if "uint16" in dtypes.values() else "uint8"
-
+    first, dtype = _first_images(cams, files)
     notes_extra = []
     if radius_mm is None or length_mm is None:
-        from reconstruction.surface import fit_cylinder
-
-        settings = ReconstructionSettings(marker_diameter=marker_diameter_mm * 1e-3, detection={"polarity": polarity})
-        pts, _ = reconstruct_step(first, cams, settings)
-        if pts.centres.shape[0] < 8:
-            raise CliInputError("could not measure the specimen from the step-0 images (fewer than 8 markers "
-                           "reconstructed); give --radius-mm and --length-mm")
-        cyl = fit_cylinder(pts.centres)
-        _check_tube(cyl, pts.centres)
-        _, _, z = cyl.cylindrical(pts.centres)
-        if radius_mm is None:
-            radius_mm = (cyl.radius - 0.5 * marker_diameter_mm * 1e-3) * 1e3
-            notes_extra.append(f"radius measured from step-0 markers ({pts.centres.shape[0]} markers)")
-        if length_mm is None:
-            length_mm = float(np.ptp(z)) * 1e3
-            notes_extra.append("length = axial extent of the step-0 markers")
+        radius_mm, length_mm = _measure_tube(first, cams, marker_diameter_mm, polarity, radius_mm, length_mm,
+                                             notes_extra)
     if thickness_mm is None:
         thickness_mm = 0.1 * radius_mm
         notes_extra.append("thickness not given: 10 % of the radius assumed")
