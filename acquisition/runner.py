@@ -386,8 +386,7 @@ class SessionRunner:
             self._capture_failures = 0
             return "again"
         self._capture_failures = 0
-        t1 = self.clock()
-        pressure, force = self._readings(t1 - t0)
+        pressure, force = self._readings(t0)
         if self._check_fault():
             return "again"  # a reading inside the capture window is missing: redo
         frames = result.frames
@@ -419,15 +418,24 @@ class SessionRunner:
         self._update()
         return "written"
 
-    def _readings(self, window_s: float) -> tuple[float, float]:
-        """Mean pressure (Pa) and force (N) over the capture plus the end of the stable dwell
-        (at most 1 s of it); the latest sample if that window is empty."""
-        seconds = window_s + max(min(self.protocol.stability.dwell_s, 1.0), 2 * self.tick_s)
-        seconds = min(seconds, max(self.clock() - self._actuated_at, self.tick_s))  # nothing from before a move
+    def _readings(self, t_exposure: float) -> tuple[float, float]:
+        """Mean pressure (Pa) and force (N) at the exposure: over a window centred on the trigger time
+        ``t_exposure`` (clock s), as wide as the stable dwell (at most 1 s), never reaching back before
+        the last actuation; the latest sample if that window is empty.
+
+        Centred, because a pressure still creeping inside the stability band is what the images show at
+        the trigger: a window from the end of the dwell to the end of the capture (a slow camera or a
+        renderer takes seconds) recorded it ahead of the images (simulated rig, +-1 mmHg band: 0.3-0.5 mmHg
+        above the imaged state, Fung beta +1 to +2 %).
+        """
+        half = max(min(self.protocol.stability.dwell_s, 1.0), 2 * self.tick_s) / 2
+        t_min = max(t_exposure - half, self._actuated_at)  # nothing from before a move
+        seconds = max(self.clock() - t_min, self.tick_s)
         out = []
         for ch in CHANNELS:
             rec = self.sampler.history(ch, seconds=seconds)
-            values = np.asarray(rec.value, dtype=float)
+            t = np.asarray(rec.t_monotonic, dtype=float)
+            values = np.asarray(rec.value, dtype=float)[(t >= t_min) & (t <= t_exposure + half)]
             if values.size:
                 out.append(_robust_mean(values))
             else:
