@@ -277,7 +277,11 @@ def _marker_coverage(
     origin = np.rint(_project(camera, window, centres)).astype(int) - half
     x, y, z, o, fx, fy = _sample_rays(camera, window, origin, size, ss)
     hit, t_s = _sphere_hits(camera, centres, radius, x, y, z, o)
-    blocked = _tube_blocks(camera, profile, surf_z, x, y, z, o, t_s)
+    # the tube can only hide samples that hit a sphere: test those alone (about a third of the window)
+    blocked = np.zeros_like(hit)
+    where = np.nonzero(hit)
+    blocked[where] = _tube_blocks(camera, profile, surf_z, where[0], x[where], y[where],
+                                  z if o is None else z[where], None if o is None else o[where], t_s[where])
     seen = hit & ~blocked
     cover = seen.mean(axis=(-1, -2))
     n_hit = hit.sum(axis=(1, 2, 3, 4))
@@ -471,14 +475,17 @@ def _sample_rays(camera: Camera, window, origin: np.ndarray, size: int, ss: int)
     fy = f[:, None, None]
     fx = f[None, :, None]
 
+    weights = ((1 - fy) * (1 - fx), (1 - fy) * fx, fy * (1 - fx), fy * fx)
+
     def interp(g):
-        g00, g01, g10, g11 = g[:, :-1, :-1], g[:, :-1, 1:], g[:, 1:, :-1], g[:, 1:, 1:]  # [row, col]
-        return (
-            g00[:, :, :, None, None] * ((1 - fy) * (1 - fx))
-            + g01[:, :, :, None, None] * ((1 - fy) * fx)
-            + g10[:, :, :, None, None] * (fy * (1 - fx))
-            + g11[:, :, :, None, None] * (fy * fx)
-        )
+        # accumulated in place, in the order of the plain sum g00 w00 + g01 w01 + g10 w10 + g11 w11
+        corners = (g[:, :-1, :-1], g[:, :-1, 1:], g[:, 1:, :-1], g[:, 1:, 1:])  # [row, col]
+        out = corners[0][:, :, :, None, None] * weights[0]
+        tmp = np.empty_like(out)
+        for corner, weight in zip(corners[1:], weights[1:]):
+            np.multiply(corner[:, :, :, None, None], weight, out=tmp)
+            out += tmp
+        return out
 
     if window is None:  # central projection: directions (x, y, 1)
         xy = interp(g)
@@ -501,8 +508,11 @@ def _sphere_hits(camera: Camera, centres, radius, x, y, z, o):
     return disc_s > 0, (dm - np.sqrt(np.maximum(disc_s, 0))) / dd
 
 
-def _tube_blocks(camera: Camera, profile: SurfaceOfRevolution, surf_z, x, y, z, o, t_s):
-    """Sample rays that meet the tube (a local cone around each marker, world frame) before the sphere."""
+def _tube_blocks(camera: Camera, profile: SurfaceOfRevolution, surf_z, marker, x, y, z, o, t_s):
+    """Sample rays that meet the tube (a local cone around each marker, world frame) before the
+    sphere; ``surf_z`` (n,) the markers' axial positions, m; the other arguments per sample (m,):
+    its marker index, ray direction (``z`` scalar without a window), origin ``o`` (m, 3) or None,
+    and the ray parameter of the sphere hit."""
     Rt = camera.R
     if o is None:
         Cx, Cy, Cz = camera.center
@@ -514,9 +524,9 @@ def _tube_blocks(camera: Camera, profile: SurfaceOfRevolution, surf_z, x, y, z, 
     Dx = Rt[0, 0] * x + Rt[1, 0] * y + Rt[2, 0] * z
     Dy = Rt[0, 1] * x + Rt[1, 1] * y + Rt[2, 1] * z
     Dz = Rt[0, 2] * x + Rt[1, 2] * y + Rt[2, 2] * z
-    z0 = surf_z[:, None, None, None, None]
-    r0 = profile.radius(surf_z)[:, None, None, None, None]
-    sl = profile.slope(surf_z)[:, None, None, None, None]
+    z0 = surf_z[marker]
+    r0 = profile.radius(surf_z)[marker]
+    sl = profile.slope(surf_z)[marker]
     q = r0 + sl * (Cz - z0)
     wv = sl * Dz
     A = Dx * Dx + Dy * Dy - wv * wv
