@@ -10,6 +10,8 @@ sphere centre and the centroid of the projected (distorted) sphere outline, per 
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import cv2
@@ -376,11 +378,23 @@ def render_markers(
     windows = list(windows) if windows is not None else [None] * n_cam
     if len(windows) != n_cam:
         raise ValueError(f"render_markers: windows needs one entry (FlatWindow or None) per camera ({n_cam}); got {len(windows)}")
+
+    def scene(ci: int):  # deterministic (its own seeds), fills only camera ci's truth rows
+        radiance, _ = _background(cameras[ci], profile, style, sensor, seed=1000 + ci, window=windows[ci])
+        r_px = _stamp_markers(radiance, ci, cameras[ci], windows[ci], centres, pts, nrm, profile, marker_radius,
+                              style, sensor, ss, truth)
+        return radiance, r_px
+
+    # the cameras' scenes in threads (NumPy and OpenCV release the GIL); the shared random
+    # generator (spurious blobs, sensor noise) is then drawn camera by camera, in order
+    workers = min(os.cpu_count() or 1, n_cam)
+    if workers > 1:
+        with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="render") as pool:
+            scenes = list(pool.map(scene, range(n_cam)))
+    else:
+        scenes = [scene(ci) for ci in range(n_cam)]
     images = []
-    for ci, cam in enumerate(cameras):
-        radiance, _ = _background(cam, profile, style, sensor, seed=1000 + ci, window=windows[ci])
-        r_px = _stamp_markers(radiance, ci, cam, windows[ci], centres, pts, nrm, profile, marker_radius, style,
-                              sensor, ss, truth)
+    for radiance, r_px in scenes:
         _spurious_blobs(radiance, r_px, style, rng, truth)
         images.append(expose(radiance, sensor, rng))
     return RenderedFrame(images, truth)
