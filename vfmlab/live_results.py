@@ -16,6 +16,7 @@ results (``invoked_by = "run (live)"``).
 from __future__ import annotations
 
 import logging
+import os
 import queue
 import threading
 import time
@@ -91,6 +92,16 @@ def calibrate_from_session(path: str | Path, fix_k3: bool = True) -> list:
             sizes[name] = (images.shape[2], images.shape[1])
             detections[name] = [detect_board(im, spec) for im in images]
     return calibrate_from_detections(detections, spec, sizes, fix_k3=fix_k3).cameras
+
+
+def _lower_priority(niceness: int = 10) -> None:
+    """Lower the calling thread's scheduling priority (Linux: per-thread nice value), so that on a
+    busy machine the capture loop, not the background worker, gets the cores; no-op elsewhere."""
+    try:
+        own = os.getpriority(os.PRIO_PROCESS, 0)  # 0: the calling thread on Linux
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), min(own + niceness, 19))
+    except (AttributeError, OSError) as exc:  # not Linux, or not permitted
+        log.debug("live results: worker priority unchanged (%s)", exc)
 
 
 class LiveResults:
@@ -187,6 +198,7 @@ class LiveResults:
             self._status = replace(self._status, **changes)
 
     def _work(self) -> None:
+        _lower_priority()
         while True:
             item = self._queue.get()
             if item is _STOP:
