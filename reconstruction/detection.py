@@ -329,7 +329,8 @@ def _crop_detections(image: np.ndarray, crop, searched: np.ndarray, tile: int, l
 class _Blobs:
     """Candidate connected components (n of them) of one image."""
 
-    labels: np.ndarray  # (H, W) int32 label image
+    labels: np.ndarray  # (h, w) int32 label image of the mask's bounding box
+    origin: tuple[int, int]  # (x0, y0) of that box in the image, px
     ids: np.ndarray  # (n,) their labels
     box: np.ndarray  # (n, 4) int: left, top, width, height, px
     cxy: np.ndarray  # (n, 2) centroid of the thresholded pixels, px
@@ -413,7 +414,17 @@ def _components(mask: np.ndarray, dmin: float, dmax: float, *, estimate_size: bo
     With ``estimate_size`` the working size limit ``dmax`` is lowered to twice the typical compact
     candidate. Appends ``too_large`` rejects; returns (_Blobs or None, dmax).
     """
-    n_lab, labels, stats, cents = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    # label only the bounding box of the candidate pixels (about a third of the image around the
+    # specimen): same components, same raster order of their labels
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    if rows.size == 0:
+        return None, dmax
+    y0, x0 = int(rows[0]) & ~1, int(cols[0]) & ~1  # even: OpenCV's 2x2-block labelling numbers as on the whole
+    n_lab, labels, stats, cents = cv2.connectedComponentsWithStats(mask[y0 : rows[-1] + 1, x0 : cols[-1] + 1],
+                                                                   connectivity=8)
+    stats[:, cv2.CC_STAT_LEFT] += x0
+    stats[:, cv2.CC_STAT_TOP] += y0
+    cents = cents + np.array([x0, y0], dtype=float)
     ids = np.arange(1, n_lab)
     areas = stats[1:, cv2.CC_STAT_AREA].astype(float)
     # ignore specks that are a fraction of the smallest accepted marker (noise, texture)
@@ -433,12 +444,12 @@ def _components(mask: np.ndarray, dmin: float, dmax: float, *, estimate_size: bo
         rejects.append(_records(cents[ids][big], np.sqrt(4 * areas[big] / np.pi), np.nan, "too_large"))
     if np.all(big):
         return None, dmax
-    return _Blobs(labels, ids[~big], box[~big], cents[ids][~big]), dmax
+    return _Blobs(labels, (x0, y0), ids[~big], box[~big], cents[ids][~big]), dmax
 
 
-def _patches(image: np.ndarray, labels: np.ndarray, centres: np.ndarray, size: int):
+def _patches(image: np.ndarray, labels: np.ndarray, centres: np.ndarray, size: int, origin=(0, 0)):
     """(n, P, P) float32 grey-level patches (border reflected) and int label patches (0 outside)
-    around integer pixel centres (n, 2) (x, y)."""
+    around integer pixel centres (n, 2) (x, y); ``labels`` covers the image from ``origin`` (x0, y0)."""
     H, W = image.shape
     off = np.arange(size) - size // 2
     rows = centres[:, 1, None] + off[None, :]
@@ -446,7 +457,11 @@ def _patches(image: np.ndarray, labels: np.ndarray, centres: np.ndarray, size: i
     r_img, c_img = _reflect(rows, H)[:, :, None], _reflect(cols, W)[:, None, :]
     patch = image[r_img, c_img].astype(np.float32)
     inside = ((rows >= 0) & (rows < H))[:, :, None] & ((cols >= 0) & (cols < W))[:, None, :]
-    plab = np.where(inside, labels[r_img, c_img], 0)
+    x0, y0 = origin
+    lr, lc = rows - y0, cols - x0
+    in_box = (((lr >= 0) & (lr < labels.shape[0]))[:, :, None] & ((lc >= 0) & (lc < labels.shape[1]))[:, None, :])
+    plab = np.where(inside & in_box, labels[np.clip(lr, 0, labels.shape[0] - 1)[:, :, None],
+                                             np.clip(lc, 0, labels.shape[1] - 1)[:, None, :]], 0)
     return patch, plab
 
 
@@ -465,7 +480,7 @@ def _measure_blobs(image, blobs: _Blobs, dmax, window_margin, background_order, 
     size = np.maximum(bw, bh)
     P = int(2 * np.ceil(max(np.max(size) * 0.5 + window_margin + 3, 0.5 * dmax + window_margin + 3)) + 1)
     ci = np.rint(blobs.cxy).astype(int)  # patch centre, integer pixel (x, y)
-    patch, plab = _patches(image, blobs.labels, ci, P)
+    patch, plab = _patches(image, blobs.labels, ci, P, blobs.origin)
     own = plab == blobs.ids[:, None, None]
     other = (plab != 0) & ~own
     off = (np.arange(P) - P // 2).astype(float)
