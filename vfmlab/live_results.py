@@ -143,6 +143,7 @@ class LiveResults:
         self._off = ""  # why the worker stopped for good (no calibration), or ""
         self._readings: list[tuple[int, float, float]] = []  # (row, pressure Pa, wall force N) per step
         self._cancel = threading.Event()
+        self._queued_rows: list[int] = []  # every test step handed to the worker
         self._thread = threading.Thread(target=self._work, name="live-results", daemon=True)
         self._thread.start()
 
@@ -154,6 +155,7 @@ class LiveResults:
         if record.supersedes >= 0:
             self._set(message=f"step row {record.supersedes} was retaken: live results keep the first capture")
             return
+        self._queued_rows.append(int(row))
         self._queue.put((row, images, float(record.pressure), float(record.force)))
 
     def status(self) -> LiveStatus:
@@ -187,7 +189,8 @@ class LiveResults:
             arrays, settings, attrs = identification_arrays(est.result, est.rows)
             settings.update(model=model, wall="membrane", ends=self.ends, optimizer="lsq", smoothing="auto",
                             markers_result="(live reconstruction)", thickness=self.thickness)
-            attrs.update(model=model, wall="membrane", invoked_by="run (live)", flags=list(est.flags))
+            attrs.update(model=model, wall="membrane", invoked_by="run (live)",
+                         flags=list(est.flags) + self._missing_flags(est.rows))
             names.append(write_result(path or self.session, "identification", arrays, settings, attrs=attrs,
                                       units={"ivw": "J", "evw": "J", "residuals": "1"}))
         return names
@@ -255,13 +258,16 @@ class LiveResults:
         self._set(partial_rows=self.status().partial_rows + (int(row),),
                   error=f"step row {row}: only {tracked}/{reference} markers tracked")
 
-    def _skipped_flags(self) -> tuple[str, ...]:
-        """Flags for the estimates: the steps the worker could not reconstruct (not in the fit)."""
-        skipped = self.status().skipped_rows
-        if not skipped:
-            return ()
-        return (f"step rows {list(skipped)} were left out of the live reconstruction (failed in the background "
-                "worker; see the log): 'vfmlab reconstruct' and 'vfmlab identify' use them",)
+    def _missing_flags(self, rows) -> list[str]:
+        """A flag for the stored estimate when captured steps are not in it: failed in the worker
+        (logged) or not reached before the run ended (the worker was still busy)."""
+        missing = sorted(set(self._queued_rows) - {int(r) for r in rows})
+        if not missing:
+            return []
+        failed = [r for r in missing if r in self.status().skipped_rows]
+        return [f"step rows {missing} were left out of this live estimate ({len(failed)} failed in the background "
+                f"worker, see the log; {len(missing) - len(failed)} not reconstructed before the run ended): "
+                "'vfmlab reconstruct' and 'vfmlab identify' use every step"]
 
     def _identify(self, positions: np.ndarray, readings: np.ndarray) -> None:
         from identification import identify
@@ -279,5 +285,5 @@ class LiveResults:
             names = tuple(res.parameters)
             estimates[model] = LiveEstimate(model, names, np.array([res.parameters[k] for k in names]),
                                             np.array([res.stderr[k] for k in names]), readings[:, 0].astype(int),
-                                            float(res.cost), tuple(res.flags) + self._skipped_flags(), res)
+                                            float(res.cost), tuple(res.flags), res)
         self._set(estimates=estimates, message=f"{positions.shape[0]} steps reconstructed and identified")
