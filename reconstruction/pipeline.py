@@ -487,17 +487,22 @@ class SeriesTracker:
         :attr:`Detections.quality`; ``axial_ratio`` = expected axial length ratio to the previous
         step; ``found`` = the per-camera :class:`Detections` (for the reject counts)."""
         if not self._steps:
-            step = self._reference(detections, quality)
+            step, carried, prior = self._reference(detections, quality)
         else:
-            step = self._next(detections, quality, axial_ratio)
+            step, carried, prior = self._next(detections, quality, axial_ratio)
         step["detected"] = np.array([len(d) for d in detections], dtype=np.int64)
         step["rejects"] = _reject_counts(found, len(self.cameras))
+        levels = list(self._levels)
         for c, d in enumerate(found or []):
             if d is not None and np.isfinite(d.threshold):
-                self._levels[c] = (d.threshold, d.noise)
+                levels[c] = (d.threshold, d.noise)
+        # all or nothing: a step that raised above left the tracker as it was (never half-added)
         self._steps.append(step)
+        self._carried.append(carried)
+        self._prior, self._levels = prior, levels
 
-    def _reference(self, detections, quality) -> dict:
+    def _reference(self, detections, quality) -> tuple[dict, np.ndarray, CylinderPrior | None]:
+        """The reference step's arrays, the positions carried to the next step (n, 3) m and the prior."""
         settings = self.settings
         ref = points_from_detections(detections, self.cameras, settings, quality=quality)
         n = ref.centres.shape[0]
@@ -521,11 +526,10 @@ class SeriesTracker:
                 step["uncertainty"][bad] = step["rms"][bad] = np.nan
                 step["n_views"][bad] = 0
                 step["outliers"], step["tracked"] = int(bad.sum()), n - int(bad.sum())
-        self._carried.append(carried)
-        self._prior = ref.prior
-        return step
+        return step, carried, ref.prior
 
-    def _next(self, detections, quality, axial_ratio) -> dict:
+    def _next(self, detections, quality, axial_ratio) -> tuple[dict, np.ndarray, CylinderPrior | None]:
+        """A later step's arrays, the positions carried to the next step (n, 3) m and the prior."""
         settings, prior = self.settings, self._prior
         carried = self._carried[-1]
         n = carried.shape[0]
@@ -550,10 +554,7 @@ class SeriesTracker:
             step["recovered"] = idx.size
         vis = np.all(np.isfinite(step["centres"]), axis=1)
         step["tracked"], step["lost"] = int(vis.sum()), n - int(vis.sum())
-        self._carried.append(np.where(vis[:, None], step["centres"], pred))
-        if pts.prior is not None:
-            self._prior = pts.prior
-        return step
+        return step, np.where(vis[:, None], step["centres"], pred), (pts.prior if pts.prior is not None else prior)
 
     def _assign(self, carried: np.ndarray, pts: StepPoints, axial_ratio, step: dict):
         """Tracked marker -> point index (-1 = none), predicted positions (n, 3) m and the 3-D gate (m).

@@ -199,6 +199,21 @@ def _initial_map(prev: np.ndarray, obs: np.ndarray, cyl: CylinderFit, z0: float,
     return AxisymmetricMap(cyl, z0, L, p)
 
 
+def _icp(prev, obs, m: AxisymmetricMap, spacing: float, final_gate: float, iterations: int):
+    """Iterated closest points from the start map ``m``: (map, last gate m, assignment (n,) at the
+    final gate, -1 = none)."""
+    g = 0.5 * spacing
+    for _ in range(iterations):
+        assignment = _assign(m.apply(prev), obs, g)
+        ok = assignment >= 0
+        if ok.sum() < 6:
+            g *= 1.5
+            continue
+        m = fit_axisymmetric_map(prev[ok], obs[assignment[ok]], m)
+        g = max(final_gate, 0.7 * g)
+    return m, g, _assign(m.apply(prev), obs, max(final_gate, g))
+
+
 def match_step(
     previous: np.ndarray,
     points: np.ndarray,
@@ -246,20 +261,18 @@ def match_step(
     spacing = marker_spacing(prev)
     final_gate = 0.35 * spacing if gate is None else float(gate)
     fin_obs = np.all(np.isfinite(obs), axis=1)
-    m = _initial_map(prev, obs[fin_obs], cyl, z0, L, axial_ratio) if fin_obs.sum() >= 6 else AxisymmetricMap.identity(cyl, z0, L)
-    g = 0.5 * spacing
-    assignment = np.full(n, -1, dtype=np.int64)
-    for it in range(icp_iterations):
-        mapped = m.apply(prev)
-        assignment = _assign(mapped, obs, g)
-        ok = assignment >= 0
-        if ok.sum() < 6:
-            g *= 1.5
-            continue
-        m = fit_axisymmetric_map(prev[ok], obs[assignment[ok]], m)
-        g = max(final_gate, 0.7 * g)
+    identity = AxisymmetricMap.identity(cyl, z0, L)
+    start = _initial_map(prev, obs[fin_obs], cyl, z0, L, axial_ratio) if fin_obs.sum() >= 6 else identity
+    m, g, assignment = _icp(prev, obs, start, spacing, final_gate, icp_iterations)
+    # the initial map comes from the point set's extent (percentiles along the axis): a step whose
+    # points cover the tube unevenly can start the ICP far off, and it then locks on a few markers.
+    # The previous positions themselves (the steps are small) are the second start; keep the better.
+    expected = min(n, int(fin_obs.sum()))
+    if start is not identity and np.count_nonzero(assignment >= 0) < 0.8 * expected:
+        alt = _icp(prev, obs, identity, spacing, final_gate, icp_iterations)
+        if np.count_nonzero(alt[2] >= 0) > np.count_nonzero(assignment >= 0):
+            m, g, assignment = alt
     mapped = m.apply(prev)
-    assignment = _assign(mapped, obs, max(final_gate, g))
     pred = _local_correction(prev, mapped, obs, assignment, neighbours)
     assignment = _assign(pred, obs, final_gate)
     # second local pass with the better assignment

@@ -10,6 +10,8 @@ sphere centre and the centroid of the projected (distorted) sphere outline, per 
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import cv2
@@ -274,69 +276,14 @@ def _marker_coverage(
         Area of the sphere's whole image from the samples, px^2.
     """
     size = 2 * half + 1
-    p = _project(camera, window, centres)
-    origin = np.rint(p).astype(int) - half
-    # rays at the pixel corners of each window: (n, size+1, size+1, 3)
-    k = np.arange(size + 1) - 0.5
-    cu = origin[:, 0, None, None] + k[None, None, :]
-    cv = origin[:, 1, None, None] + k[None, :, None]
-    cu, cv = np.broadcast_arrays(cu, cv)
-    g = undistort_grid(camera, cu, cv)
-    # bilinear interpolation to ss x ss samples per pixel: (n, size, size, ss, ss, 3)
-    f = (np.arange(ss) + 0.5) / ss
-    fy = f[:, None, None]
-    fx = f[None, :, None]
-
-    def interp(g):
-        g00, g01, g10, g11 = g[:, :-1, :-1], g[:, :-1, 1:], g[:, 1:, :-1], g[:, 1:, 1:]  # [row, col]
-        return (
-            g00[:, :, :, None, None] * ((1 - fy) * (1 - fx))
-            + g01[:, :, :, None, None] * ((1 - fy) * fx)
-            + g10[:, :, :, None, None] * (fy * (1 - fx))
-            + g11[:, :, :, None, None] * (fy * fx)
-        )
-
-    if window is None:  # central projection: directions (x, y, 1)
-        xy = interp(g)
-        x, y, z, o = xy[..., 0], xy[..., 1], 1.0, None
-    else:
-        o_c, d_c = rays_in_water(camera, window, g)
-        d, o = interp(d_c), interp(o_c)
-        x, y, z = d[..., 0], d[..., 1], d[..., 2]
-    M = camera.to_camera(centres)  # (n, 3)
-    Mx, My, Mz = (M[:, i, None, None, None, None] for i in range(3))
-    if o is not None:
-        Mx, My, Mz = Mx - o[..., 0], My - o[..., 1], Mz - o[..., 2]
-    dd = x * x + y * y + z * z
-    dm = x * Mx + y * My + z * Mz
-    mm = Mx * Mx + My * My + Mz * Mz
-    disc_s = dm * dm - dd * (mm - radius * radius)
-    hit = disc_s > 0
-    t_s = (dm - np.sqrt(np.maximum(disc_s, 0))) / dd
-    # local cone approximation of the tube around each marker, world frame
-    Rt = camera.R
-    if o is None:
-        Cx, Cy, Cz = camera.center
-    else:  # ray origins in the world: R^T (o - t)
-        oc = o - camera.tvec
-        Cx = Rt[0, 0] * oc[..., 0] + Rt[1, 0] * oc[..., 1] + Rt[2, 0] * oc[..., 2]
-        Cy = Rt[0, 1] * oc[..., 0] + Rt[1, 1] * oc[..., 1] + Rt[2, 1] * oc[..., 2]
-        Cz = Rt[0, 2] * oc[..., 0] + Rt[1, 2] * oc[..., 1] + Rt[2, 2] * oc[..., 2]
-    Dx = Rt[0, 0] * x + Rt[1, 0] * y + Rt[2, 0] * z
-    Dy = Rt[0, 1] * x + Rt[1, 1] * y + Rt[2, 1] * z
-    Dz = Rt[0, 2] * x + Rt[1, 2] * y + Rt[2, 2] * z
-    z0 = surf_z[:, None, None, None, None]
-    r0 = profile.radius(surf_z)[:, None, None, None, None]
-    sl = profile.slope(surf_z)[:, None, None, None, None]
-    q = r0 + sl * (Cz - z0)
-    wv = sl * Dz
-    A = Dx * Dx + Dy * Dy - wv * wv
-    B = 2 * (Cx * Dx + Cy * Dy - q * wv)
-    Cc = Cx * Cx + Cy * Cy - q * q
-    disc_t = B * B - 4 * A * Cc
-    t_t = (-B - np.sqrt(np.maximum(disc_t, 0))) / (2 * A)
-    z_t = Cz + t_t * Dz
-    blocked = (disc_t > 0) & (t_t > 0) & (t_t < t_s) & (z_t >= profile.z_min) & (z_t <= profile.z_max)
+    origin = np.rint(_project(camera, window, centres)).astype(int) - half
+    x, y, z, o, fx, fy = _sample_rays(camera, window, origin, size, ss)
+    hit, t_s = _sphere_hits(camera, centres, radius, x, y, z, o)
+    # the tube can only hide samples that hit a sphere: test those alone (about a third of the window)
+    blocked = np.zeros_like(hit)
+    where = np.nonzero(hit)
+    blocked[where] = _tube_blocks(camera, profile, surf_z, where[0], x[where], y[where],
+                                  z if o is None else z[where], None if o is None else o[where], t_s[where])
     seen = hit & ~blocked
     cover = seen.mean(axis=(-1, -2))
     n_hit = hit.sum(axis=(1, 2, 3, 4))
@@ -427,80 +374,179 @@ def render_markers(
         sphere_centres=centres,
         surface_points=pts,
     )
-    images = []
     ss = max(1, int(style.supersample))
     windows = list(windows) if windows is not None else [None] * n_cam
     if len(windows) != n_cam:
         raise ValueError(f"render_markers: windows needs one entry (FlatWindow or None) per camera ({n_cam}); got {len(windows)}")
-    for ci, cam in enumerate(cameras):
-        w, h = cam.image_size
-        win = windows[ci]
-        radiance, _ = _background(cam, profile, style, sensor, seed=1000 + ci, window=win)
-        C = cam.center
-        view = C - centres
-        dist = np.linalg.norm(view, axis=-1)
-        facing = np.einsum("ij,ij->i", view, nrm) / dist
-        p = _project(cam, win, centres)
-        depth = cam.to_camera(centres)[:, 2]
-        r_px = cam.K[0, 0] * marker_radius / depth * (1.0 if win is None else 1.5 * win.n_water)
-        valid = np.isfinite(p).all(-1) & np.isfinite(pts).all(-1) & (facing > -0.3)
-        half = int(np.ceil(np.nanmax(np.where(valid, r_px, 0)) * 1.1 + 2)) if valid.any() else 0
-        inside = valid & (p[:, 0] - half >= 0) & (p[:, 1] - half >= 0) & (p[:, 0] + half <= w - 1) & (p[:, 1] + half <= h - 1)
-        idx = np.flatnonzero(valid)
-        if idx.size:
-            cover_img = np.zeros(h * w)
-            frac = np.zeros(idx.size)
-            sample_centroid = np.zeros((idx.size, 2))
-            sample_area = np.zeros(idx.size)
-            chunk = max(1, 40000 // ((2 * half + 1) ** 2 * ss * ss // 16 + 1))
-            for s0 in range(0, idx.size, chunk):
-                sel = idx[s0 : s0 + chunk]
-                origin, cov, fr, cen, area = _marker_coverage(cam, centres[sel], marker_radius, profile, pts[sel, 2], half, ss, win)
-                sample_area[s0 : s0 + sel.size] = area
-                frac[s0 : s0 + sel.size] = fr
-                sample_centroid[s0 : s0 + sel.size] = cen
-                k = np.arange(2 * half + 1)
-                uu = origin[:, 0, None, None] + k[None, None, :]
-                vv = origin[:, 1, None, None] + k[None, :, None]
-                ok = (uu >= 0) & (uu < w) & (vv >= 0) & (vv < h)
-                flat = (vv * w + uu)[ok & (cov > 0)]
-                cover_img += np.bincount(flat, weights=cov[ok & (cov > 0)], minlength=h * w)
-            cover_img = np.minimum(cover_img, 1.0).reshape(h, w).astype(np.float32)
-            mv, mu = np.nonzero(cover_img)
-            cm = cover_img[mv, mu]
-            illum = illumination_field(mu.astype(np.float32), mv.astype(np.float32), (w, h), sensor, phase=(1000 + ci) % 7)
-            radiance[mv, mu] = radiance[mv, mu] * (1 - cm) + cm * np.float32(style.marker_albedo) * illum
-            truth.coverage[ci, idx] = frac
-            vis = inside[idx] & (frac >= 0.999)
-            vi = idx[vis]
-            truth.visible[ci, vi] = True
-            truth.centres[ci, vi] = p[vi]
-            if win is None:
-                cen, area = _polygon_centroid(_sphere_outline(cam, centres[vi], marker_radius))
-                truth.centroids[ci, vi] = cen
-                truth.radius_px[ci, vi] = np.sqrt(area / np.pi)
-            else:
-                cen, area = _polygon_centroid(_refracted_outline(cam, win, centres[vi], marker_radius))
-                truth.centroids[ci, vi] = cen
-                truth.radius_px[ci, vi] = np.sqrt(area / np.pi)
-        # spurious blobs, placed on the specimen's image region
-        rows, cols = np.nonzero(radiance[::16, ::16] > 0.5 * style.tissue_albedo * 0.5)
-        glare, debris = [], []
-        if rows.size:
-            scale = float(np.nanmedian(r_px)) if np.isfinite(r_px).any() else 5.0
-            for _ in range(style.n_glare):
-                j = rng.integers(rows.size)
-                c = np.array([cols[j] * 16 + rng.uniform(0, 16), rows[j] * 16 + rng.uniform(0, 16)])
-                ax = scale * rng.uniform(0.4, 1.5)
-                _blob_stamp(radiance, c, (ax, ax * rng.uniform(0.4, 1)), rng.uniform(0, np.pi), 1.5, "add")
-                glare.append(c)
-            for _ in range(style.n_debris):
-                j = rng.integers(rows.size)
-                c = np.array([cols[j] * 16 + rng.uniform(0, 16), rows[j] * 16 + rng.uniform(0, 16)])
-                ax = scale * rng.uniform(0.3, 3.0)
-                _blob_stamp(radiance, c, (ax, ax * rng.uniform(0.15, 0.6)), rng.uniform(0, np.pi), 0.3, "mul")
-                debris.append(c)
-        truth.glare.append(np.array(glare).reshape(-1, 2))
-        truth.debris.append(np.array(debris).reshape(-1, 2))
+
+    def scene(ci: int):  # deterministic (its own seeds), fills only camera ci's truth rows
+        radiance, _ = _background(cameras[ci], profile, style, sensor, seed=1000 + ci, window=windows[ci])
+        r_px = _stamp_markers(radiance, ci, cameras[ci], windows[ci], centres, pts, nrm, profile, marker_radius,
+                              style, sensor, ss, truth)
+        return radiance, r_px
+
+    # the cameras' scenes in threads (NumPy and OpenCV release the GIL); the shared random
+    # generator (spurious blobs, sensor noise) is then drawn camera by camera, in order
+    workers = min(os.cpu_count() or 1, n_cam)
+    if workers > 1:
+        with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="render") as pool:
+            scenes = list(pool.map(scene, range(n_cam)))
+    else:
+        scenes = [scene(ci) for ci in range(n_cam)]
+    images = []
+    for radiance, r_px in scenes:
+        _spurious_blobs(radiance, r_px, style, rng, truth)
         images.append(expose(radiance, sensor, rng))
     return RenderedFrame(images, truth)
+
+
+def _stamp_markers(radiance, ci, cam, win, centres, pts, nrm, profile, marker_radius, style, sensor, ss,
+                   truth: MarkerTruth) -> np.ndarray:
+    """Paint camera ``ci``'s markers into ``radiance`` (H, W) in place (area coverage, supersampled)
+    and fill its rows of ``truth``; returns the markers' image radii (n_markers,) px."""
+    w, h = cam.image_size
+    view = cam.center - centres
+    facing = np.einsum("ij,ij->i", view, nrm) / np.linalg.norm(view, axis=-1)
+    p = _project(cam, win, centres)
+    depth = cam.to_camera(centres)[:, 2]
+    r_px = cam.K[0, 0] * marker_radius / depth * (1.0 if win is None else 1.5 * win.n_water)
+    valid = np.isfinite(p).all(-1) & np.isfinite(pts).all(-1) & (facing > -0.3)
+    half = int(np.ceil(np.nanmax(np.where(valid, r_px, 0)) * 1.1 + 2)) if valid.any() else 0
+    inside = valid & (p[:, 0] - half >= 0) & (p[:, 1] - half >= 0) & (p[:, 0] + half <= w - 1) & (p[:, 1] + half <= h - 1)
+    idx = np.flatnonzero(valid)
+    if idx.size == 0:
+        return r_px
+    cover_img, frac = _coverage_image(cam, win, centres[idx], pts[idx, 2], marker_radius, profile, half, ss)
+    mv, mu = np.nonzero(cover_img)
+    cm = cover_img[mv, mu]
+    illum = illumination_field(mu.astype(np.float32), mv.astype(np.float32), (w, h), sensor, phase=(1000 + ci) % 7)
+    radiance[mv, mu] = radiance[mv, mu] * (1 - cm) + cm * np.float32(style.marker_albedo) * illum
+    truth.coverage[ci, idx] = frac
+    vi = idx[inside[idx] & (frac >= 0.999)]
+    truth.visible[ci, vi] = True
+    truth.centres[ci, vi] = p[vi]
+    outline = (_sphere_outline(cam, centres[vi], marker_radius) if win is None
+               else _refracted_outline(cam, win, centres[vi], marker_radius))
+    cen, area = _polygon_centroid(outline)
+    truth.centroids[ci, vi] = cen
+    truth.radius_px[ci, vi] = np.sqrt(area / np.pi)
+    return r_px
+
+
+def _coverage_image(cam, win, centres, z_ref, marker_radius, profile, half, ss) -> tuple[np.ndarray, np.ndarray]:
+    """Marker area coverage of every pixel, (H, W) float32 in 0..1, and each marker's visible
+    fraction (n,), in chunks of markers that keep the supersampled patches small."""
+    w, h = cam.image_size
+    cover = np.zeros(h * w)
+    frac = np.zeros(centres.shape[0])
+    chunk = max(1, 40000 // ((2 * half + 1) ** 2 * ss * ss // 16 + 1))
+    k = np.arange(2 * half + 1)
+    for s0 in range(0, centres.shape[0], chunk):
+        sel = slice(s0, s0 + chunk)
+        origin, cov, frac[sel], _, _ = _marker_coverage(cam, centres[sel], marker_radius, profile, z_ref[sel], half, ss, win)
+        uu = origin[:, 0, None, None] + k[None, None, :]
+        vv = origin[:, 1, None, None] + k[None, :, None]
+        ok = (uu >= 0) & (uu < w) & (vv >= 0) & (vv < h) & (cov > 0)
+        cover += np.bincount((vv * w + uu)[ok], weights=cov[ok], minlength=h * w)
+    return np.minimum(cover, 1.0).reshape(h, w).astype(np.float32), frac
+
+
+def _spurious_blobs(radiance, r_px, style: SceneStyle, rng, truth: MarkerTruth) -> None:
+    """Glare (bright) and debris (dark, elongated) blobs on the specimen's image region, in place;
+    their centres appended to ``truth``."""
+    rows, cols = np.nonzero(radiance[::16, ::16] > 0.5 * style.tissue_albedo * 0.5)
+    glare, debris = [], []
+    if rows.size:
+        scale = float(np.nanmedian(r_px)) if np.isfinite(r_px).any() else 5.0
+        for _ in range(style.n_glare):
+            j = rng.integers(rows.size)
+            c = np.array([cols[j] * 16 + rng.uniform(0, 16), rows[j] * 16 + rng.uniform(0, 16)])
+            ax = scale * rng.uniform(0.4, 1.5)
+            _blob_stamp(radiance, c, (ax, ax * rng.uniform(0.4, 1)), rng.uniform(0, np.pi), 1.5, "add")
+            glare.append(c)
+        for _ in range(style.n_debris):
+            j = rng.integers(rows.size)
+            c = np.array([cols[j] * 16 + rng.uniform(0, 16), rows[j] * 16 + rng.uniform(0, 16)])
+            ax = scale * rng.uniform(0.3, 3.0)
+            _blob_stamp(radiance, c, (ax, ax * rng.uniform(0.15, 0.6)), rng.uniform(0, np.pi), 0.3, "mul")
+            debris.append(c)
+    truth.glare.append(np.array(glare).reshape(-1, 2))
+    truth.debris.append(np.array(debris).reshape(-1, 2))
+
+
+def _sample_rays(camera: Camera, window, origin: np.ndarray, size: int, ss: int):
+    """Rays through ss x ss samples of each pixel of n (size, size) windows at ``origin`` (n, 2):
+    directions x, y, z (camera frame; z = 1 without a window) and origins o (None without a
+    window), each (n, size, size, ss, ss), and the sample offsets fx (1, ss, 1), fy (ss, 1, 1)."""
+    # rays at the pixel corners of each window: (n, size+1, size+1, 3)
+    k = np.arange(size + 1) - 0.5
+    cu = origin[:, 0, None, None] + k[None, None, :]
+    cv = origin[:, 1, None, None] + k[None, :, None]
+    cu, cv = np.broadcast_arrays(cu, cv)
+    g = undistort_grid(camera, cu, cv)
+    # bilinear interpolation to ss x ss samples per pixel: (n, size, size, ss, ss, 3)
+    f = (np.arange(ss) + 0.5) / ss
+    fy = f[:, None, None]
+    fx = f[None, :, None]
+
+    weights = ((1 - fy) * (1 - fx), (1 - fy) * fx, fy * (1 - fx), fy * fx)
+
+    def interp(g):
+        # accumulated in place, in the order of the plain sum g00 w00 + g01 w01 + g10 w10 + g11 w11
+        corners = (g[:, :-1, :-1], g[:, :-1, 1:], g[:, 1:, :-1], g[:, 1:, 1:])  # [row, col]
+        out = corners[0][:, :, :, None, None] * weights[0]
+        tmp = np.empty_like(out)
+        for corner, weight in zip(corners[1:], weights[1:]):
+            np.multiply(corner[:, :, :, None, None], weight, out=tmp)
+            out += tmp
+        return out
+
+    if window is None:  # central projection: directions (x, y, 1)
+        xy = interp(g)
+        return xy[..., 0], xy[..., 1], 1.0, None, fx, fy
+    o_c, d_c = rays_in_water(camera, window, g)
+    d, o = interp(d_c), interp(o_c)
+    return d[..., 0], d[..., 1], d[..., 2], o, fx, fy
+
+
+def _sphere_hits(camera: Camera, centres, radius, x, y, z, o):
+    """Which sample rays hit each marker sphere, and the ray parameter of the first hit."""
+    M = camera.to_camera(centres)  # (n, 3)
+    Mx, My, Mz = (M[:, i, None, None, None, None] for i in range(3))
+    if o is not None:
+        Mx, My, Mz = Mx - o[..., 0], My - o[..., 1], Mz - o[..., 2]
+    dd = x * x + y * y + z * z
+    dm = x * Mx + y * My + z * Mz
+    mm = Mx * Mx + My * My + Mz * Mz
+    disc_s = dm * dm - dd * (mm - radius * radius)
+    return disc_s > 0, (dm - np.sqrt(np.maximum(disc_s, 0))) / dd
+
+
+def _tube_blocks(camera: Camera, profile: SurfaceOfRevolution, surf_z, marker, x, y, z, o, t_s):
+    """Sample rays that meet the tube (a local cone around each marker, world frame) before the
+    sphere; ``surf_z`` (n,) the markers' axial positions, m; the other arguments per sample (m,):
+    its marker index, ray direction (``z`` scalar without a window), origin ``o`` (m, 3) or None,
+    and the ray parameter of the sphere hit."""
+    Rt = camera.R
+    if o is None:
+        Cx, Cy, Cz = camera.center
+    else:  # ray origins in the world: R^T (o - t)
+        oc = o - camera.tvec
+        Cx = Rt[0, 0] * oc[..., 0] + Rt[1, 0] * oc[..., 1] + Rt[2, 0] * oc[..., 2]
+        Cy = Rt[0, 1] * oc[..., 0] + Rt[1, 1] * oc[..., 1] + Rt[2, 1] * oc[..., 2]
+        Cz = Rt[0, 2] * oc[..., 0] + Rt[1, 2] * oc[..., 1] + Rt[2, 2] * oc[..., 2]
+    Dx = Rt[0, 0] * x + Rt[1, 0] * y + Rt[2, 0] * z
+    Dy = Rt[0, 1] * x + Rt[1, 1] * y + Rt[2, 1] * z
+    Dz = Rt[0, 2] * x + Rt[1, 2] * y + Rt[2, 2] * z
+    z0 = surf_z[marker]
+    r0 = profile.radius(surf_z)[marker]
+    sl = profile.slope(surf_z)[marker]
+    q = r0 + sl * (Cz - z0)
+    wv = sl * Dz
+    A = Dx * Dx + Dy * Dy - wv * wv
+    B = 2 * (Cx * Dx + Cy * Dy - q * wv)
+    Cc = Cx * Cx + Cy * Cy - q * q
+    disc_t = B * B - 4 * A * Cc
+    t_t = (-B - np.sqrt(np.maximum(disc_t, 0))) / (2 * A)
+    z_t = Cz + t_t * Dz
+    return (disc_t > 0) & (t_t > 0) & (t_t < t_s) & (z_t >= profile.z_min) & (z_t <= profile.z_max)

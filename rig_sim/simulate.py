@@ -269,13 +269,29 @@ def simulate_test(model: str, params: Mapping[str, float], *, radius: float = 10
                                   "axisymmetric finite-element solve, which rig_sim does not provide")
     n_steps = 1 + st.size * pr.size
     Zp = np.linspace(-0.5 * length, 0.5 * length, int(n_profile))
+    prof, pressure, stretch, force, lumen = _solve_blocks(
+        model, p, st, pr, Zp, radius=radius, thickness=thickness, length=length, clamped=clamped, wall=wall,
+        bvp_nodes=bvp_nodes, bvp_tol=bvp_tol, n_profile=n_profile, stress_scale=stress_scale)
+
+    out = _with_markers(model, p, prof, pressure, stretch, force, lumen, Zp, radius=radius, thickness=thickness,
+                        length=length, wall=wall, clamped=clamped, n_markers=n_markers, noise_std=noise_std, seed=seed,
+                        marker_margin=marker_margin, stress_scale=stress_scale)
+    log.debug("simulated %s test: %d steps, %d markers, clamped=%s, wall=%s", model, n_steps, n_markers, clamped, wall)
+    return out
+
+
+def _solve_blocks(model, p, st, pr, Zp, *, radius, thickness, length, clamped, wall, bvp_nodes, bvp_tol, n_profile,
+                  stress_scale):
+    """The deformed profile (dict of (n_steps, n_profile) arrays r, z, drdZ, dzdZ in m or 1), pressure (Pa),
+    stretch, wall force (N) and lumen radius (m) per step (n_steps,): the reference, then one block
+    of pressures ``pr`` per stretch in ``st``."""
+    n_steps = 1 + st.size * pr.size
     prof = {k: np.empty((n_steps, Zp.size)) for k in ("r", "z", "drdZ", "dzdZ")}
     prof["r"][0], prof["z"][0], prof["drdZ"][0], prof["dzdZ"][0] = radius, Zp, 0.0, 1.0
     pressure = np.zeros(n_steps)
     stretch = np.ones(n_steps)
     force = np.zeros(n_steps)
     lumen = np.full(n_steps, radius if wall == "membrane" else radius - thickness)
-
     for b, lam in enumerate(st):
         sl = slice(1 + b * pr.size, 1 + (b + 1) * pr.size)
         pressure[sl], stretch[sl] = pr, lam
@@ -286,18 +302,25 @@ def simulate_test(model: str, params: Mapping[str, float], *, radius: float = 10
             for key, arr in zip(("r", "z", "drdZ", "dzdZ"), cached[:4]):
                 prof[key][sl] = arr
             force[sl], lumen[sl] = cached[4], cached[5]
+            continue
+        if wall == "membrane":
+            state = inflate_membrane(model, p, pr, lam, radius=radius, thickness=thickness)
+            lt, force[sl], lumen[sl] = state.lam_theta, state.wall_force, state.radius
         else:
-            if wall == "membrane":
-                state = inflate_membrane(model, p, pr, lam, radius=radius, thickness=thickness)
-                lt, force[sl], lumen[sl] = state.lam_theta, state.wall_force, state.radius
-            else:
-                state = inflate_thick(model, p, pr, lam, radius=radius, thickness=thickness)
-                lt, force[sl], lumen[sl] = state.lam_outer, state.wall_force, state.inner_radius
-            prof["r"][sl] = (lt * radius)[:, None]
-            prof["z"][sl] = lam * Zp[None, :]
-            prof["drdZ"][sl] = 0.0
-            prof["dzdZ"][sl] = lam
+            state = inflate_thick(model, p, pr, lam, radius=radius, thickness=thickness)
+            lt, force[sl], lumen[sl] = state.lam_outer, state.wall_force, state.inner_radius
+        prof["r"][sl] = (lt * radius)[:, None]
+        prof["z"][sl] = lam * Zp[None, :]
+        prof["drdZ"][sl] = 0.0
+        prof["dzdZ"][sl] = lam
+    return prof, pressure, stretch, force, lumen
 
+
+def _with_markers(model, p, prof, pressure, stretch, force, lumen, Zp, *, radius, thickness, length, wall, clamped,
+                  n_markers, noise_std, seed, marker_margin, stress_scale) -> SimulatedTest:
+    """The SimulatedTest of the solved steps with its markers placed (seeded layout) and their
+    positions at every step, exact and with ``noise_std`` (m) of Gaussian noise."""
+    n_steps = pressure.size
     rng_layout, rng_noise = (np.random.default_rng([seed, k]) for k in (0, 1))
     half = 0.5 * length - marker_margin
     theta, Zm = place_markers(n_markers, radius, -half, half, seed=int(rng_layout.integers(2**63)))
@@ -314,5 +337,4 @@ def simulate_test(model: str, params: Mapping[str, float], *, radius: float = 10
     noisy = exact + rng_noise.normal(0.0, noise_std, exact.shape) if noise_std > 0 else exact.copy()
     object.__setattr__(out, "exact_positions", _ro(exact))
     object.__setattr__(out, "positions", _ro(noisy))
-    log.debug("simulated %s test: %d steps, %d markers, clamped=%s, wall=%s", model, n_steps, n_markers, clamped, wall)
     return out

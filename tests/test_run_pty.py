@@ -65,6 +65,15 @@ class Terminal:
     def send(self, data):
         os.write(self.master, data)
 
+    def wait_exit(self, timeout):
+        """Wait for the process to end while reading its output, as a terminal does: a process
+        writing more than the pty buffer holds (e.g. the live view's last frame with live results)
+        blocks until it is read."""
+        end = time.monotonic() + timeout
+        while self.proc.poll() is None and time.monotonic() < end:
+            self.pump(0.1)
+        return self.proc.wait(max(end - time.monotonic(), 0.1))
+
     def close(self):
         if self.proc.poll() is None:
             self.proc.kill()
@@ -109,7 +118,7 @@ def test_operator_session_on_a_real_terminal(tmp_path):
         term.send(b"clamp slipped a little\n")
         term.expect(r"add a note.*add a note", timeout=10)
         term.send(b"quit\n")
-        term.proc.wait(30)
+        term.wait_exit(30)
         term.pump(0.3)
         assert term.proc.returncode == 0, term.text[-3000:]
         text = term.text

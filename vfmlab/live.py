@@ -69,6 +69,10 @@ def render_live_results(status) -> Group:
                               f"{est.values[i] / scale:.4g}", f"{est.stderr[i] / scale:.2g}",
                               str(len(est.rows)) if i == 0 else "")
         parts.append(table)
+    left_out = [f"rows {list(status.skipped_rows)} failed (not in the estimates)" if status.skipped_rows else "",
+                f"rows {list(status.partial_rows)} seen only in part" if status.partial_rows else ""]
+    if any(left_out):
+        parts.append(Text("⚠ steps: " + "; ".join(t for t in left_out if t), style="yellow"))
     if status.error:
         parts.append(Text("⚠ live results: " + status.error, style="yellow"))
     return Group(*parts)

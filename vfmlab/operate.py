@@ -249,19 +249,31 @@ def run_session(protocol_path: str, specimen_path: str, out: str, *, rig_path: s
                 load_cell_measures=rig.load_cell.measures, overwrite=replace_leftover)
         except (SessionError, OSError) as exc:
             raise OperateError(str(exc)) from None
-        results = _live_results(out_path, specimen, rig, live_models, live_options)
-        runner = _execute(runner_kwargs, protocol, writer, bench, console, yes, 0, True, True, detector,
-                          observer, results)
+        results = _live_results(out_path, specimen, rig, live_models, live_options, protocol, console)
+        try:
+            runner = _execute(runner_kwargs, protocol, writer, bench, console, yes, 0, True, True, detector,
+                              observer, results)
+        except BaseException:
+            if results is not None:
+                results.close(cancel=True)
+            raise
     outcome = _report(runner, out_path, console)
     if results is not None:
-        _finish_live_results(results, out_path, console)
+        _finish_live_results(results, out_path, console, cancel=outcome.status != "complete")
     return outcome
 
 
 def _live_results(path: Path, specimen: SpecimenFile, rig: RigConfig, models: tuple[str, ...],
-                  options: dict[str, Any] | None):
-    """The background reconstruction + identification of the steps, or None (no models)."""
+                  options: dict[str, Any] | None, protocol=None, console: Console | None = None):
+    """The background reconstruction + identification of the steps, or None (no models, or no
+    calibration to reconstruct with: no cameras given and no board views in the protocol)."""
     if not models:
+        return None
+    if protocol is not None and protocol.calibration.views == 0 and not (options or {}).get("cameras") \
+            and not (options or {}).get("calibrate"):
+        if console is not None:
+            console.print("[dim]live results off: the protocol captures no calibration-board views to reconstruct "
+                          "with ([calibration] views)[/]")
         return None
     from vfmlab.live_results import LiveResults
 
@@ -271,12 +283,13 @@ def _live_results(path: Path, specimen: SpecimenFile, rig: RigConfig, models: tu
     return LiveResults(path, **kwargs)
 
 
-def _finish_live_results(results, path: Path, console: Console) -> None:
-    """Wait for the last steps' results, print and store them; a failure here is only reported."""
+def _finish_live_results(results, path: Path, console: Console, cancel: bool = False) -> None:
+    """Wait for the last steps' results, print and store them; a failure here is only reported.
+    ``cancel``: the run ended early (quit, abort): do not wait for the steps still queued."""
     from vfmlab.live import render_live_results
 
     try:
-        status = results.close()
+        status = results.close(cancel=cancel)
         console.print(render_live_results(status))
         if status.estimates:
             names = results.store(path)

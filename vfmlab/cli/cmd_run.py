@@ -53,10 +53,11 @@ def require_answers(yes: bool) -> None:
               help="Unattended: no prompts (capture anyway when a level does not settle; Ctrl-C quits resumably).")
 @click.option("--detect/--no-detect", default=True, show_default=True,
               help="Count markers in each capture for the live view.")
-@click.option("--live-models", default="none", show_default=True, metavar="MODELS",
+@click.option("--live-models", default="fung", show_default=True, metavar="MODELS",
               help="Models identified while the test runs (comma-separated: fung, delfino, hgo, neohookean; "
                    "'none' to switch off): each step is reconstructed in the background (cameras calibrated from "
-                   "the board views) and the final parameters are stored as identification results.")
+                   "the board views; off when the protocol has none) and the final parameters are stored as "
+                   "identification results. The capture never waits for it; a failure there is logged.")
 @click.option("--json", "as_json", is_flag=True,
               help="Progress on stderr; print the outcome (status, path, n_steps, elapsed_s) as JSON on stdout.")
 def command(protocol: str, specimen: str, out: str, rig: str | None, sim: bool, sim_speed: float,
