@@ -115,7 +115,7 @@ def identify_noise_weighted(positions, pressure, axial_force, *, thickness: floa
     Unsmoothed (exact-looking) data return the unweighted fit unchanged.
     Returns an ``IdentificationResult`` whose ``data`` is the weighted ``VFMData``.
     """
-    from .optimize import identify, identify_prepared
+    from .optimize import identify, identify_prepared, per_step_rows
 
     first = identify(positions, pressure, axial_force, thickness=thickness, model=model, **prepare_options)
     data = first.data
@@ -136,8 +136,10 @@ def identify_noise_weighted(positions, pressure, axial_force, *, thickness: floa
     if uncertainty == "bootstrap":
         from .uncertainty import with_uncertainty
 
+        n_input = np.shape(positions)[0]
+        dropped = [] if first.steps is None else sorted(set(range(n_input)) - set(first.steps))
         result = with_uncertainty(result, data, _used_positions(first, positions), prepare_options=options,
-                                  gap_weights=w, **dict(uncertainty_options or {}))
+                                  gap_weights=w, **(per_step_rows(uncertainty_options, n_input, dropped) or {}))
     return result
 
 

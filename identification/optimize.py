@@ -510,6 +510,16 @@ def drop_partial_steps(positions, pressure, axial_force):
             np.flatnonzero(~keep).tolist())
 
 
+def per_step_rows(options: Mapping | None, n_steps: int, dropped) -> dict | None:
+    """``options`` with the ``dropped`` steps left out of every per-step array among them (``marker_sigma``,
+    ``marker_weights``: shape (n_steps, n_markers[, ...]) with ``n_steps`` rows)."""
+    if options is None:
+        return None
+    keep = np.setdiff1d(np.arange(n_steps), dropped)
+    return {k: (np.asarray(v)[keep] if k in ("marker_sigma", "marker_weights") and np.ndim(v) >= 2
+                and np.shape(v)[0] == n_steps else v) for k, v in options.items()}
+
+
 def identify(
     positions: np.ndarray,
     pressure: np.ndarray,
@@ -576,6 +586,9 @@ def identify(
                                        n_starts=n_starts, **prepare_options)
     n_input = np.shape(positions)[0]
     positions, pressure, axial_force, dropped = drop_partial_steps(positions, pressure, axial_force)
+    if dropped:
+        uncertainty_options = per_step_rows(uncertainty_options, n_input, dropped)
+        prepare_options = per_step_rows(prepare_options, n_input, dropped)
     data = prepare(positions, pressure, axial_force, thickness=thickness, wall=wall, ends=ends, **prepare_options)
     result = replace(identify_prepared(data, model, initial=initial, optimizer=optimizer, n_starts=n_starts),
                      smoothing=data.smoothing, data=data, steps=tuple(k for k in range(n_input) if k not in dropped))

@@ -82,3 +82,22 @@ def test_remeasured_mesh_keeps_the_triangulation_and_the_field_ends():
     assert mesh.z_top == pytest.approx(np.min(mesh.z[top]))
     with pytest.raises(ValueError, match="n_replicates"):
         bootstrap(data, identify(pos, p, f, thickness=1.3e-3, model="fung", ends="free"), pos, n_replicates=2)
+
+
+@pytest.mark.parametrize("weighting", ["paper", "noise"])
+def test_a_step_left_out_is_left_out_of_the_per_step_marker_uncertainty(weighting):
+    """A step seen only in part is dropped from the positions; the reconstruction's per-step marker
+    uncertainty (shape (n_steps, n_markers)) must lose the same row, not fail on a shape mismatch."""
+    pos, p, f = _paper_protocol()
+    noisy = pos + np.random.default_rng(3).normal(0.0, 0.01e-3, pos.shape)
+    noisy[4, :150] = np.nan  # half of the markers out of view
+    sigma = np.full(noisy.shape[:2], 0.01e-3)
+    r = identify(noisy, p, f, thickness=1.3e-3, model="fung", ends="free", smoothing="auto",
+                 uncertainty="bootstrap", weighting=weighting,
+                 uncertainty_options={"n_replicates": 5, "seed": 0, "marker_sigma": sigma})
+    assert r.steps is not None and 4 not in r.steps and len(r.steps) == len(p) - 1
+    assert any("[4] were left out" in fl for fl in r.flags), r.flags
+    for name in MAIN:
+        assert abs(r.parameters[name] / TRUTH[name] - 1) < 0.03, (name, r.parameters[name])
+        lo, hi = r.uncertainty.interval[name]
+        assert lo < r.parameters[name] < hi
