@@ -58,8 +58,8 @@ def test_reprocess_twice_keeps_both_results_readable(tmp_path, capsys):
     assert main(["results", str(session)]) == 0
     out = capsys.readouterr().out
     assert new[1] in out and "nelder-mead" in out
-    # the default weights the gaps by their noise (smoothed markers) and records it
-    assert main(["reprocess", str(session), "--model", "delfino"]) == 0
+    # noise weighting on request is recorded (smoothed markers: it was used)
+    assert main(["reprocess", str(session), "--model", "delfino", "--weighting", "noise"]) == 0
     with open_session(session) as s:
         latest = s.result(s.results("identification")[-1])
     assert latest["parameters"]["weighting"] == "noise" and a["parameters"]["weighting"] == "paper"

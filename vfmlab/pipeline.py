@@ -136,7 +136,7 @@ def resolve_ends(session_ends: dict[str, str], requested: str | None) -> tuple[s
 
 def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str = "membrane", ends: str | None = None,
                     optimizer: str = "lsq", smoothing: str | tuple[int, int] | None = "auto", markers: str | None = None,
-                    uncertainty: str = "bootstrap", check: bool = True, weighting: str = "noise",
+                    uncertainty: str = "bootstrap", check: bool = True, weighting: str = "paper",
                     invoked_by: str = "pipeline") -> tuple[str, Any, dict[str, Any]]:
     """Identify ``model`` from the session's marker tracks with the VFM and store an "identification" result.
 
@@ -156,8 +156,11 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
     markers : markers result to use (default: the latest).
     uncertainty : "bootstrap" (default, intervals that cover the truth; ~16 re-identifications) or
         "gauss-newton" (fast, too small on noisy data).
-    weighting : "noise" (default: each virtual-work gap weighted by the inverse of its measured noise;
-        smoothed data and ``optimizer="lsq"`` only, else the paper's cost) or "paper".
+    weighting : "paper" (default: the paper's cost) or "noise" (each virtual-work gap weighted by the
+        inverse of its noise as re-simulated i.i.d. marker noise predicts; smoothed data and
+        ``optimizer="lsq"`` only, else the paper's cost). "noise" halves the errors on i.i.d. marker
+        noise but not on rendered sessions, whose low-pressure steps carry systematic errors it does
+        not model (docs/identification.md "Noise").
     check : run the setting checks (``identification.checks``: end conditions and wall form
         against the data's own evidence) and add their warnings to the flags.
     invoked_by : recorded in the result's attributes (e.g. "identify", "reprocess").

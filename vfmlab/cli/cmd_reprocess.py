@@ -62,8 +62,8 @@ Examples:
               help="Optimiser (identify).")
 @click.option("--smooth", default="auto", show_default=True, metavar="auto|none|AXIAL,HARMONICS",
               help="Smooth the measured displacements before identifying (as 'vfmlab identify --smooth').")
-@click.option("--weighting", type=click.Choice(["noise", "paper"]), default="noise", show_default=True,
-              help="Virtual-work gaps weighted by their measured noise, or the paper's cost (as 'vfmlab identify "
+@click.option("--weighting", type=click.Choice(["paper", "noise"]), default="paper", show_default=True,
+              help="The paper's cost, or virtual-work gaps weighted by their noise (as 'vfmlab identify "
                    "--weighting'; Nelder-Mead always uses the paper's).")
 @click.option("--set", "set_pairs", multiple=True, metavar="KEY=VALUE",
               help="Extra setting for the reconstruct stage (JSON value), repeatable.")
