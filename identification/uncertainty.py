@@ -228,52 +228,43 @@ def bootstrap(
         The weights of the virtual-work gaps ``result`` was fitted with (``noise_weights``): every
         replicate is weighted alike, so the spread describes the same estimator.
     """
-    if int(n_replicates) < 5:
-        raise ValueError(f"n_replicates must be at least 5; got {n_replicates!r}")
     model = get_model(result.model)
-    fitted, residual = fitted_positions(data, positions)
-    level = marker_noise_level(data, residual, _n_basis(data.smoothing))
-    shape = np.ones(fitted.shape[:2])
-    if marker_sigma is not None:
-        ms = np.asarray(marker_sigma, dtype=float)
-        if ms.shape != fitted.shape[:2]:
-            raise ValueError(f"marker_sigma must have shape {fitted.shape[:2]} (n_steps, n_markers); got {ms.shape}")
-        med = np.nanmedian(ms)
-        if np.isfinite(med) and med > 0:
-            shape = np.where(np.isfinite(ms) & (ms > 0), ms / med, 1.0)
-    sigma = level * shape
-    rng = np.random.default_rng(seed)
+    level, replicates = resimulated_measurements(data, positions, marker_sigma=marker_sigma,
+                                                 pressure_noise=pressure_noise, force_noise=force_noise,
+                                                 n_replicates=n_replicates, seed=seed)
     options = dict(prepare_options or {})
     estimate = np.array([result.parameters[n] for n in model.parameter_names])
     reps, rms, failed = [], [], 0
-    for _ in range(int(n_replicates)):
-        pos = fitted + sigma[..., None] * rng.standard_normal(fitted.shape)
-        p = data.pressure + pressure_noise * rng.standard_normal(data.pressure.shape) * (data.pressure != 0)
-        f = data.axial_force + force_noise * rng.standard_normal(data.axial_force.shape)
-        try:
-            with np.errstate(all="ignore"):
-                mesh = remeasured_mesh(data.mesh, pos[0])
-                d = prepare(pos, p, f, thickness=data.thickness, wall=data.wall, ends=data.ends, mesh=mesh,
-                            smoothing=data.smoothing, reject_outliers=False, **options)
-                if gap_weights is not None:
-                    from .noise_weights import weighted_data
-
-                    d = weighted_data(d, gap_weights)
-                from .optimize import identify_prepared
-
-                res = identify_prepared(d, model, initial=result.parameters, n_starts=1)
-        except (IdentificationError, ValueError, np.linalg.LinAlgError) as exc:
-            log.debug("bootstrap replicate failed: %s", exc)
-            failed += 1
-            continue
-        values = np.array([res.parameters[n] for n in model.parameter_names])
-        if not res.converged or not np.all(np.isfinite(_to_x(model, values))):
+    for pos, p, f, mesh in replicates:
+        res = _reidentify(data, model, result.parameters, pos, p, f, mesh, options, gap_weights)
+        values = None if res is None else np.array([res.parameters[n] for n in model.parameter_names])
+        if values is None or not res.converged or not np.all(np.isfinite(_to_x(model, values))):
             failed += 1
             continue
         reps.append(values)
         rms.append(float(np.sqrt(np.mean(res.residuals**2))))
     return _summarise(model, estimate, np.array(reps).reshape(-1, len(estimate)), np.array(rms), result,
                       level, pressure_noise, force_noise, failed)
+
+
+def _reidentify(data: VFMData, model, initial, pos, p, f, mesh, options, gap_weights):
+    """One replicate prepared like ``data`` and identified from ``initial`` (one start); None if it fails."""
+    from .optimize import identify_prepared
+
+    if mesh is None:
+        return None
+    try:
+        with np.errstate(all="ignore"):
+            d = prepare(pos, p, f, thickness=data.thickness, wall=data.wall, ends=data.ends, mesh=mesh,
+                        smoothing=data.smoothing, reject_outliers=False, **options)
+            if gap_weights is not None:
+                from .noise_weights import weighted_data
+
+                d = weighted_data(d, gap_weights)
+            return identify_prepared(d, model, initial=initial, n_starts=1)
+    except (IdentificationError, ValueError, np.linalg.LinAlgError) as exc:
+        log.debug("bootstrap replicate failed: %s", exc)
+        return None
 
 
 def _summarise(model, estimate, reps, rms, result, level, pressure_noise, force_noise, failed) -> Uncertainty:

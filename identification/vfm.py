@@ -258,13 +258,8 @@ def prepare(
         raise DegenerateDataError(f"steps {bad} have no triangle with all three markers observed")
     wg = _wall_geometry(fields, mesh, st, e0)
     c, work_density, surface = _internal_work_terms(wg, wall, n_layers)
-    # External work: pressure on the loaded surface (markers for membrane, lumen for thick)
-    loaded = surface if wall == "membrane" else _layer(wg, 0.0)
-    pressure_work = p[None] * _pressure_work_per_pascal(wg, loaded)
-    loop_area = _top_loop_area(mesh, st, wg.jac, wall, e0)
-    n_end = end_force(f, p, loop_area, _clamp_area(mesh, ends, wall, e0, clamp_radius))
-    strip_force = end_force(f, p, loop_area, _clamp_area(mesh, "clamped", wall, e0, clamp_radius)) - f
-    end_work = fields.load_end[:, None] * n_end[None]
+    pressure_work, end_work, n_end, strip_force = _external_work(wg, surface, mesh, st, fields, p, f, wall, ends,
+                                                                 e0, clamp_radius)
     evw = pressure_work + end_work
     scale = np.sqrt(np.mean(evw**2, axis=1))
     if np.any(scale <= 0):
@@ -278,6 +273,20 @@ def prepare(
                    n_valid_triangles=n_valid, n_outliers=st.outliers.sum(axis=1),
                    marker_noise=float(np.nanmedian(st.noise)), smoothing=st.smoothing, pressure=p, axial_force=f,
                    thickness=e0, strip_force=strip_force)
+
+
+def _external_work(wg, surface, mesh: SurfaceMesh, st, fields: VirtualFields, p, f, wall: str, ends: str, e0: float,
+                   clamp_radius):
+    """External virtual work per field and step (J): the pressure's on the loaded surface (the markers' for
+    the membrane form, the lumen for the thick one) and the end force's; with the end force N (n_steps,)
+    that the fields' load end carries and the pressure's share on the unmeasured strip (``strip_force``, N)."""
+    loaded = surface if wall == "membrane" else _layer(wg, 0.0)
+    pressure_work = p[None] * _pressure_work_per_pascal(wg, loaded)
+    loop_area = _top_loop_area(mesh, st, wg.jac, wall, e0)
+    n_end = end_force(f, p, loop_area, _clamp_area(mesh, ends, wall, e0, clamp_radius))
+    strip_force = end_force(f, p, loop_area, _clamp_area(mesh, "clamped", wall, e0, clamp_radius)) - f
+    end_work = fields.load_end[:, None] * n_end[None]
+    return pressure_work, end_work, n_end, strip_force
 
 
 #: Meshes of recently seen reference configurations (a reprocessing run meshes the same markers again).
