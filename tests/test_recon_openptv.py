@@ -191,6 +191,43 @@ def test_cli_imports_openptv_folder_and_refuses_ill_posed_body(tmp_path, capsys)
     assert all(c.window is not None and c.window.n_bath == 1.46 for c in cams)
 
 
+def test_physical_media_swaps_ptv_par_indices_only_when_glass_is_below_water():
+    window = openptv.load_cameras(DATA)[0].window  # ptv.par as written: glass 1.33, water 1.46
+    assert openptv.physical_media(window) == openptv.PHYSICAL_MEDIA
+    from dataclasses import replace
+
+    assert openptv.physical_media(replace(window, **openptv.PHYSICAL_MEDIA)) is None  # already physical
+    assert openptv.physical_media(None) is None
+    assert openptv.describe_media(replace(window, **openptv.PHYSICAL_MEDIA)) == \
+        "air 1.000 | glass 1.460 (6.0 mm) | water 1.330"
+
+
+def test_cli_body_calibration_within_half_a_pixel_in_every_camera(tmp_path, capsys):
+    # vfmlab calibrate SESSION --import FOLDER --body fixed: the library's BODY_FIT with ptv.par's indices swapped to
+    # the physical order, as benchmarks/bench_real_data.py (measured 0.259, 0.134, 0.495, 0.386 px; as written in
+    # ptv.par cameras 3-4 give 0.556, 0.457 px)
+    import json
+
+    from acquisition.session import CameraSpec, SessionWriter, SpecimenInfo, open_session
+    from vfmlab.cli import main
+    from vfmlab.pipeline import session_calibrated_cameras
+
+    session = tmp_path / "s.h5"
+    specs = [CameraSpec(f"cam{i}", "imported", 1280, 1024, "uint8") for i in range(1, 5)]
+    with SessionWriter.create(session, SpecimenInfo("cavity", 5e-3, 50e-3, 0.5e-3, ""), cameras=specs, protocol_text="", rig={}):
+        pass
+    assert main(["calibrate", str(session), "--import", str(DATA), "--body", "fixed", "--json"]) == 0
+    captured = capsys.readouterr()
+    out = json.loads(captured.out)
+    assert sorted(out["body_rms_px"]) == ["cam1", "cam2", "cam3", "cam4"]
+    assert all(0 < r <= 0.5 for r in out["body_rms_px"].values()), out["body_rms_px"]
+    assert "glass 1.460" in out["media_assumed"] and "swapped" in out["media_assumed"]
+    assert "media assumed: air 1.000 | glass 1.460" in captured.err
+    with open_session(session) as s:
+        cams, _ = session_calibrated_cameras(s)
+    assert all(c.window.indices == (1.46,) and c.window.n_bath == 1.33 for c in cams)
+
+
 def test_particle_volume_is_not_measured_as_a_tube():
     from reconstruction.surface import fit_cylinder
     from vfmlab.cli._common import CliError

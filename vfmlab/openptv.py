@@ -15,7 +15,8 @@ import numpy as np
 
 from reconstruction.calibration_io import CalibrationFileError, camera_from_openptv, parse_ptv_par
 
-__all__ = ["is_openptv_folder", "load_cameras", "read_image", "read_rt_is", "read_target_file", "frame_path"]
+__all__ = ["is_openptv_folder", "load_cameras", "read_image", "read_rt_is", "read_target_file", "frame_path",
+           "physical_media", "describe_media", "calibrate_body_folder", "detect_frame"]
 
 
 def is_openptv_folder(path: str | Path) -> bool:
@@ -84,6 +85,28 @@ BODY_FIT = {"fix_focal": True, "refine_k2": True, "refine_k3": True, "refine_tan
 #: test_cavity's media with ptv.par's two indices swapped back to the physical order (glass 1.46, water 1.33):
 #: 0.06-0.14 px lower body RMS in cameras 3 and 4 than as written (OpenPTV's own calibration used them as written).
 PHYSICAL_MEDIA = {"indices": (1.46,), "n_bath": 1.33}
+
+
+def physical_media(window) -> dict | None:
+    """The media of ``window`` in physical order, or None when they already are.
+
+    A one-layer window whose glass index is below its bath's (test_cavity's ``ptv.par``: n2 = 1.33, n3 = 1.46,
+    i.e. water then glass) has the two swapped back (glass 1.46, water 1.33: :data:`PHYSICAL_MEDIA`): window
+    glass (1.46-1.52) is denser than water or saline (1.33-1.34). Returns the keyword arguments for
+    ``calibrate_body_folder(..., media=...)`` (``indices``, ``n_bath``)."""
+    if window is None or len(window.indices) != 1 or not window.indices[0] < window.n_bath:
+        return None
+    return {"indices": (float(window.n_bath),), "n_bath": float(window.indices[0])}
+
+
+def describe_media(window) -> str:
+    """``air 1.000 | glass 1.460 (6.0 mm) | water 1.330``: a window's media as people read them."""
+    if window is None:
+        return "none (straight rays)"
+    layers = " | ".join(f"layer {n:.3f} ({t * 1e3:.1f} mm)" for n, t in zip(window.indices, window.thicknesses))
+    if len(window.indices) == 1:
+        layers = layers.replace("layer", "glass")
+    return f"air {window.n_air:.3f} | {layers} | water {window.n_bath:.3f}"
 
 
 def detect_frame(folder: str | Path, frame: int, n_cameras: int = 4, **settings) -> list[np.ndarray]:

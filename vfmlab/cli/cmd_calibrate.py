@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+from dataclasses import replace
 from pathlib import Path
 
 import click
@@ -78,7 +79,9 @@ def _refine_on_body(folder: Path, cams: list, focal: str) -> tuple[list, dict]:
     """Refine the imported cameras on the calibration body, through the window; refuse an ill-posed result."""
     from vfmlab import openptv
 
-    res = openptv.calibrate_body_folder(folder, cams, **{**openptv.BODY_FIT, "fix_focal": focal == "fixed"})
+    media, note = _body_media(cams)
+    err_console.print(f"media assumed: {note}")
+    res = openptv.calibrate_body_folder(folder, cams, media=media, **{**openptv.BODY_FIT, "fix_focal": focal == "fixed"})
     for r in res:
         err_console.print(r.message)
     bad = [r.camera.name for r in res if not r.well_posed]
@@ -86,7 +89,21 @@ def _refine_on_body(folder: Path, cams: list, focal: str) -> tuple[list, dict]:
         raise CliInputError(f"--body: calibration of {bad} is ill-posed (focal length not determined by one view of this body); "
                        "use --body fixed to keep the imported focal length")
     return [r.camera for r in res], {"units": "m", "rms_px": [r.rms for r in res],
-                                     "body_calibration": f"{folder}/cal (focal {focal})"}
+                                     "body_calibration": f"{folder}/cal (focal {focal})", "media_assumed": note,
+                                     "body_rms_px": {r.camera.name: float(r.rms) for r in res}}
+
+
+def _body_media(cams: list) -> tuple[dict | None, str]:
+    """Media for the body fit (ptv.par's indices swapped to physical order when glass < water) and a sentence."""
+    from vfmlab import openptv
+
+    window = next((c.window for c in cams if c.window is not None), None)
+    media = openptv.physical_media(window)
+    if media is None:
+        return None, f"{openptv.describe_media(window)} (as in ptv.par)"
+    fixed = replace(window, **media)
+    return media, (f"{openptv.describe_media(fixed)} (ptv.par lists glass {window.indices[0]:.3f} and water "
+                   f"{window.n_bath:.3f}: swapped to the physical order, glass denser than water)")
 
 
 def _import(path: Path, file_units: str, session, store: bool, out, units: str, as_json: bool, body: str | None = None) -> None:
@@ -130,10 +147,16 @@ def _import(path: Path, file_units: str, session, store: bool, out, units: str, 
         out.write_text(writer(cams, units=units, metadata=meta))
     summary = {"cameras": [c.name for c in cams], "imported_from": str(path), "stored_as": stored,
                "out": str(out) if out else None}
+    if "body_rms_px" in meta:
+        summary["body_rms_px"] = meta["body_rms_px"]
+        summary["media_assumed"] = meta["media_assumed"]
     if as_json:
         print_json(summary)
         return
     console.print(f"imported {len(cams)} cameras from {esc(path)}: {esc(', '.join(c.name for c in cams))}")
+    if "body_rms_px" in meta:
+        console.print("calibration body RMS: " + ", ".join(f"{esc(n)} {r:.3f} px" for n, r in meta["body_rms_px"].items())
+                      + f"; media assumed: {esc(meta['media_assumed'])}")
     if stored:
         console.print(f"stored as {stored} in {esc(session)}")
     if out is not None:
