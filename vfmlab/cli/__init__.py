@@ -39,6 +39,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "import-markers": ("cmd_import_markers", "Build a session from marker positions measured elsewhere (CSV)."),
     "export-markers": ("cmd_export_markers", "Write a session's latest marker tracks as CSV."),
     "import-images": ("cmd_import_images", "Build a session from images taken with another rig."),
+    "detect-particles": ("cmd_detect_particles", "Detect small particles in grey images (counts, reject reasons, CSV)."),
 }
 
 
