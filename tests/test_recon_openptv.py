@@ -253,6 +253,32 @@ def test_cli_detect_particles_passes_its_options_to_the_detector(tmp_path, capsy
     assert "--min-pixels" in capsys.readouterr().err
 
 
+def test_reconstruct_detects_with_the_polarity_import_images_recorded(tmp_path, monkeypatch):
+    # import-images --polarity bright records marker_polarity in the session's rig settings; reconstruct must use it
+    import reconstruction.pipeline as recon
+    from acquisition.session import CameraSpec, SessionWriter, SpecimenInfo, StepRecord
+    from vfmlab.pipeline import reconstruct_stored
+
+    cams = openptv.load_cameras(DATA)[:2]
+    session = tmp_path / "s.h5"
+    specs = [CameraSpec(c.name, "imported", 1280, 1024, "uint8") for c in cams]
+    with SessionWriter.create(session, SpecimenInfo("cavity", 5e-3, 50e-3, 0.5e-3, ""), cameras=specs, protocol_text="",
+                              rig={"marker_diameter_mm": 0.4, "marker_polarity": "bright"}) as writer:
+        writer.add_step(StepRecord(block=0, stretch=1.0, target_pressure=0.0, pressure=0.0, force=0.0,
+                                   t_monotonic=float("nan"), t_wall=float("nan")),
+                        images={c.name: np.zeros((1024, 1280), np.uint8) for c in cams})
+    seen = []
+
+    def spy(images, cameras, settings, **kw):
+        seen.append(settings.detection)
+        raise ValueError("stop here")
+
+    monkeypatch.setattr(recon, "reconstruct_series", spy)
+    with pytest.raises(Exception, match="stop here"):
+        reconstruct_stored(session, cameras=cams, store=False)
+    assert seen == [{"polarity": "bright"}]
+
+
 def test_particle_volume_is_not_measured_as_a_tube():
     from reconstruction.surface import fit_cylinder
     from vfmlab.cli._common import CliError

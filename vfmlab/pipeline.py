@@ -362,10 +362,12 @@ def reconstruct_stored(path: str | os.PathLike, *, cameras: list | None = None, 
             marker_diameter_mm = float((s.rig_settings or {}).get("marker_diameter_mm", 0.4))
         if not marker_diameter_mm > 0:
             raise StageError(f"marker diameter must be positive (mm); got {marker_diameter_mm}")
+        polarity = str((s.rig_settings or {}).get("marker_polarity", "dark"))  # import-images --polarity
         try:
             settings = ReconstructionSettings(marker_diameter=marker_diameter_mm * 1e-3,
                                               specimen_radius=s.specimen.radius, normals=normals,
-                                              epipolar_px=epipolar_px, max_reprojection_px=max_reprojection_px)
+                                              epipolar_px=epipolar_px, max_reprojection_px=max_reprojection_px,
+                                              detection={"polarity": polarity})
         except ValueError as exc:
             raise StageError(f"{path}: {exc}") from None
         names = [c.name for c in cameras]
@@ -383,7 +385,8 @@ def reconstruct_stored(path: str | os.PathLike, *, cameras: list | None = None, 
               "n_views": res.n_views, "reprojection_rms": res.reprojection_rms, "world_to_rig": res.world_to_rig,
               "camera_names": np.array(names, dtype=object), "detected": d["detected"], "rejects": d["rejects"],
               "reject_reasons": np.array(d["reject_reasons"], dtype=object)}
-    params = {"marker_diameter_mm": marker_diameter_mm, "calibration": calibration_source, "frame": frame,
+    params = {"marker_diameter_mm": marker_diameter_mm, "marker_polarity": polarity, "calibration": calibration_source,
+              "frame": frame,
               "flip_axis": flip_axis, "normals": normals, "epipolar_px": epipolar_px,
               "max_reprojection_px": max_reprojection_px, "include_superseded": include_superseded}
     attrs = {"tracked_per_step": np.asarray(d["tracked"]).tolist(), "lost_per_step": np.asarray(d["lost"]).tolist(),
