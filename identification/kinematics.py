@@ -545,18 +545,19 @@ def smooth_reference_radius(mesh: SurfaceMesh, candidates=AUTO_DEGREES) -> np.nd
     ``select_smoothing``); NaN outside the mesh."""
     R = np.where(mesh.used, mesh.r, np.nan)[None]
     n_obs = int(np.sum(np.isfinite(R)))
-    best, best_score, best_fit = None, np.inf, None
+    best, best_score = None, np.inf
+    projections = _ProjectionRSS(mesh, candidates, R[None])
     for deg in candidates:
-        basis, ok_ref = smoothing_basis(mesh, deg)
-        p = basis.shape[1]
+        p = len(projections.columns(deg))
         if p > MAX_BASIS_FRACTION * n_obs:
             continue
-        fit, rss, n = _fit_basis(basis, ok_ref, R)
+        ((rss, n),) = projections(deg)
         score = float(rss[0] / (n[0] * (1.0 - p / n[0]) ** 2))
         if score < best_score:
-            best, best_score, best_fit = deg, score, fit[0]
+            best, best_score = deg, score
     if best is None:
         raise DegenerateDataError(f"too few markers ({n_obs}) to smooth the reference radius")
+    best_fit = _fit_basis(*smoothing_basis(mesh, best), R)[0][0]  # the chosen fit, as before (SVD least squares)
     log.info("reference radius smoothed on (axial degree, harmonics) %s", best)
     return np.where(mesh.used, best_fit, np.nan)
 
