@@ -288,7 +288,7 @@ class _ProjectionRSS:
         masks, inverse = np.unique(ok.reshape(-1, n_m), axis=0, return_inverse=True)
         self.n_mask = masks.sum(axis=1)
         self.inverse = inverse.ravel()
-        self.gram = np.einsum("mn,np,nq->mpq", masks.astype(float), self.basis, self.basis, optimize=True)
+        self.gram = (self.basis.T[None] * masks[:, None, :]) @ self.basis  # (n_masks, P, P)
         self.ok = ok.reshape(-1, n_m)
         self.y = np.where(self.ok, d.reshape(-1, n_m), 0.0)  # (n_rows, n_markers)
         self.bty = self.y @ self.basis  # (n_rows, P)
