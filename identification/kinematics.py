@@ -389,9 +389,11 @@ def select_smoothing(mesh: SurfaceMesh, r, theta, z, *, weights: np.ndarray | No
         p = basis.shape[1]
         if p > MAX_BASIS_FRACTION * n_obs:
             continue
-        if weights is None:  # the three components at once, from one set of Gram matrices
-            fits = projections(deg)
-        else:
+        try:  # unweighted: the three components at once, from one set of Gram matrices
+            fits = projections(deg) if projections is not None else None
+        except np.linalg.LinAlgError:  # a singular Gram matrix: the SVD least squares copes
+            fits = None
+        if fits is None:
             fits = [_fit_basis(basis, ok_ref, d, weights)[1:] for d in disp]
         for c, (rss, n) in enumerate(fits):
             if criterion == "bic":
@@ -551,7 +553,10 @@ def smooth_reference_radius(mesh: SurfaceMesh, candidates=AUTO_DEGREES) -> np.nd
         p = len(projections.columns(deg))
         if p > MAX_BASIS_FRACTION * n_obs:
             continue
-        ((rss, n),) = projections(deg)
+        try:
+            ((rss, n),) = projections(deg)
+        except np.linalg.LinAlgError:  # a singular Gram matrix: the SVD least squares copes
+            _, rss, n = _fit_basis(*smoothing_basis(mesh, deg), R)
         score = float(rss[0] / (n[0] * (1.0 - p / n[0]) ** 2))
         if score < best_score:
             best, best_score = deg, score
