@@ -266,6 +266,52 @@ def _fit_basis(basis, ok_ref, d, weights=None):
     return fit, rss, count
 
 
+class _ProjectionRSS:
+    """Residual sums of squares of the unweighted least-squares projections of every step of every
+    component of ``d`` (n_components, n_steps, n_markers) on the candidate smoothing bases.
+
+    Same quantity as ``_fit_basis(basis, ok_ref, d[c])[1:]`` (to ~1e-10 relative), much faster:
+    every candidate basis is a set of columns of the largest one (``smoothing_basis`` evaluates the
+    same Legendre recurrence and harmonics), so the Gram matrices of each set of observed markers
+    and the projections of the data are formed once, and each candidate solves its sub-blocks
+    (normal equations: these bases are well conditioned) and takes the residuals explicitly.
+    """
+
+    def __init__(self, mesh: SurfaceMesh, candidates, d: np.ndarray):
+        self.nz = max(int(c[0]) for c in candidates)
+        self.nt = max(int(c[1]) for c in candidates)
+        self.basis, ok_ref = smoothing_basis(mesh, (self.nz, self.nt))  # (n_markers, P)
+        n_c, n_s, n_m = d.shape
+        ok = ok_ref[None, None] & np.isfinite(d)
+        self.shape = (n_c, n_s)
+        self.count = ok.sum(axis=2)  # (n_c, n_s)
+        masks, inverse = np.unique(ok.reshape(-1, n_m), axis=0, return_inverse=True)
+        self.n_mask = masks.sum(axis=1)
+        self.inverse = inverse.ravel()
+        self.gram = (self.basis.T[None] * masks[:, None, :]) @ self.basis  # (n_masks, P, P)
+        self.ok = ok.reshape(-1, n_m)
+        self.y = np.where(self.ok, d.reshape(-1, n_m), 0.0)  # (n_rows, n_markers)
+        self.bty = self.y @ self.basis  # (n_rows, P)
+
+    def columns(self, degree) -> np.ndarray:
+        """Columns of the largest basis that make ``smoothing_basis(mesh, degree)`` (same order)."""
+        nz, nt = int(degree[0]), int(degree[1])
+        return (np.arange(2 * nt + 1)[:, None] * (self.nz + 1) + np.arange(nz + 1)[None]).ravel()
+
+    def __call__(self, degree) -> list[tuple[np.ndarray, np.ndarray]]:
+        """One (rss (n_steps,), count (n_steps,)) pair per component for the basis ``degree``."""
+        cols = self.columns(degree)
+        if self.n_mask.min() <= len(cols):
+            raise DegenerateDataError(
+                f"smoothing with {len(cols)} basis functions needs more observed markers than that; some steps "
+                f"have {int(self.n_mask.min())}")
+        gram = self.gram[:, cols[:, None], cols[None, :]][self.inverse]  # (n_rows, p, p)
+        coef = np.linalg.solve(gram, self.bty[:, cols, None])[..., 0]  # (n_rows, p)
+        resid = np.where(self.ok, self.y - coef @ self.basis[:, cols].T, 0.0)
+        rss = np.sum(resid**2, axis=1).reshape(self.shape)
+        return [(rss[c], self.count[c]) for c in range(self.shape[0])]
+
+
 def smooth_cylindrical(mesh: SurfaceMesh, r, theta, z, degree, weights: np.ndarray | None = None,
                        reference_noise: float | None = None):
     """Least-squares smoothing of the displacement field of every step.
@@ -337,13 +383,19 @@ def select_smoothing(mesh: SurfaceMesh, r, theta, z, *, weights: np.ndarray | No
     disp = _displacements(mesh, r, theta, z)
     n_obs = int(np.min(np.sum(np.isfinite(disp[0]) & mesh.used[None], axis=1)))
     scores = np.full((len(candidates), 3), np.inf)
+    projections = _ProjectionRSS(mesh, candidates, np.stack(disp)) if weights is None else None
     for i, deg in enumerate(candidates):
         basis, ok_ref = smoothing_basis(mesh, deg)
         p = basis.shape[1]
         if p > MAX_BASIS_FRACTION * n_obs:
             continue
-        for c, d in enumerate(disp):
-            _, rss, n = _fit_basis(basis, ok_ref, d, weights)
+        try:  # unweighted: the three components at once, from one set of Gram matrices
+            fits = projections(deg) if projections is not None else None
+        except np.linalg.LinAlgError:  # a singular Gram matrix: the SVD least squares copes
+            fits = None
+        if fits is None:
+            fits = [_fit_basis(basis, ok_ref, d, weights)[1:] for d in disp]
+        for c, (rss, n) in enumerate(fits):
             if criterion == "bic":
                 scores[i, c] = float(np.sum(n * np.log(np.maximum(rss, 1e-300) / n) + p * np.log(n)))
             else:
@@ -495,18 +547,22 @@ def smooth_reference_radius(mesh: SurfaceMesh, candidates=AUTO_DEGREES) -> np.nd
     ``select_smoothing``); NaN outside the mesh."""
     R = np.where(mesh.used, mesh.r, np.nan)[None]
     n_obs = int(np.sum(np.isfinite(R)))
-    best, best_score, best_fit = None, np.inf, None
+    best, best_score = None, np.inf
+    projections = _ProjectionRSS(mesh, candidates, R[None])
     for deg in candidates:
-        basis, ok_ref = smoothing_basis(mesh, deg)
-        p = basis.shape[1]
+        p = len(projections.columns(deg))
         if p > MAX_BASIS_FRACTION * n_obs:
             continue
-        fit, rss, n = _fit_basis(basis, ok_ref, R)
+        try:
+            ((rss, n),) = projections(deg)
+        except np.linalg.LinAlgError:  # a singular Gram matrix: the SVD least squares copes
+            _, rss, n = _fit_basis(*smoothing_basis(mesh, deg), R)
         score = float(rss[0] / (n[0] * (1.0 - p / n[0]) ** 2))
         if score < best_score:
-            best, best_score, best_fit = deg, score, fit[0]
+            best, best_score = deg, score
     if best is None:
         raise DegenerateDataError(f"too few markers ({n_obs}) to smooth the reference radius")
+    best_fit = _fit_basis(*smoothing_basis(mesh, best), R)[0][0]  # the chosen fit, as before (SVD least squares)
     log.info("reference radius smoothed on (axial degree, harmonics) %s", best)
     return np.where(mesh.used, best_fit, np.nan)
 
