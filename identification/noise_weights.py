@@ -113,7 +113,8 @@ def identify_noise_weighted(positions, pressure, axial_force, *, thickness: floa
     (``gap_noise``), then the weighted fit started from it. With ``uncertainty="bootstrap"`` the
     replicates are weighted alike (same weights), so the interval describes this estimator.
     Unsmoothed (exact-looking) data return the unweighted fit unchanged.
-    Returns an ``IdentificationResult`` whose ``data`` is the weighted ``VFMData``.
+    Returns an ``IdentificationResult`` whose ``data``, ``ivw``, ``evw`` and ``residuals`` are the paper's
+    (unweighted; the weights only chose the estimate and its interval).
     """
     from .optimize import identify, identify_prepared, per_step_rows
 
@@ -140,7 +141,16 @@ def identify_noise_weighted(positions, pressure, axial_force, *, thickness: floa
         dropped = [] if first.steps is None else sorted(set(range(n_input)) - set(first.steps))
         result = with_uncertainty(result, data, _used_positions(first, positions), prepare_options=options,
                                   gap_weights=w, **(per_step_rows(uncertainty_options, n_input, dropped) or {}))
-    return result
+    return _in_physical_units(result, data, model)
+
+
+def _in_physical_units(result, data: VFMData, model):
+    """``result`` with the paper's (unweighted) data, virtual works (J) and normalised gaps: what is stored and
+    what the setting checks compare against other end conditions and wall forms (weighted gaps are measured
+    against the small work of the low-pressure steps and made a correct wall form look wrong)."""
+    ivw = internal_virtual_work(data, model, result.parameters)
+    return dataclasses.replace(result, data=data, ivw=ivw, evw=data.evw.copy(),
+                               residuals=(ivw - data.evw) / data.scale[:, None])
 
 
 def _flags(result, first, data: VFMData, model) -> tuple[str, ...]:
