@@ -32,7 +32,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from acquisition.session import open_session
-from vfmlab.live_results import display_unit
+from vfmlab.display import parameter_unit
 
 __all__ = ["DemoError", "DemoOutcome", "DemoSettings", "run_demo", "truth_table"]
 
@@ -181,7 +181,7 @@ def truth_table(session: Path, material: str) -> tuple[Table, list[dict]]:
                 err = None if true is None else (values[i] - true) / true
                 rows.append({"model": model, "parameter": pname, "value": float(values[i]),
                              "stderr": float(errors[i]), "true": true, "relative_error": err})
-                scale, unit = display_unit(pname)
+                scale, unit = parameter_unit(model, pname)
                 table.add_row(
                     model if i == 0 else "", f"{pname} [{unit}]" if unit else pname,
                     f"{values[i] / scale:.4g}", f"{errors[i] / scale:.2g}",

@@ -56,6 +56,16 @@ def display_quantity(value: Any, unit: str) -> tuple[float, str]:
         return float("nan"), shown
 
 
+def parameter_unit(model: str, name: str) -> tuple[float, str]:
+    """(SI value per display unit, display unit) of parameter ``name`` of ``model``, from the model's own SI
+    unit: ``parameter_unit("hgo", "k1")`` -> ``(1000.0, 'kPa')``; ``(1.0, '')`` for a dimensionless one."""
+    from identification.models import get_model
+
+    m = get_model(model)
+    per_si, shown = display_quantity(1.0, dict(zip(m.parameter_names, m.units)).get(name, "1"))
+    return 1.0 / per_si, shown
+
+
 def quantity(value: Any, unit: str, digits: int = 4) -> str:
     """``quantity(6580.0, "Pa")`` -> ``'6.58 kPa'``: the value in display units with its unit."""
     shown, label = display_quantity(value, unit)

@@ -52,7 +52,7 @@ def _num(value: float, fmt: str) -> str:
 def render_live_results(status) -> Group:
     """The "results while the test runs" panel: the latest parameters of each model with their
     standard errors (kPa, degrees or dimensionless), steps reconstructed, markers tracked."""
-    from vfmlab.live_results import display_unit
+    from vfmlab.display import parameter_unit
 
     head = Text(f"{status.steps_reconstructed} steps reconstructed · {status.tracked} markers tracked · "
                 f"{status.message}", style="dim")
@@ -64,7 +64,7 @@ def render_live_results(status) -> Group:
             table.add_column(column, justify=justify)
         for model, est in status.estimates.items():
             for i, name in enumerate(est.names):
-                scale, unit = display_unit(name)
+                scale, unit = parameter_unit(model, name)
                 table.add_row(model if i == 0 else "", escape(f"{name} [{unit}]") if unit else name,
                               f"{est.values[i] / scale:.4g}", f"{est.stderr[i] / scale:.2g}",
                               str(len(est.rows)) if i == 0 else "")

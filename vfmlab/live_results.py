@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["LiveEstimate", "LiveResults", "LiveStatus", "calibrate_from_session", "display_unit"]
+__all__ = ["LiveEstimate", "LiveResults", "LiveStatus", "calibrate_from_session"]
 
 log = logging.getLogger(__name__)
 
@@ -65,32 +65,20 @@ class LiveStatus:
     partial_rows: tuple[int, ...] = ()  # step rows where fewer than PARTIAL_FRACTION of the reference markers were tracked
 
 
-def display_unit(name: str) -> tuple[float, str]:
-    """(SI value per display unit, unit) of a model parameter: kPa for stress-like ones, degrees
-    for angles, ("", 1) for dimensionless ones."""
-    if name in ("beta", "c", "k1", "mu"):
-        return 1e3, "kPa"
-    if name == "phi":
-        return np.pi / 180, "deg"
-    return 1.0, ""
-
-
 def calibrate_from_session(path: str | Path, fix_k3: bool = True) -> list:
     """Calibrated cameras from the session's calibration-board views (``vfmlab calibrate``'s
     defaults: ChArUco board, joint bundle adjustment), reading the file while it is written."""
     from acquisition.session import open_session
     from reconstruction.calibration import calibrate_from_detections
-    from reconstruction.targets import BoardSpec, detect_board
+    from reconstruction.targets import BoardSpec
+    from vfmlab.pipeline import session_board_detections
 
     spec = BoardSpec()
-    detections, sizes = {}, {}
     with open_session(path) as s:
-        for name in s.camera_names:
-            images = s.calibration_images(name)
-            if len(images) == 0:
-                raise ValueError(f"{path}: no calibration-board views for camera {name!r}")
-            sizes[name] = (images.shape[2], images.shape[1])
-            detections[name] = [detect_board(im, spec) for im in images]
+        try:
+            detections, sizes = session_board_detections(s, spec)
+        except ValueError as exc:
+            raise ValueError(f"{path}: {exc}") from None
     return calibrate_from_detections(detections, spec, sizes, fix_k3=fix_k3).cameras
 
 

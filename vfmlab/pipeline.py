@@ -134,6 +134,24 @@ def resolve_ends(session_ends: dict[str, str], requested: str | None) -> tuple[s
     return requested, "--ends option", [], []
 
 
+def session_board_detections(session: Any, spec: Any, advance: Callable[[], None] | None = None) -> tuple[dict, dict]:
+    """Board detections per camera (``reconstruction.targets.detect_board`` on every calibration view) and
+    image sizes (width, height) px, from an open session; ``advance`` is called after each camera.
+    A ValueError names a camera without calibration views."""
+    from reconstruction.targets import detect_board
+
+    detections, sizes = {}, {}
+    for name in session.camera_names:
+        images = session.calibration_images(name)
+        if len(images) == 0:
+            raise ValueError(f"no calibration-board views for camera {name!r}")
+        sizes[name] = (images.shape[2], images.shape[1])
+        detections[name] = [detect_board(im, spec) for im in images]
+        if advance is not None:
+            advance()
+    return detections, sizes
+
+
 def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str = "membrane", ends: str | None = None,
                     optimizer: str = "lsq", smoothing: str | tuple[int, int] | None = "auto", markers: str | None = None,
                     uncertainty: str = "bootstrap", check: bool = True, weighting: str = "paper",

@@ -291,21 +291,16 @@ def _detect_in_folder(images_dir: Path, spec) -> tuple[dict, dict, str]:
 
 def _detect_in_session(session: Path, spec) -> tuple[dict, dict, str]:
     """Board detections, image sizes and the source, from the calibration images stored in SESSION."""
-    from reconstruction.targets import detect_board
     from vfmlab.cli._sessions import cli_session
+    from vfmlab.pipeline import session_board_detections
 
-    detections: dict = {}
-    sizes: dict = {}
     with cli_session(session) as s:
         with Progress(console=err_console, transient=True) as progress:
             task = progress.add_task("detecting board", total=None)
-            for c in s.camera_names:
-                imgs = s.calibration_images(c)
-                if len(imgs) == 0:
-                    raise CliInputError(f"{session}: no calibration images for camera {c!r}; use --images DIR")
-                sizes[c] = (imgs.shape[2], imgs.shape[1])
-                detections[c] = [detect_board(im, spec) for im in imgs]
-                progress.advance(task)
+            try:
+                detections, sizes = session_board_detections(s, spec, lambda: progress.advance(task))
+            except ValueError as exc:
+                raise CliInputError(f"{session}: {exc}; use --images DIR") from None
     return detections, sizes, f"{session} (calibration images)"
 
 
