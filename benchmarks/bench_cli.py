@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import resource
 import shutil
 import subprocess
 import sys
@@ -86,18 +87,23 @@ def _copies(session: Path, tmp: Path, roots: list[Path], repeats: int) -> dict:
 
 
 def time_commands(session: Path, roots: list[Path], repeats: int, tmp: Path) -> tuple[dict, dict]:
-    """Median wall times ``{(root index, command): s}`` and the copies identified by each root."""
+    """Median (wall, CPU) times ``{(root index, command): (s, s)}`` and the copies identified by each
+    root. CPU = user + system of the command and its children (the damaged-file walk)."""
     copies = _copies(session, tmp, roots, repeats)
     times = defaultdict(list)
     for k in range(repeats):
         for label, args in COMMANDS.items():
             for r, root in enumerate(roots):  # interleaved: the same load for every tree
                 target = copies.get((r, label, k), session)
+                before = resource.getrusage(resource.RUSAGE_CHILDREN)
                 t0 = time.perf_counter()
                 _vfmlab(root, [a.format(s=target) for a in args], check=True, stdout=subprocess.DEVNULL,
                         stderr=subprocess.DEVNULL)
-                times[r, label].append(time.perf_counter() - t0)
-    return {key: float(np.median(v)) for key, v in times.items()}, copies
+                wall = time.perf_counter() - t0
+                after = resource.getrusage(resource.RUSAGE_CHILDREN)
+                cpu = after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime
+                times[r, label].append((wall, cpu))
+    return {key: tuple(np.median(np.array(v), axis=0)) for key, v in times.items()}, copies
 
 
 def import_breakdown(root: Path, session: Path, tmp: Path) -> tuple[dict, list[str], float]:
@@ -164,11 +170,13 @@ def main(argv: list[str] | None = None) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         medians, copies = time_commands(session, roots, args.repeats, tmp)
-        print(f"Median wall time (s) of {args.repeats} fresh processes, session {session.name}:\n")
+        print(f"Median wall time (CPU time) in s of {args.repeats} fresh processes, session {session.name}, "
+              f"load average {os.getloadavg()[0]:.1f}:\n")
         print("| command | " + " | ".join(names) + " |")
         print("|---|" + "---|" * len(roots))
         for label in COMMANDS:
-            print(f"| `vfmlab {label}` | " + " | ".join(f"{medians[r, label]:.3f}" for r in range(len(roots))) + " |")
+            print(f"| `vfmlab {label}` | " + " | ".join(f"{medians[r, label][0]:.3f} ({medians[r, label][1]:.3f})"
+                                                     for r in range(len(roots))) + " |")
         if len(roots) == 2:
             label = "identify S (default: bootstrap)"
             diff = max_relative_difference(copies[0, label, 0], copies[1, label, 0])
