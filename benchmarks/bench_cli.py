@@ -56,6 +56,25 @@ def _vfmlab(root: Path, args: list[str], **kwargs) -> subprocess.CompletedProces
     return subprocess.run([sys.executable, "-m", "vfmlab", *args], env=_env(root), cwd=root, **kwargs)
 
 
+#: ``python -m vfmlab ARGS`` that also reports the CPU time of its own process (not of its children) on exit
+_REPORTING = ("import atexit, os, runpy, sys, time\n"
+              "atexit.register(lambda: os.write(2, f'\\nmain-process-cpu {time.process_time()}\\n'.encode()))\n"
+              "sys.argv = ['vfmlab'] + sys.argv[1:]\n"
+              "runpy.run_module('vfmlab', run_name='__main__')\n")
+
+
+def _timed(root: Path, args: list[str]) -> tuple[float, float, float]:
+    """(wall, CPU of the command and its children, CPU of the command's own process) in s."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    run = subprocess.run([sys.executable, "-c", _REPORTING, *args], env=_env(root), cwd=root, check=True,
+                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    own = [float(line.split()[1]) for line in run.stderr.splitlines() if line.startswith("main-process-cpu ")]
+    return wall, after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime, own[-1]
+
+
 def make_session(work: Path) -> Path:
     """A rendered session with marker tracks in ``work`` (made once: run, calibrate, reconstruct)."""
     session = work / "rendered-seed0.h5"
@@ -87,22 +106,17 @@ def _copies(session: Path, tmp: Path, roots: list[Path], repeats: int) -> dict:
 
 
 def time_commands(session: Path, roots: list[Path], repeats: int, tmp: Path) -> tuple[dict, dict]:
-    """Median (wall, CPU) times ``{(root index, command): (s, s)}`` and the copies identified by each
-    root. CPU = user + system of the command and its children (the damaged-file walk)."""
+    """Median (wall, CPU, main-process CPU) times ``{(root index, command): (s, s, s)}`` and the copies
+    identified by each root. CPU = user + system of the command and its children (the damaged-file
+    walk, bootstrap workers); main-process CPU = the command's own process alone, what its wall time
+    is on an idle machine when the children run on the other core (a load-independent figure)."""
     copies = _copies(session, tmp, roots, repeats)
     times = defaultdict(list)
     for k in range(repeats):
         for label, args in COMMANDS.items():
             for r, root in enumerate(roots):  # interleaved: the same load for every tree
                 target = copies.get((r, label, k), session)
-                before = resource.getrusage(resource.RUSAGE_CHILDREN)
-                t0 = time.perf_counter()
-                _vfmlab(root, [a.format(s=target) for a in args], check=True, stdout=subprocess.DEVNULL,
-                        stderr=subprocess.DEVNULL)
-                wall = time.perf_counter() - t0
-                after = resource.getrusage(resource.RUSAGE_CHILDREN)
-                cpu = after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime
-                times[r, label].append((wall, cpu))
+                times[r, label].append(_timed(root, [a.format(s=target) for a in args]))
     return {key: tuple(np.median(np.array(v), axis=0)) for key, v in times.items()}, copies
 
 
@@ -170,12 +184,12 @@ def main(argv: list[str] | None = None) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         medians, copies = time_commands(session, roots, args.repeats, tmp)
-        print(f"Median wall time (CPU time) in s of {args.repeats} fresh processes, session {session.name}, "
-              f"load average {os.getloadavg()[0]:.1f}:\n")
+        print(f"Median of {args.repeats} fresh processes, session {session.name}, load average "
+              f"{os.getloadavg()[0]:.1f}: wall / CPU of the command and its children / CPU of its main process (s)\n")
         print("| command | " + " | ".join(names) + " |")
         print("|---|" + "---|" * len(roots))
         for label in COMMANDS:
-            print(f"| `vfmlab {label}` | " + " | ".join(f"{medians[r, label][0]:.3f} ({medians[r, label][1]:.3f})"
+            print(f"| `vfmlab {label}` | " + " | ".join(" / ".join(f"{t:.3f}" for t in medians[r, label])
                                                      for r in range(len(roots))) + " |")
         if len(roots) == 2:
             label = "identify S (default: bootstrap)"
