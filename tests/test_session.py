@@ -276,7 +276,7 @@ def test_walk_not_repeated_while_a_quiet_file_is_unchanged(tmp_path, monkeypatch
 
     path = tmp_path / "s.h5"
     SessionWriter.create(path, SPEC).close()
-    monkeypatch.setattr(session_module, "QUIET_BEFORE_WALK", 0.0)  # the file counts as long untouched
+    monkeypatch.setattr(session_module, "QUIET_BEFORE_WALK", -1.0)  # the file counts as long untouched
     forks = _count_walks(monkeypatch)
     open_session(path).close()
     open_session(path).close()
