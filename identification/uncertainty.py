@@ -26,9 +26,10 @@ Units SI as everywhere; shapes in the docstrings.
 
 from __future__ import annotations
 
+import functools
 import logging
 from dataclasses import dataclass, replace
-from typing import Mapping
+from typing import Callable, Mapping
 
 import numpy as np
 from scipy.special import stdtrit  # scipy.stats costs ~0.4 s of import for one quantile
@@ -201,6 +202,7 @@ def bootstrap(
     seed: int = 0,
     prepare_options: Mapping | None = None,
     gap_weights: np.ndarray | None = None,
+    map_replicates: Callable | None = None,
 ) -> Uncertainty:
     """Parametric bootstrap of an identification (see the module docstring).
 
@@ -227,6 +229,10 @@ def bootstrap(
     gap_weights : ndarray, shape (n_fields, n_steps), optional
         The weights of the virtual-work gaps ``result`` was fitted with (``noise_weights``): every
         replicate is weighted alike, so the spread describes the same estimator.
+    map_replicates : callable, optional
+        ``map``-like ``(function, replicates) -> results in order`` that runs the independent
+        re-identifications, e.g. on several cores (``vfmlab.parallel.fork_map``); the builtin ``map``
+        by default. The replicates are drawn in order before, so the result is the same either way.
     """
     model = get_model(result.model)
     level, replicates = resimulated_measurements(data, positions, marker_sigma=marker_sigma,
@@ -235,16 +241,26 @@ def bootstrap(
     options = dict(prepare_options or {})
     estimate = np.array([result.parameters[n] for n in model.parameter_names])
     reps, rms, failed = [], [], 0
-    for pos, p, f, mesh in replicates:
-        res = _reidentify(data, model, result.parameters, pos, p, f, mesh, options, gap_weights)
-        values = None if res is None else np.array([res.parameters[n] for n in model.parameter_names])
-        if values is None or not res.converged or not np.all(np.isfinite(_to_x(model, values))):
+    fit = functools.partial(_replicate_fit, data, model, result.parameters, options, gap_weights)
+    for values, value_rms in (map_replicates or map)(fit, replicates):
+        if values is None:
             failed += 1
             continue
         reps.append(values)
-        rms.append(float(np.sqrt(np.mean(res.residuals**2))))
+        rms.append(value_rms)
     return _summarise(model, estimate, np.array(reps).reshape(-1, len(estimate)), np.array(rms), result,
                       level, pressure_noise, force_noise, failed)
+
+
+def _replicate_fit(data: VFMData, model, initial, options, gap_weights, replicate) -> tuple:
+    """(parameters (n_params,) SI, RMS gap) of one replicate ``(pos, p, f, mesh)``; (None, nan) if its
+    identification failed or did not converge (small, so that another process can send it back)."""
+    pos, p, f, mesh = replicate
+    res = _reidentify(data, model, initial, pos, p, f, mesh, options, gap_weights)
+    values = None if res is None else np.array([res.parameters[n] for n in model.parameter_names])
+    if values is None or not res.converged or not np.all(np.isfinite(_to_x(model, values))):
+        return None, float("nan")
+    return values, float(np.sqrt(np.mean(res.residuals**2)))
 
 
 def _reidentify(data: VFMData, model, initial, pos, p, f, mesh, options, gap_weights):

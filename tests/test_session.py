@@ -258,3 +258,65 @@ def test_results_can_be_added_to_an_interrupted_session(tmp_path):
     with open_session(path) as s:
         assert s.status == "interrupted"
         assert s.results() == ["markers_001"]
+
+
+# -- the damaged-file check (structure walk in a child) ----------------------------------------
+
+def _count_walks(monkeypatch) -> list:
+    import acquisition.session as session_module
+
+    forks = []
+    original = session_module._fork_walk
+    monkeypatch.setattr(session_module, "_fork_walk", lambda path, timeout: forks.append(path) or original(path, timeout))
+    return forks
+
+
+def test_walk_not_repeated_while_a_quiet_file_is_unchanged(tmp_path, monkeypatch):
+    import acquisition.session as session_module
+
+    path = tmp_path / "s.h5"
+    SessionWriter.create(path, SPEC).close()
+    monkeypatch.setattr(session_module, "QUIET_BEFORE_WALK", -1.0)  # the file counts as long untouched
+    forks = _count_walks(monkeypatch)
+    open_session(path).close()
+    open_session(path).close()
+    assert len(forks) == 1
+    write_result(path, "markers", {"positions": np.zeros((1, 2, 3))}, {})  # its own open: still unchanged
+    assert len(forks) == 1
+    open_session(path).close()  # the result changed the file: walked again
+    assert len(forks) == 2
+
+
+def test_a_recently_written_file_is_walked_at_every_open(tmp_path, monkeypatch):
+    path = tmp_path / "s.h5"
+    SessionWriter.create(path, SPEC).close()
+    forks = _count_walks(monkeypatch)
+    open_session(path).close()
+    open_session(path).close()
+    assert len(forks) == 2  # written < QUIET_BEFORE_WALK s ago: its stat could miss a same-size rewrite
+
+
+def test_walk_started_ahead_is_waited_for(tmp_path, monkeypatch):
+    import acquisition.session as session_module
+
+    path = tmp_path / "s.h5"
+    SessionWriter.create(path, SPEC).close()
+    forks = _count_walks(monkeypatch)
+    session_module.start_preflight(path)
+    with open_session(path) as s:
+        assert s.specimen.specimen_id == "A1"
+    assert len(forks) == 1  # the walk started ahead was the open's walk
+
+
+def test_walk_started_ahead_that_hangs_is_a_damaged_file(tmp_path, monkeypatch):
+    import acquisition.session as session_module
+
+    path = tmp_path / "s.h5"
+    SessionWriter.create(path, SPEC).close()
+    monkeypatch.setattr(session_module, "_walk_structure", lambda path: time.sleep(60))  # HDF5 looping on a header
+    session_module.start_preflight(path)
+    pid = session_module._pending[1]
+    with pytest.raises(SessionError, match="does not finish reading its structure"):
+        session_module._preflight(path, timeout=0.5)
+    with pytest.raises(ChildProcessError):  # killed and reaped
+        os.waitpid(pid, os.WNOHANG)

@@ -21,8 +21,6 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import click
 
-from vfmlab import __version__
-
 # Exit codes (decision 0007); the same numbers as acquisition.errors.EXIT_*, which this module
 # does not import up front so that ``vfmlab --help`` stays fast.
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
@@ -72,8 +70,19 @@ def _module_exists(module: str) -> bool:
     return importlib.util.find_spec(f"vfmlab.cli.{module}") is not None
 
 
+def _show_version(ctx: click.Context, _param: click.Parameter, value: bool) -> None:
+    """``--version``: as click's ``version_option``, with the version looked up only when asked for."""
+    if not value or ctx.resilient_parsing:
+        return
+    from vfmlab import __version__
+
+    click.echo(f"vfmlab, version {__version__}")
+    ctx.exit()
+
+
 @click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
-@click.version_option(__version__, prog_name="vfmlab")
+@click.option("--version", is_flag=True, expose_value=False, is_eager=True, callback=_show_version,
+              help="Show the version and exit.")
 @click.option("-v", "--verbose", count=True, help="More log output (-v info, -vv debug).")
 def cli(verbose: int) -> None:
     """vfmlab: inflation/extension testing of arterial segments, from the instruments

@@ -16,12 +16,12 @@ import datetime as _dt
 import json
 import logging
 import math
-from typing import Any, Iterable
+import os
+import sys
+from typing import Any
 
 import click
 import numpy as np
-from rich.console import Console, ConsoleDimensions
-from rich.markup import escape as _rich_escape
 
 from vfmlab.display import display_quantity, fixed, num, quantity  # noqa: F401 - re-exported for the commands
 
@@ -31,58 +31,27 @@ UNLIMITED_WIDTH = 100_000
 LOG_TIME_FORMAT = "%Y-%m-%d %H:%M:%S"
 
 
-class CliConsole(Console):
-    """A rich console that never wraps, crops or pads when its file is not a terminal.
+def __getattr__(name: str) -> Any:
+    """``console``, ``err_console`` and ``CliConsole`` on first use (PEP 562): rich costs ~20 ms of
+    start-up that commands printing no rich output (``identify --json``, ``--help``) need not pay."""
+    if name == "CliConsole":
+        from vfmlab.cli._console import CliConsole
 
-    In a terminal it behaves as :class:`rich.console.Console`. Elsewhere its width is unlimited, long
-    text is soft-wrapped (left to the reader), trailing padding is stripped from every line and
-    :meth:`rule` prints a short rule instead of one as wide as the console.
-    """
+        return CliConsole
+    if name in ("console", "err_console"):
+        from vfmlab.cli._console import CliConsole
 
-    def __init__(self, **kwargs: Any) -> None:
-        kwargs.setdefault("highlight", False)
-        kwargs.setdefault("log_path", False)
-        kwargs.setdefault("log_time_format", f"[{LOG_TIME_FORMAT}]")
-        self._soft_wrap_terminal = bool(kwargs.pop("soft_wrap", False))
-        super().__init__(**kwargs)
-
-    @property
-    def size(self) -> ConsoleDimensions:
-        dims = super().size
-        return dims if self.is_terminal else ConsoleDimensions(UNLIMITED_WIDTH, dims.height)
-
-    @size.setter
-    def size(self, new_size: tuple[int, int]) -> None:
-        Console.size.fset(self, new_size)
-
-    @property
-    def soft_wrap(self) -> bool:  # read by Console.print when soft_wrap is not given
-        return self._soft_wrap_terminal or not self.is_terminal
-
-    @soft_wrap.setter
-    def soft_wrap(self, value: bool) -> None:
-        self._soft_wrap_terminal = bool(value)
-
-    def rule(self, title: str = "", *args: Any, **kwargs: Any) -> None:
-        if self.is_terminal:
-            super().rule(title, *args, **kwargs)
-        else:
-            self.print(f"── {title} ──" if title else "──────")
-
-    def _render_buffer(self, buffer: Iterable) -> str:
-        text = super()._render_buffer(buffer)
-        if self.is_terminal:
-            return text
-        return "\n".join(line.rstrip(" ") for line in text.split("\n"))
-
-
-console = CliConsole()
-err_console = CliConsole(stderr=True)
+        value = CliConsole() if name == "console" else CliConsole(stderr=True)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def esc(value: Any) -> str:
     """``value`` as text safe inside a rich markup string: ``[`` is escaped, never read as a tag."""
-    return _rich_escape(str(value))
+    from rich.markup import escape
+
+    return escape(str(value))
 
 
 class CliError(click.ClickException):
@@ -102,11 +71,15 @@ class CliInputError(CliError):
 
 def show_error(message: str) -> None:
     """Print ``message`` as the one-line error of the command, on stderr."""
+    from vfmlab.cli._common import err_console
+
     err_console.print(f"[bold red]Error:[/] {esc(message)}", markup=True)
 
 
 def show_warning(message: str) -> None:
     """Print ``message`` as a warning the user should read (unusual but accepted input), on stderr."""
+    from vfmlab.cli._common import err_console
+
     err_console.print(f"[yellow]Warning:[/] {esc(message)}", markup=True)
 
 
@@ -123,11 +96,26 @@ class _EchoHandler(logging.Handler):
 
 def log_handler() -> logging.Handler:
     """The handler of the CLI's log output: rich in a terminal, plain lines elsewhere (both ISO dates)."""
+    if not _stderr_may_be_terminal():
+        return _EchoHandler()  # what rich would decide too, without importing it
+    from vfmlab.cli._common import err_console
+
     if err_console.is_terminal:
         from rich.logging import RichHandler
 
         return RichHandler(console=err_console, show_path=False, markup=False, log_time_format=LOG_TIME_FORMAT)
     return _EchoHandler()
+
+
+def _stderr_may_be_terminal() -> bool:
+    """False when rich's ``Console(stderr=True).is_terminal`` is certainly False: stderr is no tty and
+    neither TTY_COMPATIBLE=1 nor FORCE_COLOR says otherwise; True when only rich can tell."""
+    if os.environ.get("TTY_COMPATIBLE", "") == "1" or os.environ.get("FORCE_COLOR"):
+        return True
+    try:
+        return bool(sys.stderr.isatty())
+    except (AttributeError, ValueError):  # no stream, or a closed one
+        return False
 
 
 def to_jsonable(obj: Any) -> Any:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from vfmlab.cli._common import CliInputError, console, display_quantity, esc, num, print_json
+from vfmlab.cli._common import CliInputError, display_quantity, esc, num, print_json
 
 WALL_NOTE = {
     "membrane": "paper's plain membrane form (pressure on the marker surface)",
@@ -61,6 +61,9 @@ def command(session_path, model, wall, ends, optimizer, smooth, uncertainty, wei
 
     Units: parameters in SI (Pa, rad); the table shows kPa and degrees.
     """
+    from acquisition.session import start_preflight
+
+    start_preflight(session_path)  # the damaged-file check runs on the other core while the modules load
     from vfmlab.pipeline import identify_stored
 
     smoothing = parse_smooth_option(smooth)
@@ -83,6 +86,8 @@ def command(session_path, model, wall, ends, optimizer, smooth, uncertainty, wei
                     "result_group": group})
         return
     from rich.table import Table
+
+    from vfmlab.cli._common import console  # rich: only for the table (not for --json)
 
     table = Table(title=f"{model} ({WALL_NOTE[wall]})")
     table.add_column("parameter")

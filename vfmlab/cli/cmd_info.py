@@ -13,7 +13,7 @@ import click
 import numpy as np
 from rich.table import Table
 
-from acquisition.markers_csv import MMHG
+from acquisition.plausibility import MMHG
 from acquisition.session import DamagedSessionError
 from vfmlab.cli._common import CliInputError, console, err_console, esc, fixed, num, print_json
 from vfmlab.cli._sessions import cli_session

@@ -1,0 +1,208 @@
+"""Start-up and whole-command wall time of the ``vfmlab`` command line (issue 11: ``vfmlab identify`` <= 0.5 s).
+
+    PYTHONPATH=. python benchmarks/bench_cli.py [--session S.h5] [--work DIR] [--repeats 5]
+                                                [--compare-root OTHER_CHECKOUT]
+
+Prints, as markdown, the median wall time (s) over ``--repeats`` fresh processes of ``vfmlab --help``,
+``vfmlab info S``, ``vfmlab identify S --uncertainty gauss-newton`` and ``vfmlab identify S`` (defaults:
+bootstrap uncertainty), then the import-time breakdown of ``identify`` (``python -X importtime``, self
+time summed by top-level package) and the modules it must not import (drivers, pyserial, matplotlib...).
+
+``S`` is a rendered session with marker tracks. Without ``--session`` one is made once in ``--work``
+(``vfmlab run examples/paper-protocol.toml --sim --sim-seed 0``, ``calibrate``, ``reconstruct``: about a
+minute) and reused by later runs. Every timed ``identify`` runs on its own copy of ``S`` (it appends a
+result); the copies are made first and left alone for a few seconds, as a session on disk is.
+
+``--compare-root`` times a second source tree (e.g. ``git worktree add /tmp/before main``) in the same run,
+interleaved command by command (ratios are what count on a loaded machine), and prints the largest
+relative difference between the two trees' stored identification results (parameters, standard
+errors, intervals, virtual works, residuals).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+#: modules ``vfmlab identify`` has no use for (instrument drivers, serial ports, plotting, images, meshes)
+MUST_NOT_IMPORT = ("acquisition.mark10", "acquisition.mensor", "acquisition.sampler", "acquisition.serial_link",
+                   "serial", "matplotlib", "trimesh", "cv2", "rig_sim", "reconstruction", "vfmlab.report")
+#: seconds a copied session is left alone before it is timed (acquisition.session.QUIET_BEFORE_WALK)
+SETTLE = 2.6
+COMMANDS = {
+    "--help": ["--help"],
+    "info S": ["info", "{s}"],
+    "identify S --uncertainty gauss-newton": ["identify", "{s}", "--uncertainty", "gauss-newton"],
+    "identify S (default: bootstrap)": ["identify", "{s}"],
+}
+
+
+def _env(root: Path) -> dict:
+    return dict(os.environ, PYTHONPATH=str(root), OMP_NUM_THREADS=os.environ.get("OMP_NUM_THREADS", "1"))
+
+
+def _vfmlab(root: Path, args: list[str], **kwargs) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "vfmlab", *args], env=_env(root), cwd=root, **kwargs)
+
+
+#: ``python -m vfmlab ARGS`` that also reports the CPU time of its own process (not of its children) on exit
+_REPORTING = ("import atexit, os, runpy, sys, time\n"
+              "atexit.register(lambda: os.write(2, f'\\nmain-process-cpu {time.process_time()}\\n'.encode()))\n"
+              "sys.argv = ['vfmlab'] + sys.argv[1:]\n"
+              "runpy.run_module('vfmlab', run_name='__main__')\n")
+
+
+def _timed(root: Path, args: list[str]) -> tuple[float, float, float]:
+    """(wall, CPU of the command and its children, CPU of the command's own process) in s."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    run = subprocess.run([sys.executable, "-c", _REPORTING, *args], env=_env(root), cwd=root, check=True,
+                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    own = [float(line.split()[1]) for line in run.stderr.splitlines() if line.startswith("main-process-cpu ")]
+    return wall, after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime, own[-1]
+
+
+def make_session(work: Path) -> Path:
+    """A rendered session with marker tracks in ``work`` (made once: run, calibrate, reconstruct)."""
+    session = work / "rendered-seed0.h5"
+    if session.exists():
+        return session
+    partial = work / "rendered-seed0.partial.h5"
+    partial.unlink(missing_ok=True)
+    print(f"making a rendered session in {work} (about a minute)...", file=sys.stderr)
+    for args in (["run", "examples/paper-protocol.toml", "--specimen", "examples/specimen.toml", "--out", str(partial),
+                  "--sim", "--sim-seed", "0", "--yes", "--json"], ["calibrate", str(partial)],
+                 ["reconstruct", str(partial)]):
+        _vfmlab(ROOT, args, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    partial.rename(session)
+    return session
+
+
+def _copies(session: Path, tmp: Path, roots: list[Path], repeats: int) -> dict:
+    """(root index, command, repeat) -> its own copy of the session, for the commands that write."""
+    out = {}
+    for r in range(len(roots)):
+        for label, args in COMMANDS.items():
+            if args[0] != "identify":
+                continue
+            for k in range(repeats):
+                out[r, label, k] = tmp / f"r{r}-{len(out)}.h5"
+                shutil.copyfile(session, out[r, label, k])
+    time.sleep(SETTLE)
+    return out
+
+
+def time_commands(session: Path, roots: list[Path], repeats: int, tmp: Path) -> tuple[dict, dict]:
+    """Median (wall, CPU, main-process CPU) times ``{(root index, command): (s, s, s)}`` and the copies
+    identified by each root. CPU = user + system of the command and its children (the damaged-file
+    walk, bootstrap workers); main-process CPU = the command's own process alone, what its wall time
+    is on an idle machine when the children run on the other core (a load-independent figure)."""
+    copies = _copies(session, tmp, roots, repeats)
+    times = defaultdict(list)
+    for k in range(repeats):
+        for label, args in COMMANDS.items():
+            for r, root in enumerate(roots):  # interleaved: the same load for every tree
+                target = copies.get((r, label, k), session)
+                times[r, label].append(_timed(root, [a.format(s=target) for a in args]))
+    return {key: tuple(np.median(np.array(v), axis=0)) for key, v in times.items()}, copies
+
+
+def import_breakdown(root: Path, session: Path, tmp: Path) -> tuple[dict, list[str], float]:
+    """Self import time (s) of ``identify --uncertainty gauss-newton`` by top-level package, the
+    modules of ``MUST_NOT_IMPORT`` it imported, and the total."""
+    target = tmp / f"imports-{abs(hash(str(root)))}.h5"
+    shutil.copyfile(session, target)
+    args = [sys.executable, "-X", "importtime", "-m", "vfmlab", "identify", str(target), "--uncertainty",
+            "gauss-newton"]
+    err = subprocess.run(args, env=_env(root), cwd=root, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                         text=True, check=True).stderr
+    by_package, loaded = defaultdict(float), set()
+    for line in err.splitlines():
+        if not line.startswith("import time:") or "|" not in line or "self" in line:
+            continue
+        self_us, name = _fields(line)
+        loaded.add(name)
+        by_package[name.split(".")[0]] += self_us * 1e-6
+    bad = sorted(m for m in loaded if any(m == b or m.startswith(b + ".") for b in MUST_NOT_IMPORT))
+    return dict(by_package), bad, float(sum(by_package.values()))
+
+
+def _fields(line: str) -> tuple[float, str]:
+    """(self time µs, module) of one ``-X importtime`` line."""
+    parts = line.replace("import time:", "").split("|")
+    return float(parts[0]), parts[2].strip()
+
+
+def max_relative_difference(a: Path, b: Path) -> float:
+    """Largest relative difference between the newest identification results of two session copies."""
+    sys.path.insert(0, str(ROOT))
+    from acquisition.session import open_session
+
+    arrays = []
+    for path in (a, b):
+        with open_session(path) as s:
+            arrays.append(s.latest("identification")["arrays"])
+    worst = 0.0
+    for key in ("parameters", "stderr", "interval_low", "interval_high", "bootstrap_bias", "ivw", "evw",
+                "residuals", "correlation"):
+        if key in arrays[0] or key in arrays[1]:
+            x, y = np.asarray(arrays[0][key], float), np.asarray(arrays[1][key], float)
+            scale = np.maximum(np.abs(x), np.abs(y))
+            rel = np.where(scale > 0, np.abs(x - y) / np.where(scale > 0, scale, 1.0), 0.0)
+            worst = max(worst, float(np.nanmax(rel)) if rel.size else 0.0)
+    return worst
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--session", type=Path, help="a rendered session with marker tracks (copied, never changed)")
+    parser.add_argument("--work", type=Path, default=Path(tempfile.gettempdir()) / "vfmlab-bench-cli",
+                        help="folder where the rendered session is made once (without --session)")
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--compare-root", type=Path, help="another source tree of vfmlab, timed alongside")
+    args = parser.parse_args(argv)
+    if args.session is None:
+        args.work.mkdir(parents=True, exist_ok=True)
+        session = make_session(args.work)
+    else:
+        session = args.session
+    roots = [ROOT] + ([args.compare_root.resolve()] if args.compare_root else [])
+    names = ["this tree"] + ([f"{args.compare_root}"] if args.compare_root else [])
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        medians, copies = time_commands(session, roots, args.repeats, tmp)
+        print(f"Median of {args.repeats} fresh processes, session {session.name}, load average "
+              f"{os.getloadavg()[0]:.1f}: wall / CPU of the command and its children / CPU of its main process (s)\n")
+        print("| command | " + " | ".join(names) + " |")
+        print("|---|" + "---|" * len(roots))
+        for label in COMMANDS:
+            print(f"| `vfmlab {label}` | " + " | ".join(" / ".join(f"{t:.3f}" for t in medians[r, label])
+                                                     for r in range(len(roots))) + " |")
+        if len(roots) == 2:
+            label = "identify S (default: bootstrap)"
+            diff = max_relative_difference(copies[0, label, 0], copies[1, label, 0])
+            print(f"\nLargest relative difference of the stored identification results between the trees: {diff:.1e}")
+        for r, root in enumerate(roots):
+            by_package, bad, total = import_breakdown(root, session, tmp)
+            print(f"\nImports of `vfmlab identify` ({names[r]}): {total:.3f} s of self time (-X importtime)\n")
+            print("| package | s |\n|---|---|")
+            for name, t in sorted(by_package.items(), key=lambda kv: -kv[1])[:10]:
+                print(f"| {name} | {t:.3f} |")
+            print(f"\nmodules it should not import: {', '.join(bad) if bad else 'none'}")
+
+
+if __name__ == "__main__":
+    main()
