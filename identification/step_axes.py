@@ -22,12 +22,12 @@ _H = 1e-7
 _TRIALS = np.concatenate([np.zeros((1, 4)), _H * np.eye(4)])
 
 
-def _legendre(t: np.ndarray, degree: int) -> np.ndarray:
-    """Legendre polynomials P_0..P_degree at t, shape ``t.shape + (degree + 1,)`` (Bonnet's recursion)."""
+def _legendre_rows(t: np.ndarray, degree: int) -> np.ndarray:
+    """Legendre polynomials P_0..P_degree at t (..., n), stacked before the last axis: (..., degree + 1, n)."""
     out = [np.ones_like(t), t]
     for k in range(1, degree):
         out.append(((2 * k + 1) * t * out[k] - k * out[k - 1]) / (k + 1))
-    return np.stack(out[: degree + 1], axis=-1)
+    return np.stack(out[: degree + 1], axis=-2)
 
 
 def _profile_residual(pts, w, frame0, c0, x, degree):
@@ -40,19 +40,21 @@ def _profile_residual(pts, w, frame0, c0, x, degree):
     f0, f1, f2 = frame0[:, None, 0], frame0[:, None, 1], frame0[:, None, 2]  # (s, 1, 3)
     d = f2 + x[..., :1] * f0 + x[..., 1:2] * f1
     d = d / np.sqrt(np.sum(d * d, axis=-1, keepdims=True))
-    o = c0[:, None] + x[..., 2:3] * f0 + x[..., 3:4] * f1
-    v = pts[:, None] - o[:, :, None]  # (s, e, n, 3)
-    along = np.einsum("senk,sek->sen", v, d)
-    r = np.sqrt(np.maximum(np.einsum("senk,senk->sen", v, v) - along * along, 0.0))
+    shift = x[..., 2:3] * f0 + x[..., 3:4] * f1  # (s, e, 3) origin offset from c0 (small: no cancellation below)
+    q = pts - c0[:, None]  # (s, n, 3)
+    qt = np.swapaxes(q, 1, 2)  # (s, 3, n)
+    # |p - o|^2 and (p - o) . d from products of the (s, n, 3) markers with the (s, e, 3) trial vectors
+    along = d @ qt - np.sum(shift * d, axis=-1)[..., None]  # (s, e, n)
+    vv = np.sum(q * q, axis=-1)[:, None] - 2.0 * (shift @ qt) + np.sum(shift * shift, axis=-1)[..., None]
+    r = np.sqrt(np.maximum(vv - along * along, 0.0))
     ww = w[:, None]
     mean = np.einsum("sen,sn->se", along, w)[..., None] / w.sum(-1)[:, None, None]
     lo, hi = np.min(np.where(ww > 0, along, np.inf), -1), np.max(np.where(ww > 0, along, -np.inf), -1)
     t = (along - mean) / np.maximum(0.5 * (hi - lo), 1e-12)[..., None]
-    basis = _legendre(t, degree) * ww[..., None]  # (s, e, n, b)
+    basis = _legendre_rows(t, degree) * ww[..., None, :]  # (s, e, b, n)
     rw = r * ww
-    bt = np.swapaxes(basis, -1, -2)
-    coef = np.linalg.solve(bt @ basis, bt @ rw[..., None])
-    return rw - (basis @ coef)[..., 0], d, o, r
+    coef = np.linalg.solve(basis @ np.swapaxes(basis, -1, -2), basis @ rw[..., None])  # (s, e, b, 1)
+    return rw - (np.swapaxes(coef, -1, -2) @ basis)[..., 0, :], d, c0[:, None] + shift, r
 
 
 def fit_clouds(pts: np.ndarray, w: np.ndarray, frame0: np.ndarray, c0: np.ndarray, radius: float, *,
