@@ -282,12 +282,6 @@ def _central_triangles(pts2: np.ndarray, simplices: np.ndarray, radius: float) -
     return simp, quality
 
 
-def _area(pts2: np.ndarray, simp: np.ndarray) -> float:
-    p = pts2[simp]
-    return 0.5 * float(np.abs((p[:, 1, 0] - p[:, 0, 0]) * (p[:, 2, 1] - p[:, 0, 1])
-                              - (p[:, 1, 1] - p[:, 0, 1]) * (p[:, 2, 0] - p[:, 0, 0])).sum())
-
-
 def _orientation(pts2: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
     """Sign of the turn a -> b -> c (indices into ``pts2`` (n, 2)): +1 counter-clockwise, -1 clockwise."""
     pa, pb, pc = pts2[a], pts2[b], pts2[c]
@@ -340,64 +334,6 @@ def _cavity_triangles(pts2: np.ndarray, cavity: np.ndarray, verts: np.ndarray) -
     if inside[tri_of[~same_side]].any():  # an outside seed reached: the cavity is not what it should be
         return None
     return new[inside]
-
-
-def _area(pts2: np.ndarray, simp: np.ndarray) -> float:
-    p = pts2[simp]
-    return 0.5 * float(np.abs((p[:, 1, 0] - p[:, 0, 0]) * (p[:, 2, 1] - p[:, 0, 1])
-                              - (p[:, 1, 1] - p[:, 0, 1]) * (p[:, 2, 0] - p[:, 0, 0])).sum())
-
-
-def _orientation(pts2: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """Sign of the turn a -> b -> c (indices into ``pts2`` (n, 2)): +1 counter-clockwise, -1 clockwise."""
-    pa, pb, pc = pts2[a], pts2[b], pts2[c]
-    return np.sign((pb[:, 0] - pa[:, 0]) * (pc[:, 1] - pa[:, 1]) - (pb[:, 1] - pa[:, 1]) * (pc[:, 0] - pa[:, 0]))
-
-
-def _edges_with_opposite(simp: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Undirected edge keys (3 t,), endpoints (3 t, 2) and opposite vertex (3 t,) of triangles ``simp`` (t, 3),
-    edge i opposite vertex i (scipy's ``neighbors`` order); n bounds the vertex indices."""
-    a = np.concatenate([simp[:, 1], simp[:, 2], simp[:, 0]])
-    b = np.concatenate([simp[:, 2], simp[:, 0], simp[:, 1]])
-    opposite = np.concatenate([simp[:, 0], simp[:, 1], simp[:, 2]])
-    key = np.minimum(a, b).astype(np.int64) * n + np.maximum(a, b)
-    return key, np.column_stack([a, b]), opposite
-
-
-def _cavity_triangles(pts2: np.ndarray, cavity: np.ndarray, verts: np.ndarray) -> np.ndarray | None:
-    """The triangles of the Delaunay triangulation of ``verts`` that lie inside the union of ``cavity``.
-
-    The cavity's boundary edges are edges of that triangulation (they are Delaunay edges of the
-    remaining points); the triangles on the cavity side of them seed the inside, which spreads to
-    neighbours across the other edges. None if Qhull fails or the seeds contradict each other.
-    """
-    n = len(pts2)
-    try:
-        dl = Delaunay(pts2[verts])
-    except Exception:  # noqa: BLE001 - degenerate cavity: the caller re-triangulates the whole set
-        return None
-    new = verts[dl.simplices]
-    cav_key, cav_ab, cav_opp = _edges_with_opposite(cavity, n)
-    keys, first, counts = np.unique(cav_key, return_index=True, return_counts=True)
-    boundary = first[counts == 1]  # boundary edges of the cavity, with the cavity's vertex beyond each
-    bkey = cav_key[boundary]
-    new_key, new_ab, new_opp = _edges_with_opposite(new, n)
-    pos = np.searchsorted(bkey, new_key)  # (np.unique returned bkey sorted)
-    on_boundary = bkey[np.minimum(pos, len(bkey) - 1)] == new_key
-    j = boundary[pos[on_boundary]]
-    a, b = new_ab[on_boundary, 0], new_ab[on_boundary, 1]
-    same_side = _orientation(pts2, a, b, new_opp[on_boundary]) == _orientation(pts2, a, b, cav_opp[j])
-    tri_of = np.tile(np.arange(len(new)), 3)[on_boundary]
-    # connect neighbouring new triangles across every edge that is not a cavity boundary edge
-    nb = dl.neighbors.T.ravel()  # (3 t,) in the edge order of _edges_with_opposite
-    link = (nb >= 0) & ~np.isin(new_key, bkey)
-    graph = coo_matrix((np.ones(int(link.sum())), (np.tile(np.arange(len(new)), 3)[link], nb[link])),
-                       shape=(len(new), len(new)))
-    _, labels = connected_components(graph, directed=False)
-    inside, outside = np.unique(labels[tri_of[same_side]]), np.unique(labels[tri_of[~same_side]])
-    if np.intersect1d(inside, outside).size:
-        return None
-    return new[np.isin(labels, inside)]
 
 
 def _area(pts2: np.ndarray, simp: np.ndarray) -> float:
