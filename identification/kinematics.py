@@ -63,7 +63,7 @@ def align_steps(positions: np.ndarray, reference: np.ndarray) -> tuple[np.ndarra
     rz = np.where(ok[..., None], ref[None], 0.0)
     cx = xz.sum(1) / count
     cr = rz.sum(1) / count
-    H = np.einsum("sn,sni,snj->sij", w, xz - cx[:, None], rz - cr[:, None])
+    H = np.swapaxes(w[..., None] * (xz - cx[:, None]), 1, 2) @ (rz - cr[:, None])  # (s, 3, 3)
     U, _, Vt = np.linalg.svd(H)
     d = np.sign(np.linalg.det(np.swapaxes(Vt, -1, -2) @ np.swapaxes(U, -1, -2)))
     D = np.zeros_like(H)
@@ -71,8 +71,8 @@ def align_steps(positions: np.ndarray, reference: np.ndarray) -> tuple[np.ndarra
     D[:, 1, 1] = 1.0
     D[:, 2, 2] = d
     R = np.swapaxes(Vt, -1, -2) @ D @ np.swapaxes(U, -1, -2)
-    t = cr - np.einsum("sij,sj->si", R, cx)
-    aligned = np.einsum("sij,snj->sni", R, x) + t[:, None]
+    t = cr - (R @ cx[..., None])[..., 0]
+    aligned = x @ np.swapaxes(R, 1, 2) + t[:, None]
     return aligned, R, t
 
 
