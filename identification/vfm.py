@@ -407,9 +407,13 @@ def _layer(g: _WallGeometry, sv: float):
     ur_o = g.u_q[..., 0][:, None]  # (f, 1, t, q)
     ur_o_xi = g.u_xi[:, None, :, None, 0, :]  # (f, 1, t, 1, 2)
     Dz, Dt = g.d_z[..., None], g.d_theta[..., None]  # (f, s, t, 1)
-    ur = (r * ur_o + 0.5 * kappa / J * Dz - (r_s - r) * Dt) / r_s
-    ur_xi = (r_xi * ur_o[..., None] + r[..., None] * ur_o_xi + depth * R_xi / J[..., None] * Dz[..., None]
-             - (r_s_xi - r_xi) * Dt[..., None] - r_s_xi * ur[..., None]) / r_s[..., None]
+    if depth == 0.0:  # the marker surface: the extension is the field itself
+        ur = np.broadcast_to(ur_o, Dz.shape[:2] + ur_o.shape[2:])
+        ur_xi = np.broadcast_to(ur_o_xi, ur.shape + (2,))
+    else:
+        ur = (r * ur_o + 0.5 * kappa / J * Dz - (r_s - r) * Dt) / r_s
+        ur_xi = (r_xi * ur_o[..., None] + r[..., None] * ur_o_xi + depth * R_xi / J[..., None] * Dz[..., None]
+                 - (r_s_xi - r_xi) * Dt[..., None] - r_s_xi * ur[..., None]) / r_s[..., None]
     ut, ut_xi = g.u_q[..., 1][:, None], g.u_xi[:, None, :, None, 1, :]
     uz, uz_xi = g.u_q[..., 2][:, None], g.u_xi[:, None, :, None, 2, :]
     du = (ur_xi - ut[..., None] * thx, ut_xi + ur[..., None] * thx, uz_xi)  # (f, s, t, q, 2) per (r, theta, z)
