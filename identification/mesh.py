@@ -323,7 +323,7 @@ def _cavity_triangles(pts2: np.ndarray, cavity: np.ndarray, verts: np.ndarray) -
     same_side = _orientation(pts2, a, b, new_opp[on_boundary]) == _orientation(pts2, a, b, cav_opp[j])
     tri_of = np.tile(np.arange(len(new)), 3)[on_boundary]
     # spread the inside from its seeds to neighbouring new triangles across edges that are not cavity edges
-    link = ((dl.neighbors.T.ravel() >= 0) & ~np.isin(new_key, bkey)).reshape(3, -1).T  # (t, 3)
+    link = ((dl.neighbors.T.ravel() >= 0) & ~on_boundary).reshape(3, -1).T  # (t, 3)
     inside = np.zeros(len(new), bool)
     inside[tri_of[same_side]] = True
     for _ in range(len(new)):
@@ -353,9 +353,12 @@ def _remove_vertices(pts2: np.ndarray, simplices: np.ndarray, removed: np.ndarra
     Returns None when that cannot be trusted here (the cavity not tiled as it should be): the caller
     then re-triangulates.
     """
-    in_cavity = np.isin(simplices, removed).any(axis=1)
+    gone = np.zeros(len(pts2), bool)
+    gone[removed] = True
+    in_cavity = gone[simplices].any(axis=1)
     cavity = simplices[in_cavity]
-    verts = np.setdiff1d(cavity, removed)
+    verts = np.unique(cavity)
+    verts = verts[~gone[verts]]
     new = _cavity_triangles(pts2, cavity, verts) if len(verts) >= 3 else None
     if new is None:
         return None
