@@ -63,7 +63,7 @@ def align_steps(positions: np.ndarray, reference: np.ndarray) -> tuple[np.ndarra
     rz = np.where(ok[..., None], ref[None], 0.0)
     cx = xz.sum(1) / count
     cr = rz.sum(1) / count
-    H = np.einsum("sn,sni,snj->sij", w, xz - cx[:, None], rz - cr[:, None])
+    H = np.swapaxes(w[..., None] * (xz - cx[:, None]), 1, 2) @ (rz - cr[:, None])  # (s, 3, 3)
     U, _, Vt = np.linalg.svd(H)
     d = np.sign(np.linalg.det(np.swapaxes(Vt, -1, -2) @ np.swapaxes(U, -1, -2)))
     D = np.zeros_like(H)
@@ -71,8 +71,8 @@ def align_steps(positions: np.ndarray, reference: np.ndarray) -> tuple[np.ndarra
     D[:, 1, 1] = 1.0
     D[:, 2, 2] = d
     R = np.swapaxes(Vt, -1, -2) @ D @ np.swapaxes(U, -1, -2)
-    t = cr - np.einsum("sij,sj->si", R, cx)
-    aligned = np.einsum("sij,snj->sni", R, x) + t[:, None]
+    t = cr - (R @ cx[..., None])[..., 0]
+    aligned = x @ np.swapaxes(R, 1, 2) + t[:, None]
     return aligned, R, t
 
 
@@ -427,45 +427,78 @@ def marker_outliers(mesh: SurfaceMesh, r, theta, z, *, floor: float = 0.25, n_si
         median norm of a 3-D Gaussian is 1.54 sigma and the neighbours' fit adds its own scatter;
         the factor is calibrated on random marker layouts to within ~5 %).
     """
-    tri = mesh.triangles
     n = mesh.n_markers
-    edges = np.unique(np.sort(np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]]), axis=1), axis=0)
+    edges = _mesh_edges(mesh.triangles, n)
     Rm = mesh.axis.radius
     ds = Rm * wrap_angle(mesh.theta[edges[:, 1]] - mesh.theta[edges[:, 0]])
     dz = mesh.z[edges[:, 1]] - mesh.z[edges[:, 0]]
     edge_len = float(np.median(np.hypot(ds, dz)))
     disp = np.stack([r - mesh.r, Rm * wrap_angle(theta - mesh.theta), z - mesh.z], -1)  # (s, n, 3)
-    # both directions of every edge: (centre i, neighbour j, offset of j from i)
+    # both directions of every edge: (centre i, neighbour j, offset of j from i), grouped by centre
     ci = np.concatenate([edges[:, 0], edges[:, 1]])
-    nj = np.concatenate([edges[:, 1], edges[:, 0]])
-    off = np.concatenate([np.column_stack([ds, dz]), -np.column_stack([ds, dz])])
+    order = np.argsort(ci, kind="stable")
+    ci, nj = ci[order], np.concatenate([edges[:, 1], edges[:, 0]])[order]
+    off = np.concatenate([np.column_stack([ds, dz]), -np.column_stack([ds, dz])])[order]
     A = np.column_stack([np.ones(len(ci)), off / edge_len])  # (n_e2, 3), scaled for conditioning
-    to_centre = csr_matrix((np.ones(len(ci)), (ci, np.arange(len(ci)))), shape=(n, len(ci)))
-
-    def per_centre(values):  # (s, n_e2, ...) -> (s, n, ...): sum over each centre's edges
-        moved = np.moveaxis(values, 1, 0)
-        return np.moveaxis((to_centre @ moved.reshape(len(ci), -1)).reshape((n,) + moved.shape[1:]), 0, 1)
-
+    pair_sum, first_sum = _centre_sums(A, ci, n)
     outlier = np.zeros(disp.shape[:2], bool)
+    n_s = disp.shape[0]
     for _ in range(2):  # second pass without the first pass's outliers among the neighbours
         if _ == 1 and not outlier.any():
             break  # the second pass would repeat the first exactly
         ok = np.all(np.isfinite(disp), -1) & ~outlier
         w = ok[:, nj].astype(float)  # (s, n_e2)
-        dj = np.where(ok[:, nj, None], disp[:, nj], 0.0)
-        AtA = per_centre(w[..., None, None] * (A[:, :, None] * A[:, None, :])[None])
-        Atd = per_centre(w[..., None, None] * (A[:, :, None] * dj[:, :, None, :]))
-        count = per_centre(w)
-        first_row, det = _inverse_first_row(AtA)  # only the fit's value at the centre is needed
-        enough = (count >= 4) & (det > 1e-6)
-        centre = np.einsum("snk,snkc->snc", first_row, Atd) / np.where(enough, det, 1.0)[..., None]
-        dev = np.linalg.norm(disp - centre, axis=-1)
+        dj = np.where(ok[..., None], disp, 0.0)[:, nj]  # (s, n_e2, 3)
+        a00, a01, a02, a11, a12, a22 = (pair_sum @ w.T).reshape(6, n, n_s).transpose(0, 2, 1)  # each (s, n)
+        # only the fit's value at the centre is needed: the first row of the adjugate of A^T W A
+        row = np.stack([a11 * a22 - a12 * a12, a02 * a12 - a01 * a22, a01 * a12 - a02 * a11])  # (3, s, n)
+        det = row[0] * a00 + row[1] * a01 + row[2] * a02
+        Atd = (first_sum @ np.moveaxis(dj, 1, 0).reshape(len(nj), -1)).reshape(3, n, n_s, 3)  # (k, n, s, c)
+        enough = (a00 >= 4) & (det > 1e-6)  # a00: the number of observed neighbours
+        centre = np.einsum("ksn,knsc->snc", row, Atd) / np.where(enough, det, 1.0)[..., None]
+        gap = disp - centre
+        dev = np.sqrt(np.einsum("snc,snc->sn", gap, gap))
         dev = np.where(enough & ok, dev, np.nan)
-        sigma = 1.4826 * np.nanmedian(dev, axis=1, keepdims=True)
+        sigma = 1.4826 * _nanmedian_rows(dev)[:, None]
         limit = np.maximum(n_sigma * sigma, floor * edge_len)
         outlier |= np.nan_to_num(dev) > limit
-    noise = np.nanmedian(np.where(outlier, np.nan, dev), axis=1) / 2.2
+    noise = _nanmedian_rows(np.where(outlier, np.nan, dev)) / 2.2
     return outlier, noise
+
+
+def _centre_sums(A: np.ndarray, ci: np.ndarray, n: int):
+    """Sparse operators summing per-edge terms over each centre's edges (edges sorted by centre ``ci``).
+
+    ``pair_sum`` (6 n, n_e2): rows m n + i sum A_k A_l over the edges of centre i, for the six (k, l) of
+    ``_PAIRS``; ``first_sum`` (3 n, n_e2): rows k n + i sum A_k.
+    """
+    e = np.arange(len(ci))
+    pair_vals = np.concatenate([A[:, k] * A[:, l] for k, l in _PAIRS])
+    pair_sum = csr_matrix((pair_vals, (np.concatenate([m * n + ci for m in range(6)]), np.tile(e, 6))),
+                          shape=(6 * n, len(ci)))
+    first_sum = csr_matrix((A.T.ravel(), (np.concatenate([k * n + ci for k in range(3)]), np.tile(e, 3))),
+                           shape=(3 * n, len(ci)))
+    return pair_sum, first_sum
+
+
+#: The six (k, l), k <= l, of a symmetric 3 x 3 matrix, in the order a00, a01, a02, a11, a12, a22.
+_PAIRS = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
+
+
+def _nanmedian_rows(a: np.ndarray) -> np.ndarray:
+    """``np.nanmedian(a, axis=1)`` of a (s, n) without its overhead (NaN for a row with no finite value)."""
+    srt = np.sort(a, axis=1)  # NaN sort last
+    k = np.isfinite(a).sum(axis=1)
+    lo = np.take_along_axis(srt, np.maximum((k - 1) // 2, 0)[:, None], axis=1)[:, 0]
+    hi = np.take_along_axis(srt, (k // 2)[:, None], axis=1)[:, 0]
+    return np.where(k > 0, 0.5 * (lo + hi), np.nan)
+
+
+def _mesh_edges(tri: np.ndarray, n: int) -> np.ndarray:
+    """Undirected edges (lower index first) of the triangles ``tri`` (t, 3) over n markers, sorted: (e, 2)."""
+    e = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
+    key = np.unique(np.minimum(e[:, 0], e[:, 1]).astype(np.int64) * n + np.maximum(e[:, 0], e[:, 1]))
+    return np.column_stack([key // n, key % n])
 
 
 def _inverse_first_row(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

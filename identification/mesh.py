@@ -255,27 +255,122 @@ def _near_duplicates(points: np.ndarray, tolerance: float, tree: cKDTree | None 
     return drop
 
 
-def _triangulate(s: np.ndarray, z: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Seam-closing Delaunay of the unrolled points (s = R theta, z), each shape (n,).
-
-    Returns local triangles (n_tri, 3) counter-clockwise (indices into s), their quality (n_tri,)
-    (-1 for hull triangles spanning the ends) and the replicated 2-D points (3 n, 2).
-    """
+def _replicate(s: np.ndarray, z: np.ndarray, radius: float) -> np.ndarray:
+    """The unrolled points (s = R theta, z), each shape (n,), replicated at s -/+ 2 pi R: shape (3 n, 2)."""
     period = 2.0 * np.pi * radius
-    pts2 = np.concatenate([np.column_stack([s + k * period, z]) for k in (-1, 0, 1)])
+    return np.concatenate([np.column_stack([s + k * period, z]) for k in (-1, 0, 1)])
+
+
+def _delaunay(pts2: np.ndarray) -> np.ndarray:
+    """Delaunay simplices (n_tri, 3) of the points ``pts2`` (n, 2); a ``MeshError`` if Qhull fails."""
     try:
-        dl = Delaunay(pts2)
+        return Delaunay(pts2).simplices
     except Exception as exc:  # scipy raises QhullError on flat/degenerate input
         raise MeshError(f"Delaunay triangulation failed: {exc}") from exc
-    simp = dl.simplices
-    centroid_s = pts2[simp, 0].mean(axis=1)
-    simp = simp[(centroid_s >= -np.pi * radius) & (centroid_s < np.pi * radius)]
+
+
+def _central_triangles(pts2: np.ndarray, simplices: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """The triangles of the replicated triangulation ``simplices`` kept once (centroid angle in [-pi, pi)),
+    counter-clockwise, and their quality (-1 for hull triangles spanning the ends)."""
+    centroid_s = pts2[simplices, 0].mean(axis=1)
+    simp = simplices[(centroid_s >= -np.pi * radius) & (centroid_s < np.pi * radius)]
     quality = _quality(pts2, simp)
     simp = np.where((quality < 0)[:, None], simp[:, [0, 2, 1]], simp)  # make counter-clockwise
     quality = np.abs(quality)
     span = np.ptp(pts2[simp, 0], axis=1) / radius
     quality = np.where(span > 0.5 * np.pi, -1.0, quality)  # hull triangles spanning the ends
-    return simp, quality, pts2
+    return simp, quality
+
+
+def _orientation(pts2: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Sign of the turn a -> b -> c (indices into ``pts2`` (n, 2)): +1 counter-clockwise, -1 clockwise."""
+    pa, pb, pc = pts2[a], pts2[b], pts2[c]
+    return np.sign((pb[:, 0] - pa[:, 0]) * (pc[:, 1] - pa[:, 1]) - (pb[:, 1] - pa[:, 1]) * (pc[:, 0] - pa[:, 0]))
+
+
+def _edges_with_opposite(simp: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Undirected edge keys (3 t,), endpoints (3 t, 2) and opposite vertex (3 t,) of triangles ``simp`` (t, 3),
+    edge i opposite vertex i (scipy's ``neighbors`` order); n bounds the vertex indices."""
+    a = np.concatenate([simp[:, 1], simp[:, 2], simp[:, 0]])
+    b = np.concatenate([simp[:, 2], simp[:, 0], simp[:, 1]])
+    opposite = np.concatenate([simp[:, 0], simp[:, 1], simp[:, 2]])
+    key = np.minimum(a, b).astype(np.int64) * n + np.maximum(a, b)
+    return key, np.column_stack([a, b]), opposite
+
+
+def _cavity_triangles(pts2: np.ndarray, cavity: np.ndarray, verts: np.ndarray) -> np.ndarray | None:
+    """The triangles of the Delaunay triangulation of ``verts`` that lie inside the union of ``cavity``.
+
+    The cavity's boundary edges are edges of that triangulation (they are Delaunay edges of the
+    remaining points); the triangles on the cavity side of them seed the inside, which spreads to
+    neighbours across the other edges. None if Qhull fails or the seeds contradict each other.
+    """
+    n = len(pts2)
+    try:
+        dl = Delaunay(pts2[verts])
+    except Exception:  # noqa: BLE001 - degenerate cavity: the caller re-triangulates the whole set
+        return None
+    new = verts[dl.simplices]
+    cav_key, cav_ab, cav_opp = _edges_with_opposite(cavity, n)
+    keys, first, counts = np.unique(cav_key, return_index=True, return_counts=True)
+    boundary = first[counts == 1]  # boundary edges of the cavity, with the cavity's vertex beyond each
+    bkey = cav_key[boundary]
+    new_key, new_ab, new_opp = _edges_with_opposite(new, n)
+    pos = np.searchsorted(bkey, new_key)  # (np.unique returned bkey sorted)
+    on_boundary = bkey[np.minimum(pos, len(bkey) - 1)] == new_key
+    j = boundary[pos[on_boundary]]
+    a, b = new_ab[on_boundary, 0], new_ab[on_boundary, 1]
+    same_side = _orientation(pts2, a, b, new_opp[on_boundary]) == _orientation(pts2, a, b, cav_opp[j])
+    tri_of = np.tile(np.arange(len(new)), 3)[on_boundary]
+    # spread the inside from its seeds to neighbouring new triangles across edges that are not cavity edges
+    link = ((dl.neighbors.T.ravel() >= 0) & ~on_boundary).reshape(3, -1).T  # (t, 3)
+    inside = np.zeros(len(new), bool)
+    inside[tri_of[same_side]] = True
+    for _ in range(len(new)):
+        spread = inside | (inside[dl.neighbors] & link).any(axis=1)
+        if np.array_equal(spread, inside):
+            break
+        inside = spread
+    if inside[tri_of[~same_side]].any():  # an outside seed reached: the cavity is not what it should be
+        return None
+    return new[inside]
+
+
+def _area(pts2: np.ndarray, simp: np.ndarray) -> float:
+    p = pts2[simp]
+    return 0.5 * float(np.abs((p[:, 1, 0] - p[:, 0, 0]) * (p[:, 2, 1] - p[:, 0, 1])
+                              - (p[:, 1, 1] - p[:, 0, 1]) * (p[:, 2, 0] - p[:, 0, 0])).sum())
+
+
+def _remove_vertices(pts2: np.ndarray, simplices: np.ndarray, removed: np.ndarray) -> np.ndarray | None:
+    """The Delaunay triangulation of ``pts2`` (n, 2) without the vertices ``removed``, updated locally.
+
+    Removing vertices changes a Delaunay triangulation only inside the cavity formed by the triangles
+    that use them; the new triangles there are those of the Delaunay triangulation of the cavity's
+    remaining vertices that lie in the cavity (in general position the result is the triangulation
+    of the reduced point set, as a full re-triangulation gives it; where a removed vertex is on the
+    convex hull, the hull shrinks and the new triangles tile the cavity's part inside the new hull).
+    Returns None when that cannot be trusted here (the cavity not tiled as it should be): the caller
+    then re-triangulates.
+    """
+    gone = np.zeros(len(pts2), bool)
+    gone[removed] = True
+    in_cavity = gone[simplices].any(axis=1)
+    cavity = simplices[in_cavity]
+    verts = np.unique(cavity)
+    verts = verts[~gone[verts]]
+    new = _cavity_triangles(pts2, cavity, verts) if len(verts) >= 3 else None
+    if new is None:
+        return None
+    cavity_area, new_area = _area(pts2, cavity), _area(pts2, new)
+    if abs(new_area - cavity_area) > 1e-9 * cavity_area:
+        # the convex hull shrinks where a hull vertex goes (then less area is tiled); otherwise not tiled exactly
+        # (an edge of a removed vertex used by one triangle only is on the hull: all its triangles are the cavity's)
+        edges, counts = _edge_counts(cavity)
+        on_hull = np.isin(edges[counts == 1], removed).any()
+        if not on_hull or new_area > cavity_area * (1.0 + 1e-9):
+            return None
+    return np.concatenate([simplices[~in_cavity], new])
 
 
 def _peel(local: np.ndarray, quality: np.ndarray, min_quality: float) -> tuple[np.ndarray, int]:
@@ -309,25 +404,36 @@ def _obtuse_corners(pts2: np.ndarray, simp: np.ndarray) -> np.ndarray:
 def _clean_triangulation(s, z, radius, min_quality, sliver_quality):
     """Triangulate, dropping the obtuse corner of interior slivers and re-meshing until none is left.
 
-    Returns (kept (n,) bool, local triangles (n_tri, 3), quality (n_tri,), alive (n_tri,) bool after
-    peeling the ends at ``sliver_quality``, boundary triangles peeled, markers dropped).
+    The re-meshing after dropping markers updates the first triangulation locally
+    (``_remove_vertices``: what a full re-triangulation gives, without its cost).
+
+    Returns (kept (n,) bool, local triangles (n_tri, 3) indices into s, quality (n_tri,), alive (n_tri,)
+    bool after peeling the ends at ``sliver_quality``, boundary triangles peeled, markers dropped).
     """
-    kept = np.ones(len(s), bool)
+    n = len(s)
+    kept = np.ones(n, bool)
     n_corner = 0
+    pts2 = _replicate(s, z, radius)
+    simplices = _delaunay(pts2)
     for _ in range(MAX_REMESH + 1):
-        sel = np.flatnonzero(kept)
-        simp, quality, pts2 = _triangulate(s[sel], z[sel], radius)
-        local = simp % len(sel)
+        simp, quality = _central_triangles(pts2, simplices, radius)
+        local = simp % n
         alive, n_peeled = _peel(local, quality, max(min_quality, sliver_quality))
         bad = alive & (quality >= 0) & (quality < sliver_quality)  # (hull triangles spanning the ends: < 0)
-        if not bad.any() or n_corner >= _MAX_CORNER_FRACTION * len(s):
+        if not bad.any() or n_corner >= _MAX_CORNER_FRACTION * n:
             break
-        corners = np.unique(_obtuse_corners(pts2, simp[bad]) % len(sel))
-        kept[sel[corners]] = False
+        corners = np.unique(_obtuse_corners(pts2, simp[bad]) % n)
+        kept[corners] = False
         n_corner += len(corners)
         if kept.sum() < MIN_MARKERS:
             raise MeshError(f"meshing needs at least {MIN_MARKERS} markers; only {int(kept.sum())} are left after "
                             "dropping the corners of sliver triangles")
+        removed = np.concatenate([corners, corners + n, corners + 2 * n])
+        updated = _remove_vertices(pts2, simplices, removed)
+        if updated is None:
+            sel = np.flatnonzero(np.tile(kept, 3))
+            updated = sel[_delaunay(pts2[sel])]
+        simplices = updated
     return kept, local, quality, alive, n_peeled, n_corner
 
 
@@ -386,7 +492,6 @@ def build_mesh(
     n_dup = int(finite.sum()) - len(idx)
     kept, local, quality, alive, n_boundary, n_corner = _clean_triangulation(
         axis.radius * theta[idx], z[idx], axis.radius, min_quality, sliver_quality)
-    idx = idx[kept]
     interior = alive & (quality < min_quality)
     alive &= ~interior
     tri = idx[local[alive]]

@@ -22,37 +22,47 @@ _H = 1e-7
 _TRIALS = np.concatenate([np.zeros((1, 4)), _H * np.eye(4)])
 
 
-def _legendre(t: np.ndarray, degree: int) -> np.ndarray:
-    """Legendre polynomials P_0..P_degree at t, shape ``t.shape + (degree + 1,)`` (Bonnet's recursion)."""
+def _legendre_rows(t: np.ndarray, degree: int) -> np.ndarray:
+    """Legendre polynomials P_0..P_degree at t (..., n), stacked before the last axis: (..., degree + 1, n)."""
     out = [np.ones_like(t), t]
     for k in range(1, degree):
         out.append(((2 * k + 1) * t * out[k] - k * out[k - 1]) / (k + 1))
-    return np.stack(out[: degree + 1], axis=-1)
+    return np.stack(out[: degree + 1], axis=-2)
 
 
-def _profile_residual(pts, w, frame0, c0, x, degree):
+def _clouds(pts, w, c0):
+    """What ``_profile_residual`` needs of the clouds, computed once per fit: the markers relative to the
+    starting origins transposed (s, 3, n), their squared norms (s, 1, n), the weights (s, 1, n) and their
+    sums (s, 1, 1), and an additive mask (s, 1, n) (0 where fitted, inf elsewhere)."""
+    q = pts - c0[:, None]
+    qt = np.swapaxes(q, 1, 2)
+    ww = w[:, None]
+    return qt, np.sum(q * q, axis=-1)[:, None], ww, w.sum(-1)[:, None, None], np.where(ww > 0, 0.0, np.inf)
+
+
+def _profile_residual(clouds, frame0, c0, x, degree):
     """Radius minus its least-squares Legendre profile along the axis, per cloud.
 
-    pts (s, n, 3), w (s, n) 0/1 weights, frame0 (s, 3, 3) and c0 (s, 3) the starting axes,
-    x (s, e, 4) axis variables for e trial sets.
+    clouds: ``_clouds(pts, w, c0)`` of the markers pts (s, n, 3) with 0/1 weights w (s, n); frame0 (s, 3, 3)
+    and c0 (s, 3) the starting axes, x (s, e, 4) axis variables for e trial sets.
     Returns the residual (s, e, n), the unit directions (s, e, 3), origins (s, e, 3), radii (s, e, n).
     """
+    qt, qq, ww, w_sum, excluded = clouds
     f0, f1, f2 = frame0[:, None, 0], frame0[:, None, 1], frame0[:, None, 2]  # (s, 1, 3)
     d = f2 + x[..., :1] * f0 + x[..., 1:2] * f1
     d = d / np.sqrt(np.sum(d * d, axis=-1, keepdims=True))
-    o = c0[:, None] + x[..., 2:3] * f0 + x[..., 3:4] * f1
-    v = pts[:, None] - o[:, :, None]  # (s, e, n, 3)
-    along = np.einsum("senk,sek->sen", v, d)
-    r = np.sqrt(np.maximum(np.einsum("senk,senk->sen", v, v) - along * along, 0.0))
-    ww = w[:, None]
-    mean = np.einsum("sen,sn->se", along, w)[..., None] / w.sum(-1)[:, None, None]
-    lo, hi = np.min(np.where(ww > 0, along, np.inf), -1), np.max(np.where(ww > 0, along, -np.inf), -1)
+    shift = x[..., 2:3] * f0 + x[..., 3:4] * f1  # (s, e, 3) origin offset from c0 (small: no cancellation below)
+    # |p - o|^2 and (p - o) . d from products of the (s, n, 3) markers with the (s, e, 3) trial vectors
+    along = d @ qt - np.sum(shift * d, axis=-1)[..., None]  # (s, e, n)
+    vv = qq - 2.0 * (shift @ qt) + np.sum(shift * shift, axis=-1)[..., None]
+    r = np.sqrt(np.maximum(vv - along * along, 0.0))
+    mean = np.sum(along * ww, axis=-1, keepdims=True) / w_sum
+    lo, hi = np.min(along + excluded, -1), np.max(along - excluded, -1)
     t = (along - mean) / np.maximum(0.5 * (hi - lo), 1e-12)[..., None]
-    basis = _legendre(t, degree) * ww[..., None]  # (s, e, n, b)
+    basis = _legendre_rows(t, degree) * ww[..., None, :]  # (s, e, b, n)
     rw = r * ww
-    bt = np.swapaxes(basis, -1, -2)
-    coef = np.linalg.solve(bt @ basis, bt @ rw[..., None])
-    return rw - (basis @ coef)[..., 0], d, o, r
+    coef = np.linalg.solve(basis @ np.swapaxes(basis, -1, -2), basis @ rw[..., None])  # (s, e, b, 1)
+    return rw - (np.swapaxes(coef, -1, -2) @ basis)[..., 0, :], d, c0[:, None] + shift, r
 
 
 def fit_clouds(pts: np.ndarray, w: np.ndarray, frame0: np.ndarray, c0: np.ndarray, radius: float, *,
@@ -80,8 +90,9 @@ def fit_clouds(pts: np.ndarray, w: np.ndarray, frame0: np.ndarray, c0: np.ndarra
     previous = np.full(len(pts), np.inf)
     floor = w.sum(axis=1) * (1e-12 * radius) ** 2  # cost at the rounding level of the radii
     delta = np.zeros_like(x)
+    clouds = _clouds(pts, w, c0)
     for _ in range(max_iterations):
-        evaluated = _profile_residual(pts, w, frame0, c0, x[:, None] + _TRIALS[None], profile_degree)
+        evaluated = _profile_residual(clouds, frame0, c0, x[:, None] + _TRIALS[None], profile_degree)
         res = evaluated[0]
         cost = np.sum(res[:, 0] ** 2, axis=-1)
         worse = cost > previous * (1.0 + 1e-9) + floor  # a Gauss-Newton step that overshot: step back halfway
@@ -98,7 +109,7 @@ def fit_clouds(pts: np.ndarray, w: np.ndarray, frame0: np.ndarray, c0: np.ndarra
         delta = -np.linalg.solve(jtj, np.swapaxes(jac, 1, 2) @ res[:, 0, :, None])[..., 0]
         x = x + delta
     else:  # out of iterations: evaluate where the last step went
-        evaluated = _profile_residual(pts, w, frame0, c0, x[:, None], profile_degree)
+        evaluated = _profile_residual(clouds, frame0, c0, x[:, None], profile_degree)
     return tuple(a[:, 0] for a in evaluated)  # the untouched trial set (offset 0) is the solution
 
 

@@ -388,8 +388,8 @@ def _wall_geometry(fields: VirtualFields, mesh: SurfaceMesh, st, e0: float) -> _
 def _layer(g: _WallGeometry, sv: float):
     """Kinematics and virtual gradients of the layer at reference depth fraction sv (1 = markers).
 
-    Returns C (s, t, q, 2, 2), dE* (f, s, t, q, 2, 2), dA0 (s, t, q), n da (s, t, q, 3) and the
-    virtual displacement there (f, s, t, q, 3).
+    Returns C (s, t, q, 3) and dE* (f, s, t, q, 3) as their (11, 22, 12) components, dA0 (s, t, q),
+    n da (s, t, q, 3) and the virtual displacement there (f, s, t, q, 3).
     """
     depth = (1.0 - sv) * g.e0
     R, R_xi, r, r_xi, thx, zx = g.R, g.R_xi, g.r, g.r_xi, g.th_xi, g.z_xi
@@ -402,25 +402,35 @@ def _layer(g: _WallGeometry, sv: float):
     r_s_xi = (r[..., None] * r_xi - depth * R_xi / J[..., None]) / r_s[..., None]
     ginv, area_factor = reference_frame(np.broadcast_to(R_xi, R.shape + (2,)), R - depth)  # (1, t, q, ...)
     Fxi = tangents(r_s, r_s_xi, thx, zx)  # (s, t, q, 3, 2)
-    F = Fxi @ ginv
-    C = np.swapaxes(F, -1, -2) @ F
+    g00, g01, g11 = ginv[..., 0, 0], ginv[..., 0, 1], ginv[..., 1, 1]  # ginv is upper triangular
     # divergence-free extension of the fields to this layer
     ur_o = g.u_q[..., 0][:, None]  # (f, 1, t, q)
     ur_o_xi = g.u_xi[:, None, :, None, 0, :]  # (f, 1, t, 1, 2)
     Dz, Dt = g.d_z[..., None], g.d_theta[..., None]  # (f, s, t, 1)
-    ur = (r * ur_o + 0.5 * kappa / J * Dz - (r_s - r) * Dt) / r_s
-    ur_xi = (r_xi * ur_o[..., None] + r[..., None] * ur_o_xi + depth * R_xi / J[..., None] * Dz[..., None]
-             - (r_s_xi - r_xi) * Dt[..., None] - r_s_xi * ur[..., None]) / r_s[..., None]
+    if depth == 0.0:  # the marker surface: the extension is the field itself
+        ur = np.broadcast_to(ur_o, Dz.shape[:2] + ur_o.shape[2:])
+        ur_xi = np.broadcast_to(ur_o_xi, ur.shape + (2,))
+    else:
+        ur = (r * ur_o + 0.5 * kappa / J * Dz - (r_s - r) * Dt) / r_s
+        ur_xi = (r_xi * ur_o[..., None] + r[..., None] * ur_o_xi + depth * R_xi / J[..., None] * Dz[..., None]
+                 - (r_s_xi - r_xi) * Dt[..., None] - r_s_xi * ur[..., None]) / r_s[..., None]
     ut, ut_xi = g.u_q[..., 1][:, None], g.u_xi[:, None, :, None, 1, :]
     uz, uz_xi = g.u_q[..., 2][:, None], g.u_xi[:, None, :, None, 2, :]
-    du = np.stack([ur_xi - ut[..., None] * thx, ut_xi + ur[..., None] * thx,
-                   np.broadcast_to(uz_xi, ur_xi.shape)], axis=-2)  # (f, s, t, q, 3, 2)
-    G = np.swapaxes(Fxi, -1, -2) @ du  # (f, s, t, q, 2, 2): t_i . du_j
-    dE = np.swapaxes(ginv, -1, -2) @ G @ ginv
-    dE = 0.5 * (dE + np.swapaxes(dE, -1, -2))
+    du = (ur_xi - ut[..., None] * thx, ut_xi + ur[..., None] * thx, uz_xi)  # (f, s, t, q, 2) per (r, theta, z)
+    # G_ij = t_i . du_j (the xi-tangents t_i = columns of Fxi), then dE = sym(ginv^T G ginv), in components
+    G = [[sum(Fxi[..., c, i] * du[c][..., j] for c in range(3)) for j in (0, 1)] for i in (0, 1)]
+    dE = _congruent_components(g00, g01, g11, G[0][0], 0.5 * (G[0][1] + G[1][0]), G[1][1])
+    M = [[np.einsum("...c,...c->...", Fxi[..., i], Fxi[..., j]) for j in (0, 1)] for i in (0, 1)]
+    C = _congruent_components(g00, g01, g11, M[0][0], M[0][1], M[1][1])  # C = F^T F with F = Fxi ginv
     normal_da = _cross(Fxi[..., 0], Fxi[..., 1]) * g.area_q[..., None]  # (s, t, q, 3)
     u_here = np.stack([ur, np.broadcast_to(ut, ur.shape), np.broadcast_to(uz, ur.shape)], -1)
     return C, dE, area_factor * g.area_q, normal_da, u_here
+
+
+def _congruent_components(g00, g01, g11, s00, s01, s11) -> np.ndarray:
+    """(11, 22, 12) components of ``ginv^T S ginv`` for a symmetric S and an upper-triangular ginv: (..., 3)."""
+    return np.stack(np.broadcast_arrays(g00 * g00 * s00, g01 * g01 * s00 + 2.0 * g01 * g11 * s01 + g11 * g11 * s11,
+                                        g00 * (g01 * s00 + g11 * s01)), -1)
 
 
 def _internal_work_terms(g: _WallGeometry, wall: str, n_layers: int):
@@ -438,16 +448,20 @@ def _internal_work_terms(g: _WallGeometry, wall: str, n_layers: int):
     cs, dens, surface = [], [], None
     for sv, sw in zip(s_nodes, s_weights):
         layer = _layer(g, sv)
-        C, dE, dA0 = layer[:3]
+        C, dE, dA0 = layer[:3]  # C (s, t, q, 3) and dE (f, s, t, q, 3) as (11, 22, 12) components
         if sv == 1.0:
             surface = layer
         dV0 = np.where(valid, dA0 * g.e0 * sw, 0.0)  # (s, t, q)
-        C = np.where(valid[..., None, None], C, np.eye(2))
-        cs.append(np.stack([C[..., 0, 0], C[..., 1, 1], C[..., 0, 1]], -1).reshape(n_steps, -1, 3))
-        dE = np.where(valid[None, ..., None, None], dE, 0.0)  # excluded triangles may hold NaN geometry
-        dens.append((np.stack([dE[..., 0, 0], dE[..., 1, 1], 2.0 * dE[..., 0, 1]], -1)
-                     * dV0[None, ..., None]).reshape(n_fields, n_steps, -1, 3))
+        C = np.where(valid[..., None], C, _IDENTITY)
+        cs.append(C.reshape(n_steps, -1, 3))
+        dE = np.where(valid[None, ..., None], dE, 0.0)  # excluded triangles may hold NaN geometry
+        dens.append((dE * _SHEAR_TWICE * dV0[None, ..., None]).reshape(n_fields, n_steps, -1, 3))
     return np.concatenate(cs, axis=1), np.concatenate(dens, axis=2), surface
+
+
+#: (11, 22, 12) components of the identity, and the factors of the work density (dE11, dE22, 2 dE12)
+_IDENTITY = np.array([1.0, 1.0, 0.0])
+_SHEAR_TWICE = np.array([1.0, 1.0, 2.0])
 
 
 def _pressure_work_per_pascal(g: _WallGeometry, layer) -> np.ndarray:

@@ -54,3 +54,27 @@ def test_hygiene_drops_duplicates_and_sliver_corners_and_says_so(caplog):
     assert "near-duplicate" in text and "obtuse corner of sliver triangles" in text
     assert text in caplog.text
     assert len(mesh.triangles) > 300  # the clean-up thins the cloud, it does not gut it
+
+
+def _canonical(tri):
+    tri = np.asarray(tri)
+    rolled = np.array([np.roll(t, -int(np.argmin(t))) for t in tri])
+    return rolled[np.lexsort(rolled.T[::-1])]
+
+
+@pytest.mark.parametrize("seed", [0, 3, 5])
+def test_local_remeshing_gives_the_full_remeshing(seed, monkeypatch):
+    # removing the sliver corners updates the first Delaunay triangulation locally (issue 11); forcing a full
+    # re-triangulation of the reduced marker set after every round must give the same mesh
+    pos, _, _ = _noisy_tube("fung", seed)
+    ref = pos[0].copy()
+    ref[:, 2] += np.random.default_rng(seed).normal(0.0, 0.3e-3, len(ref))  # a jagged cloud: more slivers
+    local = build_mesh(ref)
+    import identification.mesh as mesh_module
+
+    monkeypatch.setattr(mesh_module, "_remove_vertices", lambda *args: None)
+    full = build_mesh(ref)
+    assert local.dropped["sliver_markers"] > 0
+    assert local.dropped == full.dropped
+    np.testing.assert_array_equal(_canonical(local.triangles), _canonical(full.triangles))
+    np.testing.assert_array_equal(np.sort(local.top_edges, axis=0), np.sort(full.top_edges, axis=0))
