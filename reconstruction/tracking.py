@@ -264,9 +264,8 @@ def match_step(
     fix_swaps : bool
         Exchange detected swapped pairs.
     axis_guess : ndarray, shape (3,), optional
-        Where the search for the axis of the previous positions' cylinder starts (e.g. the
-        tracker's current specimen axis); default: each principal direction of the points is
-        tried (three fits instead of one).
+        Start of the axis search of the previous positions' cylinder (e.g. the tracker's specimen
+        axis: one fit); default: each principal direction of the points (three fits).
 
     Returns
     -------
