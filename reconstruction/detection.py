@@ -478,7 +478,29 @@ def _labelled(mask: np.ndarray):
 
 def _patches(image: np.ndarray, labels: np.ndarray, centres: np.ndarray, size: int, origin=(0, 0)):
     """(n, P, P) float32 grey-level patches (border reflected) and int label patches (0 outside)
-    around integer pixel centres (n, 2) (x, y); ``labels`` covers the image from ``origin`` (x0, y0)."""
+    around integer pixel centres (n, 2) (x, y); ``labels`` covers the image from ``origin`` (x0, y0).
+
+    Patches that lie inside the image and the label box (nearly all) are copied as blocks from
+    sliding-window views; the others are gathered with mirrored indices."""
+    top_left = centres[:, ::-1] - size // 2  # (n, 2) row, column
+    lab_tl = top_left - np.array(origin[::-1])
+    block = (np.all(top_left >= 0, axis=1) & np.all(top_left + size <= image.shape, axis=1)
+             & np.all(lab_tl >= 0, axis=1) & np.all(lab_tl + size <= labels.shape, axis=1))
+    patch = np.empty((centres.shape[0], size, size), np.float32)
+    plab = np.empty((centres.shape[0], size, size), labels.dtype)
+    if np.any(block):
+        view = np.lib.stride_tricks.sliding_window_view
+        b = np.flatnonzero(block)
+        patch[b] = view(image, (size, size))[top_left[b, 0], top_left[b, 1]]
+        plab[b] = view(labels, (size, size))[lab_tl[b, 0], lab_tl[b, 1]]
+    if not np.all(block):
+        g = np.flatnonzero(~block)
+        patch[g], plab[g] = _gathered_patches(image, labels, centres[g], size, origin)
+    return patch, plab
+
+
+def _gathered_patches(image: np.ndarray, labels: np.ndarray, centres: np.ndarray, size: int, origin=(0, 0)):
+    """:func:`_patches` by index gathering (border reflected, labels 0 outside their box)."""
     H, W = image.shape
     off = np.arange(size) - size // 2
     rows = centres[:, 1, None] + off[None, :]
