@@ -3,19 +3,24 @@
 1. ``--part timing``: time per step for 6 cameras x 2448 x 2048 px and 300 markers: detection
    (serial / threads / processes, whole images / guided by the tracker), correspondence,
    triangulation, tracking and the marker-centre offset, median over repeats, all in one run; and
-   the reference: reading the images from HDF5 plus one threshold / connected-components pass.
+   the reference: reading the images from HDF5 plus one threshold / connected-components pass;
+   then (also alone: ``--part step``) the goal figures: one loaded step as the pipeline runs it
+   (guided detection in threads + the tracker's correspondence and tracking) and its ratio to
+   that reference, measured alternately, median and max over the repeats.
+   ``--part profile``: cProfile of that step in one thread.
 2. ``--part rendered``: the end-to-end figures of tests/test_recon_rendered.py, before (serial
    whole-image detection) and after (threads, guided detection).
 3. ``--part accuracy``: 3-D error and completeness against ground truth versus sensor noise and
    defocus blur (true calibration, reference step + one inflated step).
 
 Run:  OMP_NUM_THREADS=1 PYTHONPATH=. python benchmarks/bench_reconstruction.py [--quick] [--repeats 5]
-      [--part timing|rendered|accuracy|all]
+      [--part timing|step|profile|rendered|accuracy|all]
 """
 
 from __future__ import annotations
 
 import argparse
+import copy
 import os
 import sys
 import tempfile
@@ -163,6 +168,85 @@ def timing(size, repeats):
     print(f"\nratio total after / reference (read + threshold + components): {(t_guided + rest) / t_floor:.2f}; "
           f"detection speed-up: threads {t_serial / t_threads:.2f}x, processes {t_serial / t_procs:.2f}x, "
           f"threads + guided {t_serial / t_guided:.2f}x")
+    step_timing(cams, frames[2].images, step, tracker, after, repeats)
+
+
+def _one_step(step, cams, settings, tracker):
+    """One loaded step as reconstruct_series runs it (guided detection in threads, then the
+    tracker's correspondence + tracking), on a copy of ``tracker``: (detection s, add s)."""
+    tr = copy.deepcopy(tracker)
+    t0 = time.perf_counter()
+    found = detect_step(step, cams, settings, tr)
+    t1 = time.perf_counter()
+    tr.add([d.centres for d in found], quality=[d.quality for d in found], found=found)
+    return t1 - t0, time.perf_counter() - t1
+
+
+def step_timing(cams, images, step, tracker, settings, repeats):
+    """The goal figures: wall time of one step and its ratio to the reference (read the images
+    from HDF5 + one Otsu threshold + connected components per image), the two measured
+    alternately, one ratio per repeat."""
+    with tempfile.TemporaryDirectory() as tmp:
+        h5 = Path(tmp) / "step.h5"
+        _write_h5(h5, cams, images)
+        _one_step(step, cams, settings, tracker)  # warm-up
+        rows = []
+        for _ in range(repeats):
+            t = time.perf_counter()
+            _threshold_cc(_read_h5(h5, cams))
+            ref = time.perf_counter() - t
+            c = time.process_time()
+            det, add = _one_step(step, cams, settings, tracker)
+            rows.append((ref, det, add, time.process_time() - c))
+    ref, det, add, cpu = np.array(rows).T
+    tot = det + add
+    ratio = tot / ref
+    print(f"\n## One loaded step as the pipeline runs it (detect_step: {settings.workers or os.cpu_count()} threads, "
+          f"guided; then SeriesTracker.add: correspondence + tracking), {repeats} repeats alternating with the "
+          "reference\n")
+    print("| figure | median | max |\n|---|---|---|")
+    for name, v in (("detection (detect_step) [ms]", det * 1e3), ("correspondence + tracking (add) [ms]", add * 1e3),
+                    ("**step** [ms]", tot * 1e3), ("step, CPU time [ms]", cpu * 1e3),
+                    ("reference: read + threshold + components [ms]", ref * 1e3),
+                    ("**ratio step / reference**", ratio)):
+        fmt = ".2f" if "ratio" in name else ".0f"
+        print(f"| {name} | {np.median(v):{fmt}} | {np.max(v):{fmt}} |")
+    print(f"\nLoad average at the end: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores.")
+
+
+def profile(size):
+    """cProfile of one loaded step (as ``_one_step``, one thread so that the profile sees all the
+    work), the 25 functions with the largest cumulative time, and the per-stage wall times."""
+    import cProfile
+    import pstats
+
+    cams = camera_ring(6, image_size=size, seed=3)
+    frames = _frames(cams, n_steps=3)
+    one = ReconstructionSettings(marker_diameter=0.4e-3, specimen_radius=0.010, workers=1)
+    imgs = [{c.name: im for c, im in zip(cams, fr.images)} for fr in frames]
+    tracker = SeriesTracker(cams, one)
+    for k in range(2):
+        found = detect_step(imgs[k], cams, one, tracker if k else None)
+        tracker.add([d.centres for d in found], quality=[d.quality for d in found], found=found)
+    det, add = _one_step(imgs[2], cams, one, tracker)
+    print(f"\n## Profile of one loaded step, one thread: detection {det * 1e3:.0f} ms, correspondence + tracking "
+          f"{add * 1e3:.0f} ms (wall)\n")
+    prof = cProfile.Profile()
+    prof.runcall(_one_step, imgs[2], cams, one, tracker)
+    pstats.Stats(prof, stream=sys.stdout).sort_stats("cumulative").print_stats(25)
+
+
+def step_only(size, repeats):
+    """Only the goal figures (:func:`step_timing`), without the detection variants of :func:`timing`."""
+    cams = camera_ring(6, image_size=size, seed=3)
+    frames = _frames(cams, n_steps=3)
+    after = ReconstructionSettings(marker_diameter=0.4e-3, specimen_radius=0.010)
+    imgs = [{c.name: im for c, im in zip(cams, fr.images)} for fr in frames]
+    tracker = SeriesTracker(cams, after)
+    for k in range(2):
+        found = detect_step(imgs[k], cams, after, tracker if k else None)
+        tracker.add([d.centres for d in found], quality=[d.quality for d in found], found=found)
+    step_timing(cams, frames[2].images, imgs[2], tracker, after, repeats)
 
 
 def rendered(n_steps=8):
@@ -246,11 +330,15 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="half resolution, fewer repeats and configurations")
     ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--part", choices=("timing", "rendered", "accuracy", "all"), default="all")
+    ap.add_argument("--part", choices=("timing", "step", "profile", "rendered", "accuracy", "all"), default="all")
     args = ap.parse_args()
     size = (1224, 1024) if args.quick else (2448, 2048)
     if args.part in ("timing", "all"):
         timing(size, 2 if args.quick else args.repeats)
+    if args.part == "step":
+        step_only(size, args.repeats)
+    if args.part == "profile":
+        profile(size)
     if args.part in ("rendered", "all"):
         rendered()
     if args.part in ("accuracy", "all"):

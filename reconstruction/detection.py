@@ -176,10 +176,11 @@ def detect_markers(
     blobs, dmax = _components(mask, dmin, dmax, estimate_size=diameter_range is None, rejects=rejects)
     if blobs is None:
         return _empty(noise, _concat(rejects), thr)
-    m = _measure_blobs(image, blobs, dmax, window_margin, background_order, edge_margin, sat)
+    groups = _measure_groups(image, blobs, dmax, window_margin, background_order, edge_margin, sat)
+    m = _joined(groups, len(blobs.ids))
     reason, lo, hi, dref = _classify(m, diameter_range, dmin, dmax, max_elongation, min_relative_contrast)
-    split = _split_merged(m, reason, dref, lo, hi) if split_merged else _NO_SPLIT
-    return _accepted(m, reason, split, noise, thr, rejects, window_margin, iterations, centroid_threshold)
+    split = _split_groups(groups, reason, dref, lo, hi) if split_merged else _NO_SPLIT
+    return _accepted(groups, m, reason, split, noise, thr, rejects, window_margin, iterations, centroid_threshold)
 
 
 def _checked_inputs(image, diameter_range, polarity: str, saturation):
@@ -194,19 +195,21 @@ def _checked_inputs(image, diameter_range, polarity: str, saturation):
     return image, _saturation_level(image, saturation), dmin, dmax
 
 
-def _accepted(m: _Measures, reason, split: _Split, noise, thr, rejects: list, window_margin, iterations,
-              centroid_threshold) -> Detections:
-    """Steps 3-4: rejects recorded, sub-pixel centres of the accepted candidates, all assembled."""
+def _accepted(groups: list, m: _Measures, reason, split: _Split, noise, thr, rejects: list, window_margin,
+              iterations, centroid_threshold) -> Detections:
+    """Steps 3-4: rejects recorded (joined measures ``m``), sub-pixel centres of the accepted
+    candidates (per patch-size group), all assembled."""
     bad = (reason != "") & (reason != "split")
     if np.any(bad):
         rec = _records(m.cxy[bad], m.diam[bad], m.peak[bad], "")
         rec["reason"] = reason[bad]
         rejects.append(rec)
-    good = np.flatnonzero(reason == "")
-    if good.size == 0 and split.centres.shape[0] == 0:
+    if not np.any(reason == "") and split.centres.shape[0] == 0:
         return _empty(noise, _concat(rejects), thr)
-    found = _centroids(m, good, noise, window_margin, iterations, centroid_threshold, rejects)
-    return _assemble(found, split, noise, thr, rejects)
+    found = [_centroids(mg, np.flatnonzero(reason[idx] == ""), noise, window_margin, iterations, centroid_threshold,
+                        rejects) for idx, mg in groups]
+    single = _Split(*(np.concatenate([f[0][k] for f in found]) for k in range(4)))
+    return _assemble((single, np.concatenate([f[1] for f in found])), split, noise, thr, rejects)
 
 
 
@@ -420,8 +423,7 @@ def _components(mask: np.ndarray, dmin: float, dmax: float, *, estimate_size: bo
     if rows.size == 0:
         return None, dmax
     y0, x0 = int(rows[0]) & ~1, int(cols[0]) & ~1  # even: OpenCV's 2x2-block labelling numbers as on the whole
-    n_lab, labels, stats, cents = cv2.connectedComponentsWithStats(mask[y0 : rows[-1] + 1, x0 : cols[-1] + 1],
-                                                                   connectivity=8)
+    n_lab, labels, stats, cents = _labelled(mask[y0 : rows[-1] + 1, x0 : cols[-1] + 1])
     stats[:, cv2.CC_STAT_LEFT] += x0
     stats[:, cv2.CC_STAT_TOP] += y0
     cents = cents + np.array([x0, y0], dtype=float)
@@ -447,9 +449,58 @@ def _components(mask: np.ndarray, dmin: float, dmax: float, *, estimate_size: bo
     return _Blobs(labels, (x0, y0), ids[~big], box[~big], cents[ids][~big]), dmax
 
 
+def _labelled(mask: np.ndarray):
+    """8-connected components of a sparse uint8 mask (H, W), as ``cv2.connectedComponentsWithStats``
+    returns them (same labels; stats (n, 5) left, top, width, height, area and centroids (n, 2)
+    x, y of the pixels, for the labels >= 1; row 0, the background, is zero). The labels come from
+    ``cv2.connectedComponents`` and the statistics from the foreground pixels only: OpenCV's own
+    statistics pass costs several times the labelling on a 5-MP mask with a few % foreground."""
+    n, labels = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_32S)
+    stats = np.zeros((n, 5), np.int32)
+    cents = np.zeros((n, 2))
+    if n <= 1:
+        return n, labels, stats, cents
+    xy = cv2.findNonZero(mask).reshape(-1, 2)
+    x, y = xy[:, 0], xy[:, 1]
+    lab = labels[y, x]
+    area = np.bincount(lab, minlength=n)
+    left, right = np.full(n, mask.shape[1], np.int32), np.zeros(n, np.int32)
+    np.minimum.at(left, lab, x)
+    np.maximum.at(right, lab, x)
+    top, bottom = np.full(n, mask.shape[0], np.int32), np.zeros(n, np.int32)
+    np.minimum.at(top, lab, y)
+    np.maximum.at(bottom, lab, y)
+    stats[1:] = np.stack([left, top, right - left + 1, bottom - top + 1, area], axis=1)[1:]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cents[1:] = np.stack([np.bincount(lab, x, n), np.bincount(lab, y, n)], axis=1)[1:] / area[1:, None]
+    return n, labels, stats, cents
+
+
 def _patches(image: np.ndarray, labels: np.ndarray, centres: np.ndarray, size: int, origin=(0, 0)):
     """(n, P, P) float32 grey-level patches (border reflected) and int label patches (0 outside)
-    around integer pixel centres (n, 2) (x, y); ``labels`` covers the image from ``origin`` (x0, y0)."""
+    around integer pixel centres (n, 2) (x, y); ``labels`` covers the image from ``origin`` (x0, y0).
+
+    Patches that lie inside the image and the label box (nearly all) are copied as blocks from
+    sliding-window views; the others are gathered with mirrored indices."""
+    top_left = centres[:, ::-1] - size // 2  # (n, 2) row, column
+    lab_tl = top_left - np.array(origin[::-1])
+    block = (np.all(top_left >= 0, axis=1) & np.all(top_left + size <= image.shape, axis=1)
+             & np.all(lab_tl >= 0, axis=1) & np.all(lab_tl + size <= labels.shape, axis=1))
+    patch = np.empty((centres.shape[0], size, size), np.float32)
+    plab = np.empty((centres.shape[0], size, size), labels.dtype)
+    if np.any(block):
+        view = np.lib.stride_tricks.sliding_window_view
+        b = np.flatnonzero(block)
+        patch[b] = view(image, (size, size))[top_left[b, 0], top_left[b, 1]]
+        plab[b] = view(labels, (size, size))[lab_tl[b, 0], lab_tl[b, 1]]
+    if not np.all(block):
+        g = np.flatnonzero(~block)
+        patch[g], plab[g] = _gathered_patches(image, labels, centres[g], size, origin)
+    return patch, plab
+
+
+def _gathered_patches(image: np.ndarray, labels: np.ndarray, centres: np.ndarray, size: int, origin=(0, 0)):
+    """:func:`_patches` by index gathering (border reflected, labels 0 outside their box)."""
     H, W = image.shape
     off = np.arange(size) - size // 2
     rows = centres[:, 1, None] + off[None, :]
@@ -472,6 +523,45 @@ def _reflect(index: np.ndarray, n: int) -> np.ndarray:
     return np.clip(index, 0, n - 1)
 
 
+def _measure_groups(image, blobs: _Blobs, dmax, window_margin, background_order, edge_margin, sat) -> list:
+    """Step 2 in two patch sizes: the blobs no larger than ``dmax`` (nearly all) on the patch that
+    the largest accepted marker needs, the larger ones (merged pairs, debris) on a patch that
+    holds the largest of them. A blob's measures then do not depend on the other blobs of the
+    image or crop (the whole-image and the guided search agree), and one large blob no longer
+    enlarges every patch. Returns [(blob indices (k,), _Measures of those k blobs), ...]."""
+    size = np.maximum(blobs.box[:, 2], blobs.box[:, 3])
+    small = size <= dmax
+    out = []
+    for sel in (small, ~small):
+        idx = np.flatnonzero(sel)
+        if idx.size:
+            sub = _Blobs(blobs.labels, blobs.origin, blobs.ids[idx], blobs.box[idx], blobs.cxy[idx])
+            out.append((idx, _measure_blobs(image, sub, dmax, window_margin, background_order, edge_margin, sat)))
+    return out
+
+
+def _joined(groups: list, n: int) -> _Measures:
+    """The per-blob measures of all groups in blob order (n blobs); the patch fields (``xx``,
+    ``yy``, ``other``, ``dark``, ``background``) stay with the groups and are None here."""
+    if len(groups) == 1:
+        return groups[0][1]
+    order = np.argsort(np.concatenate([idx for idx, _ in groups]), kind="stable")
+    per_blob = {}
+    for f in ("cxy", "ci", "peak", "area", "diam", "mean", "cov", "axes", "near_edge", "glare"):
+        per_blob[f] = np.concatenate([getattr(mg, f) for _, mg in groups])[order]
+    return _Measures(xx=None, yy=None, other=None, dark=None, background=None, **per_blob)
+
+
+def _split_groups(groups: list, reason: np.ndarray, dref: float, lo: float, hi: float) -> _Split:
+    """Step 2c per patch-size group (``reason`` of all blobs, updated in place)."""
+    parts = []
+    for idx, mg in groups:
+        r = reason[idx]
+        parts.append(_split_merged(mg, r, dref, lo, hi))
+        reason[idx] = r
+    return _Split(*(np.concatenate([p[k] for p in parts]) for k in range(4)))
+
+
 def _measure_blobs(image, blobs: _Blobs, dmax, window_margin, background_order, edge_margin, sat) -> _Measures:
     """Step 2: per candidate, on a fixed-size patch (vectorised): background, darkness, peak,
     half-contrast area and its moments, border contact and nearby saturation."""
@@ -488,8 +578,8 @@ def _measure_blobs(image, blobs: _Blobs, dmax, window_margin, background_order, 
     bg = _annulus_plane(patch, own | other, xx, yy, r_in=0.5 * size + 2.0, r_out=P // 2 - 0.5, order=background_order)
     with np.errstate(divide="ignore", invalid="ignore"):
         dark = 1.0 - patch / np.maximum(bg, 1e-12)
-    peak = np.max(np.where(own, _smooth3(dark), -np.inf), axis=(1, 2))
-    half = own & (dark > 0.5 * peak[:, None, None])
+    peak = np.max(np.where(own, _smooth3(dark), np.float32(-np.inf)), axis=(1, 2)).astype(float)
+    half = own & (dark > (0.5 * peak).astype(np.float32)[:, None, None])
     area = half.sum(axis=(1, 2)).astype(float)
     mean, cov, axes = _moments(half, area, xx, yy)
     diam = 2.0 * np.sqrt(area / np.pi)
@@ -503,14 +593,14 @@ def _measure_blobs(image, blobs: _Blobs, dmax, window_margin, background_order, 
 
 def _moments(mask: np.ndarray, area: np.ndarray, xx: np.ndarray, yy: np.ndarray):
     """Centroid (n, 2), second moments (n, 3: sxx, syy, sxy) and their eigenvalues (n, 2: major,
-    minor) of (n, P, P) masks with pixel counts ``area``."""
+    minor) of (n, P, P) masks with pixel counts ``area`` (raw moments as one matrix product)."""
+    x, y = xx.ravel(), yy.ravel()
+    raw = mask.reshape(mask.shape[0], -1).astype(float) @ np.stack([x, y, x * x, y * y, x * y], axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
-        mx = (mask * xx).sum((1, 2)) / area
-        my = (mask * yy).sum((1, 2)) / area
-        dx, dy = xx - mx[:, None, None], yy - my[:, None, None]
-        sxx = (mask * dx**2).sum((1, 2)) / area
-        syy = (mask * dy**2).sum((1, 2)) / area
-        sxy = (mask * dx * dy).sum((1, 2)) / area
+        mx, my, mxx, myy, mxy = (raw / area[:, None]).T
+    sxx = np.maximum(mxx - mx * mx, 0.0)
+    syy = np.maximum(myy - my * my, 0.0)
+    sxy = mxy - mx * my
     tr = sxx + syy
     disc = np.sqrt(np.maximum((sxx - syy) ** 2 / 4 + sxy**2, 0.0))
     l1 = tr / 2 + disc
@@ -578,26 +668,42 @@ def _centroids(m: _Measures, g, noise, window_margin, iterations, centroid_thres
     half = min(P // 2, int(np.ceil(0.5 * np.max(m.diam[g]) + window_margin + 4 + np.max(np.abs(m.mean[g])))))
     inner = slice(P // 2 - half, P // 2 + half + 1)
     xx, yy = m.xx[inner, inner], m.yy[inner, inner]
-    d_g = np.where(m.other[g, inner, inner], 0.0, m.dark[g, inner, inner])
+    d_g = np.where(m.other[g, inner, inner], np.float32(0.0), m.dark[g, inner, inner])
     if centroid_threshold > 0:
-        d_g = np.maximum(d_g - centroid_threshold * m.peak[g][:, None, None], 0.0)
-    rw = 0.5 * m.diam[g] + window_margin
-    c = m.mean[g]  # relative to the patch centre pixel
-    for _ in range(max(1, iterations)):
-        rr = np.hypot(xx[None] - c[:, 0, None, None], yy[None] - c[:, 1, None, None])
-        win = np.clip(rw[:, None, None] + 0.5 - rr, 0.0, 1.0)
-        wgt = d_g * win
-        s = wgt.sum((1, 2))
-        c = np.stack([(wgt * xx).sum((1, 2)) / s, (wgt * yy).sum((1, 2)) / s], axis=1)
+        d_g = np.maximum(d_g - (centroid_threshold * m.peak[g]).astype(np.float32)[:, None, None], np.float32(0.0))
+    c, win, s = _window_centroid(d_g, xx, yy, 0.5 * m.diam[g] + window_margin, m.mean[g], iterations)
     # noise-limited precision: var(cx) = sigma_rel^2 sum(win (x - cx)^2) / s^2
     sigma_rel = noise / np.maximum(np.median(m.background[g], axis=(1, 2)), 1e-12)
-    prec = sigma_rel * np.sqrt((win * ((xx[None] - c[:, 0, None, None]) ** 2)).sum((1, 2))) / np.abs(s)
+    win_x = win.reshape(win.shape[0], -1).astype(float) @ np.stack([np.ones(xx.size), xx.ravel(), xx.ravel() ** 2], 1)
+    spread = win_x[:, 2] - 2 * c[:, 0] * win_x[:, 1] + c[:, 0] ** 2 * win_x[:, 0]  # sum(win (x - cx)^2)
+    prec = sigma_rel * np.sqrt(np.maximum(spread, 0.0)) / np.abs(s)
     centres = m.ci[g].astype(float) + c
     ok = np.all(np.isfinite(centres), axis=1)
     if not np.all(ok):
         rejects.append(_records(m.cxy[g][~ok], m.diam[g][~ok], m.peak[g][~ok], "low_contrast"))
     q = np.sqrt(m.axes[g, 1] / np.maximum(m.axes[g, 0], 1e-12))
     return _Split(centres[ok], m.diam[g][ok], m.peak[g][ok], prec[ok]), q[ok]
+
+
+def _window_centroid(d_g: np.ndarray, xx: np.ndarray, yy: np.ndarray, rw: np.ndarray, c: np.ndarray, iterations: int):
+    """Iterated centroid of the weights ``d_g`` (n, p, p) in a soft-edged circular window of radius
+    ``rw`` (n,) px that follows the estimate, from ``c`` (n, 2) px (offsets ``xx``, ``yy`` (p, p)
+    from the patch centre). The window is float32 like the weights; the weighted sums are float64
+    (one matrix product per iteration). Returns (centres (n, 2) px, last window (n, p, p), sum of
+    the windowed weights (n,))."""
+    n = d_g.shape[0]
+    basis = np.stack([np.ones(xx.size), xx.ravel(), yy.ravel()], axis=1)  # (p*p, 3)
+    x32, y32 = xx.astype(np.float32)[None], yy.astype(np.float32)[None]
+    edge = (rw + 0.5).astype(np.float32)[:, None, None]
+    for _ in range(max(1, iterations)):
+        cf = c.astype(np.float32)
+        rr = np.hypot(x32 - cf[:, 0, None, None], y32 - cf[:, 1, None, None])
+        win = np.clip(edge - rr, 0.0, 1.0)
+        sums = (d_g * win).reshape(n, -1).astype(float) @ basis
+        s = sums[:, 0]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            c = sums[:, 1:] / s[:, None]
+    return c, win, s
 
 
 def _assemble(found, split: _Split, noise: float, threshold: float, rejects: list) -> Detections:
@@ -638,16 +744,14 @@ def _fit_two_discs(dark, other, xx, yy, m, cov, r0, dmin, dmax):
     near = (np.hypot(xx - m[0], yy - m[1]) <= half_sep + r0 + 4) & ~other
     X, Y, D = xx[near], yy[near], dark[near]
 
-    def parts(p):
-        dx1, dy1 = X - p[0], Y - p[1]
-        dx2, dy2 = X - p[2], Y - p[3]
-        d1 = np.hypot(dx1, dy1) + 1e-12
-        d2 = np.hypot(dx2, dy2) + 1e-12
-        s = abs(p[7]) + 0.3
-        z1 = (d1 - p[4]) / (np.sqrt(2) * s)
-        z2 = (d2 - p[5]) / (np.sqrt(2) * s)
-        u1, u2 = 0.5 * erfc(z1), 0.5 * erfc(z2)
-        return dx1, dy1, dx2, dy2, d1, d2, s, z1, z2, u1, u2
+    memo: dict = {}
+
+    def parts(p):  # MINPACK asks for the Jacobian at the point whose residuals it just had
+        key = p.tobytes()
+        if key not in memo:
+            memo.clear()
+            memo[key] = _two_disc_parts(p, X, Y)
+        return memo[key]
 
     def resid(p):
         *_, u1, u2 = parts(p)
@@ -695,6 +799,20 @@ def _fit_two_discs(dark, other, xx, yy, m, cov, r0, dmin, dmax):
     return cen, r, float(abs(p[6])), prec
 
 
+def _two_disc_parts(p: np.ndarray, X: np.ndarray, Y: np.ndarray):
+    """Offsets, distances, blur, normalised edge distances and disc coverages of the two-disc model
+    at parameters ``p`` (8,) on the pixels ``X``, ``Y`` (k,) (see :func:`_fit_two_discs`)."""
+    dx1, dy1 = X - p[0], Y - p[1]
+    dx2, dy2 = X - p[2], Y - p[3]
+    d1 = np.hypot(dx1, dy1) + 1e-12
+    d2 = np.hypot(dx2, dy2) + 1e-12
+    s = abs(p[7]) + 0.3
+    z1 = (d1 - p[4]) / (np.sqrt(2) * s)
+    z2 = (d2 - p[5]) / (np.sqrt(2) * s)
+    u1, u2 = 0.5 * erfc(z1), 0.5 * erfc(z2)
+    return dx1, dy1, dx2, dy2, d1, d2, s, z1, z2, u1, u2
+
+
 def _apply_polarity(image: np.ndarray, polarity: str, saturation):
     """Invert bright-on-dark images so that the dark-marker detector sees dark blobs."""
     if polarity not in ("dark", "bright"):
@@ -709,51 +827,66 @@ def _smooth3(a: np.ndarray) -> np.ndarray:
     """3x3 box mean over the last two axes (edges replicated), as two separable 3-sums."""
     p = np.pad(a, ((0, 0), (1, 1), (1, 1)), mode="edge")
     rows = p[:, :-2] + p[:, 1:-1] + p[:, 2:]
-    return (rows[:, :, :-2] + rows[:, :, 1:-1] + rows[:, :, 2:]) / 9.0
+    return (rows[:, :, :-2] + rows[:, :, 1:-1] + rows[:, :, 2:]) / a.dtype.type(9.0)
 
 
 def _annulus_plane(patch, exclude, xx, yy, r_in, r_out, order=1) -> np.ndarray:
-    """Robust plane fit ``B = a + b x + c y`` to an annulus of each patch; returns B on the patch grid."""
+    """Robust polynomial fit ``B(x, y)`` (``order`` 1-3) to an annulus of each patch (n, P, P);
+    returns B on the patch grid, float32 (n, P, P).
+
+    The normal equations are accumulated in float64 (each ring's ``A^T A`` from the products of
+    the distinct pairs of terms, as one matrix product over the blobs); residuals, their median
+    and the returned surface are float32 like the patches (grey levels to ~1e-5 relative).
+    """
     rr = np.hypot(xx, yy)
     ring = (rr[None] >= np.asarray(r_in)[:, None, None]) & (rr[None] <= r_out) & ~exclude
-    sc = max(float(r_out), 1.0)
-    u, v = xx / sc, yy / sc
-    terms = [np.ones_like(xx), u, v]
-    if order >= 2:
-        terms += [u * u, u * v, v * v]
-    if order >= 3:
-        terms += [u**3, u * u * v, u * v * v, v**3]
-    A_full = np.stack(terms, axis=-1).reshape(-1, len(terms))  # (P*P, m)
+    A_full = _poly_terms(xx, yy, max(float(r_out), 1.0), order)  # (P*P, m)
     n = patch.shape[0]
     ring_f = ring.reshape(n, -1)
     # only the pixels that lie in some blob's annulus enter the fit: drop the other columns once
     # (about 60 % of the patch: the disc inside and the corners outside)
     cols = np.flatnonzero(ring_f.any(axis=0))
     A, ring_f = A_full[cols], ring_f[:, cols]
+    A32 = A.astype(np.float32)
     flat = patch.reshape(n, -1)[:, cols]
     m = A.shape[1]
-    AA = (A[:, :, None] * A[:, None, :]).reshape(-1, m * m)
+    iu, ju = np.triu_indices(m)
+    AA = A[:, iu] * A[:, ju]  # (cols, m (m + 1) / 2): the distinct products
     w = ring_f.astype(float)
     coef = np.zeros((n, m))
     for it in range(3):
-        AtA = (w @ AA).reshape(n, m, m) + 1e-9 * np.eye(m)
+        AtA = np.empty((n, m, m))
+        AtA[:, iu, ju] = AtA[:, ju, iu] = w @ AA
+        AtA += 1e-9 * np.eye(m)
         Atb = (w * flat) @ A
         coef = np.linalg.solve(AtA, Atb[..., None])[..., 0]
         if it == 2:
             break
         # robust: drop annulus pixels more than 3 MAD from the plane (texture, neighbours)
-        res = np.abs(flat - coef @ A.T)
+        res = np.abs(flat - coef.astype(np.float32) @ A32.T)
         # a blob whose annulus is entirely excluded keeps its plain fit (infinite MAD)
         mad = _masked_median(res, ring_f) * 1.4826 + 1e-9
         mad = np.where(np.isfinite(mad), mad, np.inf)
         w = (ring_f & (res <= 3.0 * mad[:, None])).astype(float)
-    return (coef @ A_full.T).reshape(patch.shape)
+    return (coef.astype(np.float32) @ A_full.astype(np.float32).T).reshape(patch.shape)
+
+
+def _poly_terms(xx: np.ndarray, yy: np.ndarray, scale: float, order: int) -> np.ndarray:
+    """The 2-D polynomial terms (1, u, v, u^2, uv, v^2, u^3, ...) up to ``order`` of the scaled
+    offsets ``u = xx / scale``, ``v = yy / scale``: (P*P, m) float64."""
+    u, v = xx / scale, yy / scale
+    terms = [np.ones_like(xx), u, v]
+    if order >= 2:
+        terms += [u * u, u * v, v * v]
+    if order >= 3:
+        terms += [u**3, u * u * v, u * v * v, v**3]
+    return np.stack(terms, axis=-1).reshape(-1, len(terms))
 
 
 def _masked_median(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """Row-wise median of ``values`` (n, m) over the entries where ``mask`` (n, m) is True; NaN for
     an empty row (as ``np.nanmedian``, without its per-row Python loop)."""
-    s = np.sort(np.where(mask, values, np.inf), axis=1)
+    s = np.sort(np.where(mask, values, values.dtype.type(np.inf)), axis=1)
     count = mask.sum(axis=1)
     rows = np.arange(s.shape[0])
     middle = 0.5 * (s[rows, np.maximum(count - 1, 0) // 2] + s[rows, count // 2])
@@ -768,7 +901,7 @@ def _glare_blobs(image: np.ndarray, sat: float) -> np.ndarray:
     cols = np.flatnonzero(full.any(axis=0))
     r0, c0 = rows[0], cols[0]
     m = full[r0 : rows[-1] + 1, c0 : cols[-1] + 1].astype(np.uint8)
-    n, _, stats, cents = cv2.connectedComponentsWithStats(m, connectivity=8)
+    n, _, stats, cents = _labelled(m)
     cents = cents + np.array([c0, r0], dtype=float)
     if n <= 1:
         return np.zeros(0, REJECT_DTYPE)

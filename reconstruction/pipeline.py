@@ -566,7 +566,8 @@ class SeriesTracker:
         n = carried.shape[0]
         if pts.centres.shape[0] < 6:
             return np.full(n, -1, np.int64), carried.copy(), 0.35 * marker_spacing(carried)
-        m = match_step(carried, pts.centres, axial_ratio=axial_ratio)
+        axis = None if self._prior is None else self._prior.axis_direction
+        m = match_step(carried, pts.centres, axial_ratio=axial_ratio, axis_guess=axis)
         a = m.assignment
         step["swaps"], step["ambiguous"] = m.swaps.shape[0], int(m.ambiguous.sum())
         r = m.residual[np.isfinite(m.residual)]

@@ -56,15 +56,32 @@ class AxisymmetricMap:
         return AxisymmetricMap(cylinder, z0, L, np.array([1.0, 0, 0, 0, 0, 0, 1.0, 0, 0, 0]))
 
     def apply(self, points: np.ndarray, params: np.ndarray | None = None) -> np.ndarray:
+        return self.apply_cylindrical(self.cylinder.cylindrical(points), params)
+
+    def apply_cylindrical(self, rtz: tuple, params: np.ndarray | None = None, *, jacobian: bool = False):
+        """The map of points given by their cylindrical coordinates ``rtz`` = (r, theta, z), each
+        (n,), about the reference axis: (n, 3) m; with ``jacobian``, also d x' / d params (n, 3, 10)."""
         p = self.params if params is None else params
-        r, th, z = self.cylinder.cylindrical(points)
+        r, th, z = rtz
         s = (z - self.z0) / self.L
         r2 = r * (p[0] + p[1] * s + p[2] * s * s)
         th2 = th + p[3] + p[4] * s
         z2 = self.z0 + self.L * (p[5] + p[6] * s + p[7] * s * s)
         F = self.cylinder.frame()
-        local = np.stack([r2 * np.cos(th2) + p[8] * self.L, r2 * np.sin(th2) + p[9] * self.L, z2], axis=1)
-        return self.cylinder.axis_point + local @ F
+        c, si = np.cos(th2), np.sin(th2)
+        local = np.stack([r2 * c + p[8] * self.L, r2 * si + p[9] * self.L, z2], axis=1)
+        out = self.cylinder.axis_point + local @ F
+        if not jacobian:
+            return out
+        n, one = r.size, np.ones_like(r)
+        d_r2 = np.stack([r, r * s, r * s * s], axis=1)  # (n, 3): d r2 / d (a0, a1, a2)
+        d_th2 = np.stack([one, s], axis=1)  # d theta2 / d (b0, b1)
+        J = np.zeros((n, 3, 10))
+        J[:, 0, 0:3], J[:, 1, 0:3] = c[:, None] * d_r2, si[:, None] * d_r2
+        J[:, 0, 3:5], J[:, 1, 3:5] = (-r2 * si)[:, None] * d_th2, (r2 * c)[:, None] * d_th2
+        J[:, 2, 5:8] = self.L * np.stack([one, s, s * s], axis=1)
+        J[:, 0, 8] = J[:, 1, 9] = self.L
+        return out, np.einsum("nkp,kj->njp", J, F)
 
 
 def marker_spacing(points: np.ndarray) -> float:
@@ -78,12 +95,10 @@ def marker_spacing(points: np.ndarray) -> float:
 
 
 def fit_axisymmetric_map(src: np.ndarray, dst: np.ndarray, base: AxisymmetricMap) -> AxisymmetricMap:
-    """Least-squares (soft-L1) map parameters taking matched ``src`` (m, 3) onto ``dst`` (m, 3)."""
+    """Least-squares (soft-L1) map parameters taking matched ``src`` (m, 3) onto ``dst`` (m, 3)
+    (analytic Jacobian; the source points' cylindrical coordinates computed once)."""
     scale = max(marker_spacing(dst) * 0.1, 1e-9)
-
-    def resid(p):
-        return (base.apply(src, p) - dst).ravel()
-
+    rtz = base.cylinder.cylindrical(src)
     n = src.shape[0]
     p0 = base.params.copy()
     free = np.ones(10, bool)
@@ -92,15 +107,19 @@ def fit_axisymmetric_map(src: np.ndarray, dst: np.ndarray, base: AxisymmetricMap
     if n < 12:
         free[[1, 4]] = False
 
-    def r_free(q):
+    def full(q):
         p = p0.copy()
         p[free] = q
-        return resid(p)
+        return p
 
-    sol = least_squares(r_free, p0[free], loss="soft_l1", f_scale=scale)
-    p = p0.copy()
-    p[free] = sol.x
-    return AxisymmetricMap(base.cylinder, base.z0, base.L, p)
+    def r_free(q):
+        return (base.apply_cylindrical(rtz, full(q)) - dst).ravel()
+
+    def j_free(q):
+        return base.apply_cylindrical(rtz, full(q), jacobian=True)[1].reshape(-1, 10)[:, free]
+
+    sol = least_squares(r_free, p0[free], jac=j_free, loss="soft_l1", f_scale=scale)
+    return AxisymmetricMap(base.cylinder, base.z0, base.L, full(sol.x))
 
 
 @dataclass(frozen=True)
@@ -223,6 +242,7 @@ def match_step(
     neighbours: int = 8,
     icp_iterations: int = 6,
     fix_swaps: bool = True,
+    axis_guess: np.ndarray | None = None,
 ) -> StepMatch:
     """Assign this step's unlabelled points to tracked markers.
 
@@ -243,6 +263,9 @@ def match_step(
     icp_iterations : int
     fix_swaps : bool
         Exchange detected swapped pairs.
+    axis_guess : ndarray, shape (3,), optional
+        Start of the axis search of the previous positions' cylinder (e.g. the tracker's specimen
+        axis: one fit); default: each principal direction of the points (three fits).
 
     Returns
     -------
@@ -254,7 +277,7 @@ def match_step(
     if not np.all(np.isfinite(prev)):
         raise ValueError("previous must be finite for every tracked marker (carry predictions forward for lost markers)")
     n = prev.shape[0]
-    cyl = fit_cylinder(prev)
+    cyl = fit_cylinder(prev, axis_guess=axis_guess)
     _, _, zp = cyl.cylindrical(prev)
     z0 = float(np.median(zp))
     L = float(max(np.ptp(zp) / 2, 1e-6))

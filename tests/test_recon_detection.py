@@ -6,7 +6,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from _recon_synth import render_discs
-from reconstruction.detection import REJECT_DTYPE, detect_markers
+from reconstruction.detection import REJECT_DTYPE, detect_markers, detect_markers_near
 
 
 def _grid(n, W, H, sep, seed):
@@ -55,7 +55,9 @@ def test_plain_blob_centroid_would_fail():
     assert np.sqrt(np.mean(d_ref**2)) < 0.25 * np.sqrt(np.mean(d_plain**2))
 
 
-def test_rejects_with_reasons():
+def _reject_scene():
+    """8-bit 640x480 image: eight good markers, one cut by the border, a merged pair, a speck, debris, a grey
+    disc and two glare spots (one touching the marker at (500, 100)); returns (image, good centres)."""
     W, H = 640, 480
     good = np.array([[100.0, 100], [200, 100], [300, 100], [400, 100], [500, 100], [100, 300], [200, 300], [300, 300]])
     extra = {
@@ -79,7 +81,11 @@ def test_rejects_with_reasons():
     # glare: a saturated spot touching one marker, and one on its own
     img[np.hypot(xx - 508, yy - 96) <= 3] = 255
     img[np.hypot(xx - 560, yy - 200) <= 4] = 255
-    img = np.clip(np.rint(img), 0, 255).astype(np.uint8)
+    return np.clip(np.rint(img), 0, 255).astype(np.uint8), good
+
+
+def test_rejects_with_reasons():
+    img, good = _reject_scene()
     det = detect_markers(img, diameter_range=(10, 24), split_merged=False)
     assert det.rejects.dtype == REJECT_DTYPE
     expected = np.delete(good, 4, axis=0)  # every good marker except the one touched by glare
@@ -127,3 +133,30 @@ def test_empty_image_keeps_shapes():
         detect_markers(np.zeros((4, 4, 3)))
     with pytest.raises(ValueError, match="diameter_range"):
         detect_markers(img, diameter_range=(10, 5))
+
+
+def test_windowed_search_reports_as_the_whole_image():
+    """detect_markers_near (the guided search) finds the same centres and gives the same reject
+    reasons, near its points, as the whole-image detection with the same levels."""
+    img, _ = _reject_scene()
+    kw = dict(diameter_range=(10, 24), split_merged=False)
+    full = detect_markers(img, **kw)
+    points = np.array([[100.0, 100], [100, 300], [150, 420], [4, 240], [200, 300]])
+    radius = 25.0
+    near = detect_markers_near(img, points, radius, levels=(full.threshold, full.noise), max_fraction=1.0, **kw)
+    assert len(near.rejects) < len(full.rejects)  # a window, not the whole image
+
+    def close(xy):
+        return cKDTree(points).query(xy)[0] <= radius
+
+    want = full.centres[close(full.centres)]
+    assert len(want) == 3 and len(near) == len(want)
+    assert np.abs(near.centres - want).max() < 1e-9
+    assert np.abs(near.diameter - full.diameter[close(full.centres)]).max() < 1e-9
+
+    def reasons(det):
+        xy = np.stack([det.rejects["x"], det.rejects["y"]], axis=1)
+        keep = close(xy)
+        return sorted((str(r), round(x), round(y)) for r, (x, y) in zip(det.rejects["reason"][keep], xy[keep]))
+
+    assert reasons(near) == reasons(full) and {r[0] for r in reasons(full)} == {"edge", "not_round"}
