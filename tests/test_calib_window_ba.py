@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from _window_boards import board_views, exact_views, wall_rig, wrong_window
-from reconstruction.calibration import CalibrationError, calibrate_cameras
+from reconstruction.calibration import CalibrationError, calibrate_cameras, reprojection_errors
 from vfmlab.cli import main
 
 OBJ = np.array([[i * 5e-3, j * 5e-3, 0] for j in range(6) for i in range(8)])  # 8 x 6 corners, 5 mm
@@ -48,16 +48,21 @@ def test_shared_wall_recovered_from_a_wrong_start():
 
 
 def test_one_window_per_camera_is_flagged_ill_posed():
+    # refused before anything moves (1-sigma from the Jacobian at the start), even from the true windows
     cams, obj, uv = window_scene(per_camera=True, n_views=6)
     res = calibrate_cameras(uv, obj, [c.image_size for c in cams], [c.name for c in cams],
-                            windows=[_wrong(c.window) for c in cams], refine_window=True)
+                            windows=[c.window for c in cams], refine_window=True, world_view=1)
     fit = res.window_fit
+    # the cameras and their windows re-expressed in board 1's frame reproject as in the adjustment's frame
+    e = reprojection_errors(res.cameras, res.board_rvecs, res.board_tvecs, uv, obj)
+    assert np.sqrt(np.nanmean(np.sum(e**2, -1))) == pytest.approx(res.rms_total, rel=1e-6)
     assert len(fit.refined) == 3 and fit.cameras == [["cam0"], ["cam1"], ["cam2"]]
     assert not fit.well_posed and "ILL-POSED" in fit.message
     assert np.max(fit.offset_std) > 2e-3  # measured 3.7-11 mm
     assert not np.any(fit.max_correlation < 0) and np.max(fit.max_correlation) > 0.99  # plane vs camera distance
-    for got, cam in zip(fit.refined, cams):  # refused: the planes stay where given
-        assert got.offset == pytest.approx(cam.window.offset + 2e-3, abs=1e-12)
+    for got, start, cam in zip(fit.refined, fit.nominal, res.cameras):  # refused: the planes stay where given
+        assert np.allclose(got.normal, start.normal, atol=1e-12) and got.offset == pytest.approx(start.offset, abs=1e-12)
+        assert cam.window.offset == pytest.approx(got.offset, abs=1e-12)
     assert "refused" in fit.message and res.cameras[1].window.offset == fit.refined[1].offset
 
 
