@@ -16,6 +16,12 @@ Method
    threshold are rejected and the problem re-solved with a plain least-squares loss.
 
 World frame: the reference camera's frame, or the board frame of view ``world_view``.
+
+Windows (``windows=``): cameras looking into a bath through flat windows (air | glass | water) are
+adjusted with the exact refraction of :mod:`reconstruction.refraction` (step 3 is repeated through
+the windows, from the straight-ray solution); ``refine_window=True`` adds each plane's position
+and normal to the unknowns (one plane per tank wall, shared by the cameras behind it), after
+checking that the views determine them (else the refinement is refused: ILL-POSED).
 """
 
 from __future__ import annotations
@@ -135,7 +141,8 @@ class WindowFit:
     nominal, refined : list of Window
         The window of each plane before and after the adjustment (world frame of the result).
     offset_std : ndarray, shape (n_planes,)
-        1-sigma of the plane's position along its normal, m.
+        1-sigma of the plane's position along its normal where the cameras look through it (the pivot
+        of its tilts), m.
     normal_std : ndarray, shape (n_planes,)
         1-sigma of the normal's direction (root-sum-square of its two tilt angles), rad.
     max_correlation : ndarray, shape (n_planes, 3)
