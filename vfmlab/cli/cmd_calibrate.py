@@ -169,6 +169,7 @@ Examples:
   vfmlab calibrate a1.h5                                  # board views stored in the session
   vfmlab calibrate --images boards/ --squares 8x6 --square-size-mm 4.5 -o calibration.toml
   vfmlab calibrate a1.h5 --import calibration.toml --import-units mm
+  vfmlab calibrate a1.h5 --refine-window                  # through the rig file's [window], its plane refined
   vfmlab calibrate a1.h5 --import openptv-project/ --body fixed   # OpenPTV cameras + window, refined on its body
 """
 
