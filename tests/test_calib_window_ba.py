@@ -82,4 +82,4 @@ def test_cli_refine_window_needs_the_rig_window(tmp_path, capsys):
     assert "--refine-window: no window to refine" in capsys.readouterr().err
     (tmp_path / "imgs" / "cam0").mkdir(parents=True)
     assert main(["calibrate", "--images", str(tmp_path / "imgs"), "--refine-window"]) == 2
-    assert "--images calibrates without a session" in capsys.readouterr().err
+    assert "give the SESSION whose rig file states it" in capsys.readouterr().err

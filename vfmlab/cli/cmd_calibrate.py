@@ -238,7 +238,7 @@ def command(session, images_dir, board, squares, square_size_mm, marker_size_mm,
     if session is None and images_dir is None:
         raise CliInputError("give a SESSION (its calibration images) or --images DIR")
     spec = _board_spec(board, squares, square_size_mm, marker_size_mm, dictionary, subpix_window)
-    window = _session_window(session if images_dir is None else None, refine_window)
+    window = _session_window(session, refine_window)
     if window is not None and out is not None:
         raise CliInputError(f"-o {out}: TOML/YAML files hold no window (refraction); store the calibration in the session")
     if images_dir is not None:
@@ -319,7 +319,8 @@ def _detect_in_session(session: Path, spec) -> tuple[dict, dict, str]:
 
 def _session_window(session: Path | None, refine: bool):
     """The window the session's rig settings record (``[window]`` of the rig file), or None; ``--refine-window``
-    without one is an input error."""
+    without one is an input error. Board images from ``--images`` stored into a session are taken as seen
+    through that session's window too."""
     window = None
     if session is not None:
         from reconstruction.refraction import Window
@@ -329,8 +330,8 @@ def _session_window(session: Path | None, refine: bool):
             record = (s.rig_settings or {}).get("window")
         window = Window.from_dict(record) if record else None
     if refine and window is None:
-        raise CliInputError("--refine-window: no window to refine (the session's rig file has no [window] table"
-                            + ("" if session is not None else "; --images calibrates without a session") + ")")
+        raise CliInputError("--refine-window: no window to refine (" + ("the session's rig file has no [window] table"
+                            if session is not None else "give the SESSION whose rig file states it") + ")")
     return window
 
 
