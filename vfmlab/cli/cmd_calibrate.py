@@ -169,6 +169,7 @@ Examples:
   vfmlab calibrate a1.h5                                  # board views stored in the session
   vfmlab calibrate --images boards/ --squares 8x6 --square-size-mm 4.5 -o calibration.toml
   vfmlab calibrate a1.h5 --import calibration.toml --import-units mm
+  vfmlab calibrate a1.h5 --refine-window                  # through the rig file's [window], its plane refined
   vfmlab calibrate a1.h5 --import openptv-project/ --body fixed   # OpenPTV cameras + window, refined on its body
 """
 
@@ -209,9 +210,13 @@ Examples:
                    "length, 'free' refines it too and refuses the result if one view cannot determine it.")
 @click.option("--import-units", type=click.Choice(["m", "cm", "mm", "um"]), default="mm", show_default=True,
               help="Length unit of an imported file's translations when the file does not say (aniposelib does not).")
+@click.option("--refine-window", is_flag=True,
+              help="Also refine the window the session's rig file states ([window]: plane distance and normal, one "
+                   "plane shared by all cameras); refused if the board views cannot determine it. Without the flag a "
+                   "recorded window is used as it is; a session without one calibrates with straight rays.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
 def command(session, images_dir, board, squares, square_size_mm, marker_size_mm, dictionary, subpix_window, reference,
-            world_view, fix_k3, out, force, units, store, import_file, import_units, body, as_json):
+            world_view, fix_k3, out, force, units, store, import_file, import_units, body, refine_window, as_json):
     """Calibrate the cameras jointly from calibration-board images.
 
     Each camera is initialised alone (OpenCV), camera poses are chained through shared board
@@ -233,6 +238,9 @@ def command(session, images_dir, board, squares, square_size_mm, marker_size_mm,
     if session is None and images_dir is None:
         raise CliInputError("give a SESSION (its calibration images) or --images DIR")
     spec = _board_spec(board, squares, square_size_mm, marker_size_mm, dictionary, subpix_window)
+    window = _session_window(session, refine_window)
+    if window is not None and out is not None:
+        raise CliInputError(f"-o {out}: TOML/YAML files hold no window (refraction); store the calibration in the session")
     if images_dir is not None:
         detections, sizes, source = _detect_in_folder(images_dir, spec)
     else:
@@ -245,10 +253,14 @@ def command(session, images_dir, board, squares, square_size_mm, marker_size_mm,
     found = {c: sum(len(d) > 0 for d in detections[c]) for c in names}
     log.info("board found per camera: %s", ", ".join(f"{c} in {n} views" for c, n in found.items()))
     try:
-        result = calibrate_from_detections(detections, spec, sizes, reference=ref, world_view=world_view, fix_k3=fix_k3)
+        result = calibrate_from_detections(detections, spec, sizes, reference=ref, world_view=world_view, fix_k3=fix_k3,
+                                           windows=window, refine_window=refine_window)
     except CalibrationError as exc:
         raise CliError(f"calibration failed: {exc} (board views found per camera: "
                        f"{', '.join(f'{c} {n}' for c, n in found.items())})") from None
+    if result.window_fit is not None and not result.window_fit.well_posed:
+        raise CliError(f"--refine-window: {result.window_fit.message}. Nothing stored; calibrate without "
+                       "--refine-window to keep the rig file's window")
     if out is not None:
         _write_file(out, result, units, {"created_by": "vfmlab calibrate", "source": source,
                                          "rms_px": result.rms.tolist(), "board": f"{board} {squares} {square_size_mm} mm"})
@@ -256,7 +268,8 @@ def command(session, images_dir, board, squares, square_size_mm, marker_size_mm,
     if session is not None and store:
         params = dict(board=board, squares=squares, square_size_m=spec.square_size, marker_size_m=spec.marker_size,
                       dictionary=dictionary, subpix_window=subpix_window, reference=names[ref], world_view=world_view,
-                      fix_k3=fix_k3, source=source)
+                      fix_k3=fix_k3, source=source, window=None if window is None else window.to_dict(),
+                      refine_window=refine_window)
         stored = _store(session, result, params)
     _report(result, found, out, session, stored, as_json)
 
@@ -304,6 +317,36 @@ def _detect_in_session(session: Path, spec) -> tuple[dict, dict, str]:
     return detections, sizes, f"{session} (calibration images)"
 
 
+def _session_window(session: Path | None, refine: bool):
+    """The window the session's rig settings record (``[window]`` of the rig file), or None; ``--refine-window``
+    without one is an input error. Board images from ``--images`` stored into a session are taken as seen
+    through that session's window too."""
+    window = None
+    if session is not None:
+        from reconstruction.refraction import Window
+        from vfmlab.cli._sessions import cli_session
+
+        with cli_session(session) as s:
+            record = (s.rig_settings or {}).get("window")
+        window = Window.from_dict(record) if record else None
+    if refine and window is None:
+        raise CliInputError("--refine-window: no window to refine (" + ("the session's rig file has no [window] table"
+                            if session is not None else "give the SESSION whose rig file states it") + ")")
+    return window
+
+
+def _window_rows(result) -> list[dict]:
+    """The windows of the result, one row per plane (mm, deg), for people and --json."""
+    if result.window_fit is not None:
+        return result.window_fit.summary()
+    wins = {}
+    for c in result.cameras:
+        if c.window is not None:
+            wins.setdefault(repr(c.window.to_dict()), (c.window, []))[1].append(c.name)
+    return [dict(cameras=names, plane_distance_mm=1e3 * w.offset, normal=[float(v) for v in w.normal], refined=False)
+            for w, names in wins.values()]
+
+
 def _reference_index(names: list[str], reference: str | None) -> int:
     if reference is None:
         return 0
@@ -330,10 +373,20 @@ def _store(session: Path, result, params: dict) -> str:
     arrays["board_tvecs"] = result.board_tvecs
     attrs = dict(rms_total=result.rms_total, n_observations=result.n_observations, n_outliers=result.n_outliers,
                  converged=result.converged, message=result.message)
+    fit = result.window_fit
+    if fit is not None:  # SI, the unit in the key
+        attrs["window_fit"] = [dict(cameras=fit.cameras[g], plane_distance_m=w.offset, normal=[float(v) for v in w.normal],
+                                    plane_distance_std_m=float(fit.offset_std[g]), normal_std_rad=float(fit.normal_std[g]),
+                                    nominal_plane_distance_m=fit.nominal[g].offset,
+                                    nominal_normal=[float(v) for v in fit.nominal[g].normal],
+                                    max_correlation=float(np.max(fit.max_correlation[g])))
+                               for g, w in enumerate(fit.refined)]
+        attrs["window_message"] = fit.message
     try:
         return write_result(session, "calibration", arrays, params, attrs,
                             units={"K": "px", "tvec": "m", "rvec": "rad", "rms": "px", "rms_per_view": "px",
-                                   "image_size": "px", "board_tvecs": "m", "board_rvecs": "rad"})
+                                   "image_size": "px", "board_tvecs": "m", "board_rvecs": "rad", "window_offset": "m",
+                                   "window_thickness": "m", "window_normal": "1", "window_index": "1"})
     except SessionError as exc:
         raise CliError(str(exc)) from None
 
@@ -343,10 +396,21 @@ def _report(result, found: dict, out, session, stored, as_json: bool) -> None:
     summary = {"cameras": result.summary(), "rms_total_px": result.rms_total, "n_observations": result.n_observations,
                "n_outliers": result.n_outliers, "converged": result.converged, "views_found": found,
                "out": str(out) if out else None, "stored_as": stored}
+    windows = _window_rows(result)
+    if windows:
+        summary["windows"] = windows
     if as_json:
         print_json(summary)
         return
     console.print(_table(result))
+    for w in windows:
+        line = f"window ({esc(', '.join(w['cameras']))}): plane distance {w['plane_distance_mm']:.3f} mm"
+        if "plane_distance_std_mm" in w:
+            line += (f" ± {w['plane_distance_std_mm']:.3f} mm (moved {w['plane_shift_mm']:+.3f} mm), normal ± "
+                     f"{w['normal_std_deg']:.3f} deg (turned {w['normal_change_deg']:.3f} deg), refined")
+        else:
+            line += ", as the rig file states (not refined)"
+        console.print(line)
     console.print(f"total RMS {result.rms_total:.3f} px over {result.n_observations} observations; "
                   f"{result.n_outliers} outliers rejected; converged: {result.converged}")
     if out is not None:
