@@ -49,3 +49,12 @@ def test_window_table_errors_name_the_key(old, new, fragments):
         parse_rig(RIG + WINDOW.replace(old, new), source="r.toml")
     for frag in fragments:
         assert frag in str(info.value), (frag, str(info.value))
+
+
+def test_simulated_rig_refuses_a_window_it_does_not_render():
+    from acquisition.errors import InputError
+    from vfmlab.simrig import SimBench
+
+    rig = parse_rig(RIG + WINDOW, source="r.toml")
+    with pytest.raises(InputError, match=r"\[window\].*--sim.*6 mm glass"):
+        SimBench(rig, None, None)

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from acquisition.cameras import FunctionCamera
+from acquisition.errors import InputError
 from acquisition.protocol import MMHG, Protocol, RigConfig, SpecimenFile
 
 __all__ = ["SimScene", "SimBench"]
@@ -210,6 +211,13 @@ class SimBench:
 
     def __init__(self, rig_config: RigConfig, specimen: SpecimenFile, protocol: Protocol, *,
                  time_scale: float = 1.0):
+        if rig_config.window is not None:
+            # the simulated cameras stand on a ring around the tube: no single flat wall lies between them and the
+            # bath, and their images are rendered without one; calibrating through the rig file's window would
+            # then bend rays the images never bent
+            raise InputError(
+                "rig file [window]: the simulated rig (--sim) renders its cameras without a window; expected a rig "
+                f"file without a [window] table, got one ({rig_config.window.glass_thickness * 1e3:g} mm glass)")
         self.config, self.specimen, self.protocol = rig_config, specimen, protocol
         self.time_scale = float(time_scale)
         self.simulation = rig_config.simulation
