@@ -48,11 +48,15 @@ GATES = {"epipolar_px": 2.0, "max_reprojection_px": 1.3, "max_pair_angle_deg": 1
 DETECTION = {"threshold": 6.0, "min_sum": 100.0, "pixels_range": (3, 500), "split_touching": True}
 #: decoy: camera 1's detections moved by this (px) before matching; what is still matched with camera 1 is chance
 DECOY_SHIFT_PX = (20.0, 13.0)
-#: volume self-calibration: OpenPTV's particle settings (fewer, brighter particles than DETECTION: fewer chance
-#: candidates), frames 0-4, the box of OpenPTV's points (1st-99th percentile, 5 mm margin), 2 x 2 x 2 sub-volumes
+#: volume self-calibration of the imported calibration: OpenPTV's particle settings (fewer, brighter particles than
+#: DETECTION: fewer chance candidates), frames 0-4, the box of OpenPTV's points (1st-99th percentile, 5 mm margin),
+#: 2 x 2 x 2 sub-volumes; pose, k1, principal point and window tilt refined per camera with the body's dots
 SELFCAL_FRAMES = (0, 1, 2, 3, 4)
-SELFCAL_GRID = (2, 2, 2)
-#: tight gates for the real-vs-decoy check after the self-calibration
+SELFCAL = {"grid": (2, 2, 2), "free": ("pose", "k1", "principal_point", "window_tilt"), "f_scale_px": 1.0,
+           "schedule": ((4.0, 3.0, 1.5), (3.0, 2.0, 1.0), (2.0, 1.5, 0.7), (1.5, 1.0, 0.5))}
+#: matching after the self-calibration: the same particles, gates tighter than GATES (at DETECTION's density and
+#: GATES, chance coincidences dominate whatever the calibration); the imported calibration is matched the same way
+SELFCAL_GATES = {"epipolar_px": 1.5, "max_reprojection_px": 1.0, "max_pair_angle_deg": 180.0}
 TIGHT_GATES = {"epipolar_px": 1.0, "max_reprojection_px": 0.7, "max_pair_angle_deg": 180.0}
 
 
@@ -124,11 +128,12 @@ def run(frames: list[int]) -> dict:
     from reconstruction.particles import detect_particles
 
     _, pts = openptv.read_target_file(DATA / "cal" / "target_on_a_side.txt")
-    for i, cam in enumerate(imported):
-        dots = detect_particles(openptv.read_image(DATA / "cal" / f"cam{i + 1}.tif"), **openptv.BODY_DOT_SETTINGS).centres
-        px = match_body_points(dots, cam, pts)
+    body_px = np.stack([match_body_points(detect_particles(openptv.read_image(DATA / "cal" / f"cam{i + 1}.tif"),
+                                                           **openptv.BODY_DOT_SETTINGS).centres, cam, pts)
+                        for i, cam in enumerate(imported)])
+    for cam, px in zip(imported, body_px):
         out["calibration_body_rms_px_imported"][cam.name] = float(np.sqrt(np.nanmean(np.sum((cam.project(pts) - px) ** 2, 1))))
-    sc, out["self_calibration"] = self_calibration(body, pts)
+    sc, out["self_calibration"] = self_calibration(imported, body_px, pts)
     out["self_calibrated"] = {}
     out["calibration_body_rms_px_self_calibrated"] = dict(zip(out["calibration_body_rms_px"], sc.body_rms_px.tolist()))
     for f in frames:
@@ -136,11 +141,14 @@ def run(frames: list[int]) -> dict:
         out["imported"][str(f)], out["no_refraction"][str(f)] = frame_figures(f, dets, imported, straight=straight,
                                                                                decoy=True)
         out["own"][str(f)] = frame_figures(f, dets, own, decoy=True)
-        out["self_calibrated"][str(f)] = frame_figures(f, dets, sc.cameras, decoy=True)
         out["detections_per_camera"][str(f)] = [len(d) for d in dets]
         bright = openptv.detect_frame(DATA, f)
+        out["self_calibrated"][str(f)] = frame_figures(f, bright, sc.cameras, gates=SELFCAL_GATES, decoy=True)
+        out["self_calibration"]["imported_same_matching"][str(f)] = frame_figures(f, bright, imported,
+                                                                                  gates=SELFCAL_GATES, decoy=True)
         out["self_calibration"]["tight_gates"][str(f)] = {
-            name: _real_and_decoy(f, bright, cams) for name, cams in (("own", own), ("self_calibrated", sc.cameras))}
+            name: _real_and_decoy(f, bright, cams) for name, cams in (("imported", imported),
+                                                                       ("self_calibrated", sc.cameras))}
     return out
 
 
@@ -150,32 +158,24 @@ def selfcal_bounds() -> tuple[np.ndarray, np.ndarray]:
     return np.percentile(P, 1, axis=0) - 5e-3, np.percentile(P, 99, axis=0) + 5e-3
 
 
-def body_pixels(body: list, pts: np.ndarray) -> np.ndarray:
-    """The dots (px, ``(n_cams, n_body, 2)``) each BodyCalibration in ``body`` used; NaN for the others."""
-    px = np.stack([b.camera.project(pts) - b.residuals for b in body])
-    px[~np.stack([b.inliers for b in body])] = np.nan
-    return px
-
-
 def _summary(m) -> dict:
     return {"peak_rms_px": m.rms_peak_offset_px, "peak_max_px": m.max_peak_offset_px,
             "peak_height_over_mean_median": float(np.nanmedian(m.peak_height)), "candidates": int(m.counts[0].sum())}
 
 
-def self_calibration(body: list, pts: np.ndarray):
-    """:func:`reconstruction.volume_selfcal.self_calibrate` of the ``own`` cameras (``body``: their
-    BodyCalibration results; ``pts``: the body's points) on SELFCAL_FRAMES; returns it and its diagnostics."""
-    from reconstruction.volume_selfcal import SCHEDULE, self_calibrate
+def self_calibration(cams: list, body_px: np.ndarray, pts: np.ndarray):
+    """:func:`reconstruction.volume_selfcal.self_calibrate` of ``cams`` (the imported calibration) with the
+    body's dots ``body_px`` (``(4, n_body, 2)`` px) at ``pts`` on SELFCAL_FRAMES; returns it and its diagnostics."""
+    from reconstruction.volume_selfcal import self_calibrate
 
     frames = [openptv.detect_frame(DATA, f) for f in SELFCAL_FRAMES]
-    sc = self_calibrate(frames, [b.camera for b in body], selfcal_bounds(), pts, body_pixels(body, pts),
-                        grid=SELFCAL_GRID)
+    sc = self_calibrate(frames, cams, selfcal_bounds(), pts, body_px, **SELFCAL)
     passes = [{"tolerances_px": list(t), "candidates": n, "consistent": u, "particle_rms_px": r,
                "disparity_before": _summary(m)}
-              for t, n, u, r, m in zip(SCHEDULE, sc.n_candidates, sc.n_used, sc.particle_rms_px, sc.maps)]
-    return sc, {"passes": passes, "disparity_after_last_tolerances": _summary(sc.maps[-1]),
+              for t, n, u, r, m in zip(SELFCAL["schedule"], sc.n_candidates, sc.n_used, sc.particle_rms_px, sc.maps)]
+    return sc, {"message": sc.message, "passes": passes, "disparity_after_last_tolerances": _summary(sc.maps[-1]),
                 "check_first_tolerances": {"before": _summary(sc.maps[0]), "after": _summary(sc.check_map)},
-                "tight_gates": {}}
+                "tight_gates": {}, "imported_same_matching": {}}
 
 
 def _real_and_decoy(frame: int, dets: list, cams: list) -> dict:

@@ -47,7 +47,7 @@ __all__ = ["DisparityMap", "SelfCalibration", "loose_candidates", "disparity_map
 log = logging.getLogger(__name__)
 
 #: parameter groups :func:`bundle_adjust` can free, with their indices in the body-calibration parameter vector
-FREE_PARAMETERS = {"pose": (0, 1, 2, 3, 4, 5), "principal_point": (7, 8), "k1": (9,), "window_offset": (11,),
+FREE_PARAMETERS = {"pose": (0, 1, 2, 3, 4, 5), "principal_point": (7, 8), "k1": (9,), "k2": (10,), "window_offset": (11,),
                    "window_tilt": (16, 17)}
 #: shrinking tolerances of :func:`self_calibrate`: (epipolar_px, radius_px, keep_px) per pass
 SCHEDULE = ((4.0, 3.0, 1.5), (3.0, 2.0, 1.0), (2.0, 1.5, 0.7), (1.5, 1.0, 0.5))
@@ -112,6 +112,9 @@ class SelfCalibration:
         After the correction, with the *first* pass's tolerances: compare with ``maps[0]``. The later
         passes' maps shrink with their tolerances whatever the calibration (a candidate's disparity is
         bounded by them); this one does not.
+    message : str
+        How many passes ran; a pass with fewer than ``min_consistent`` candidates on the peaks stops the
+        schedule there (the cameras of the passes before are returned).
     """
 
     cameras: list
@@ -121,6 +124,7 @@ class SelfCalibration:
     particle_rms_px: list
     body_rms_px: np.ndarray
     check_map: DisparityMap
+    message: str = ""
 
 
 def _crossing_deg(a: Camera, b: Camera) -> float:
@@ -386,7 +390,7 @@ def body_rms(cameras: list[Camera], body: np.ndarray, body_pixels: np.ndarray) -
 def self_calibrate(frames: list[list[np.ndarray]], cameras: list[Camera], bounds, body: np.ndarray,
                    body_pixels: np.ndarray, *, schedule=SCHEDULE, grid=(2, 2, 2), free: tuple[str, ...] = ("pose",),
                    min_views: int = 3, bin_px: float = 0.2, f_scale_px: float = 0.5,
-                   body_weight: float = 1.0) -> SelfCalibration:
+                   body_weight: float = 1.0, min_consistent: int = 20) -> SelfCalibration:
     """Volume self-calibration (module docstring): passes of loose candidates, disparity maps, consistent
     candidates and a bundle adjustment with the body, with the tolerances of ``schedule``.
 
@@ -409,11 +413,14 @@ def self_calibrate(frames: list[list[np.ndarray]], cameras: list[Camera], bounds
         Camera parameter groups refined (:data:`FREE_PARAMETERS`).
     min_views : int
         Views a candidate needs.
+    min_consistent : int
+        Fewer candidates on the disparity peaks stop the schedule (see ``SelfCalibration.message``).
     """
     if not len(schedule):
         raise ValueError("schedule must hold at least one (epipolar_px, radius_px, keep_px) pass; got none")
     cams = list(cameras)
     maps, n_cand, n_used, rms = [], [], [], []
+    message = f"{len(schedule)} passes"
     for epi, rad, keep in schedule:
         pixels, X, res = _candidates_all_frames(frames, cams, bounds, epi, rad, min_views)
         dmap = disparity_map(res, X, bounds, grid=grid, half_width_px=max(epi, rad) + 1.0, bin_px=bin_px)
@@ -424,17 +431,19 @@ def self_calibrate(frames: list[list[np.ndarray]], cameras: list[Camera], bounds
         maps.append(dmap)
         n_cand.append(int(len(X)))
         n_used.append(int(ok.sum()))
-        if ok.sum() < 20:
-            raise ValueError(f"self_calibrate: only {int(ok.sum())} candidates agree with the disparity peaks "
-                             f"(of {len(X)}); the calibration is too far off for tolerances {epi, rad, keep} px")
+        if ok.sum() < min_consistent:
+            message = (f"stopped before pass {len(rms) + 1} of {len(schedule)}: only {int(ok.sum())} of {len(X)} "
+                       f"candidates agree with the disparity peaks at tolerances {(epi, rad, keep)} px")
+            log.warning("self_calibrate: %s", message)
+            break
         cams, _, r = bundle_adjust(cams, pixels[:, ok], X[ok], body, body_pixels, free=free, f_scale_px=f_scale_px,
                                    body_weight=body_weight)
         rms.append(r)
-    epi, rad, _ = schedule[-1]
+    epi, rad, _ = schedule[len(rms) - 1] if rms else schedule[0]
     _, X, res = _candidates_all_frames(frames, cams, bounds, epi, rad, min_views)
     maps.append(disparity_map(res, X, bounds, grid=grid, half_width_px=max(epi, rad) + 1.0, bin_px=bin_px))
     epi, rad, _ = schedule[0]
     _, X, res = _candidates_all_frames(frames, cams, bounds, epi, rad, min_views)
     check = disparity_map(res, X, bounds, grid=grid, half_width_px=max(epi, rad) + 1.0, bin_px=bin_px)
-    return SelfCalibration(cams, maps, n_cand, n_used, rms, body_rms(cams, body, body_pixels), check)
+    return SelfCalibration(cams, maps, n_cand, n_used, rms, body_rms(cams, body, body_pixels), check, message)
 
