@@ -17,7 +17,7 @@ uses the particles themselves:
    peak (sub-pixel, Gaussian three-point fit) and its height over the mean background are the diagnosis.
 3. **Consistent candidates** (:func:`consistent_candidates`): those whose disparity lies within
    ``keep_px`` of its sub-volume's peak in every camera.
-4. **Bundle adjustment** (:func:`bundle_adjust`): the cameras (pose, optionally principal point, k1, the
+4. **Bundle adjustment** (:func:`bundle_adjust`): the cameras (pose, optionally principal point, k1, k2, the
    window's position and tilt) and the candidates' 3-D points on their pixel residuals, jointly with the
    calibration body's dots (known 3-D points: they fix the gauge and the scale), with a robust loss.
 
