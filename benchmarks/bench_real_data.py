@@ -10,7 +10,12 @@ truth), with three calibrations:
   it), k1-k3, p1, p2, aspect and the window's tilt refined, ptv.par's indices in physical order
   (vfmlab.openptv.BODY_FIT, PHYSICAL_MEDIA);
 - ``no_refraction``: the imported calibration with the media ignored (straight rays). Its reprojection RMS
-  is that of the same correspondences as ``imported``, triangulated with straight rays.
+  is that of the same correspondences as ``imported``, triangulated with straight rays;
+- ``self_calibrated``: ``own`` corrected by the volume self-calibration on the particles of frames 0-4
+  (reconstruction.volume_selfcal, Wieneke 2008: loose 3-view candidates, disparity peaks per camera and
+  sub-volume, bundle adjustment with the calibration body). ``self_calibration`` holds its diagnostics:
+  disparity peaks per pass, the check at the first pass's tolerances, the body RMS after, and the matching
+  with tight gates (real vs decoy) with ``own`` and with the self-calibrated cameras.
 
     python benchmarks/bench_real_data.py [--json] [--frames 1 2 3 4]
     python benchmarks/bench_real_data.py --rendered   # rig_sim window renderer instead
@@ -43,6 +48,16 @@ GATES = {"epipolar_px": 2.0, "max_reprojection_px": 1.3, "max_pair_angle_deg": 1
 DETECTION = {"threshold": 6.0, "min_sum": 100.0, "pixels_range": (3, 500), "split_touching": True}
 #: decoy: camera 1's detections moved by this (px) before matching; what is still matched with camera 1 is chance
 DECOY_SHIFT_PX = (20.0, 13.0)
+#: volume self-calibration of the imported calibration: OpenPTV's particle settings (fewer, brighter particles than
+#: DETECTION: fewer chance candidates), frames 0-4, the box of OpenPTV's points (1st-99th percentile, 5 mm margin),
+#: 2 x 2 x 2 sub-volumes; pose, k1, principal point and window tilt refined per camera with the body's dots
+SELFCAL_FRAMES = (0, 1, 2, 3, 4)
+SELFCAL = {"grid": (2, 2, 2), "free": ("pose", "k1", "principal_point", "window_tilt"), "f_scale_px": 1.0,
+           "schedule": ((4.0, 3.0, 1.5), (3.0, 2.0, 1.0), (2.0, 1.5, 0.7), (1.5, 1.0, 0.5))}
+#: matching after the self-calibration: the same particles, gates tighter than GATES (at DETECTION's density and
+#: GATES, chance coincidences dominate whatever the calibration); the imported calibration is matched the same way
+SELFCAL_GATES = {"epipolar_px": 1.5, "max_reprojection_px": 1.0, "max_pair_angle_deg": 180.0}
+TIGHT_GATES = {"epipolar_px": 1.0, "max_reprojection_px": 0.7, "max_pair_angle_deg": 180.0}
 
 
 def openptv_result(frame: int):
@@ -113,17 +128,61 @@ def run(frames: list[int]) -> dict:
     from reconstruction.particles import detect_particles
 
     _, pts = openptv.read_target_file(DATA / "cal" / "target_on_a_side.txt")
-    for i, cam in enumerate(imported):
-        dots = detect_particles(openptv.read_image(DATA / "cal" / f"cam{i + 1}.tif"), **openptv.BODY_DOT_SETTINGS).centres
-        px = match_body_points(dots, cam, pts)
+    body_px = np.stack([match_body_points(detect_particles(openptv.read_image(DATA / "cal" / f"cam{i + 1}.tif"),
+                                                           **openptv.BODY_DOT_SETTINGS).centres, cam, pts)
+                        for i, cam in enumerate(imported)])
+    for cam, px in zip(imported, body_px):
         out["calibration_body_rms_px_imported"][cam.name] = float(np.sqrt(np.nanmean(np.sum((cam.project(pts) - px) ** 2, 1))))
+    sc, out["self_calibration"] = self_calibration(imported, body_px, pts)
+    out["self_calibrated"] = {}
+    out["calibration_body_rms_px_self_calibrated"] = dict(zip(out["calibration_body_rms_px"], sc.body_rms_px.tolist()))
     for f in frames:
         dets = openptv.detect_frame(DATA, f, **DETECTION)
         out["imported"][str(f)], out["no_refraction"][str(f)] = frame_figures(f, dets, imported, straight=straight,
                                                                                decoy=True)
         out["own"][str(f)] = frame_figures(f, dets, own, decoy=True)
         out["detections_per_camera"][str(f)] = [len(d) for d in dets]
+        bright = openptv.detect_frame(DATA, f)
+        out["self_calibrated"][str(f)] = frame_figures(f, bright, sc.cameras, gates=SELFCAL_GATES, decoy=True)
+        out["self_calibration"]["imported_same_matching"][str(f)] = frame_figures(f, bright, imported,
+                                                                                  gates=SELFCAL_GATES, decoy=True)
+        out["self_calibration"]["tight_gates"][str(f)] = {
+            name: _real_and_decoy(f, bright, cams) for name, cams in (("imported", imported),
+                                                                       ("self_calibrated", sc.cameras))}
     return out
+
+
+def selfcal_bounds() -> tuple[np.ndarray, np.ndarray]:
+    """The box of OpenPTV's points of frames 1-4 (1st-99th percentile) with a 5 mm margin, m."""
+    P = np.concatenate([openptv_result(f)[0] for f in range(1, 5)])
+    return np.percentile(P, 1, axis=0) - 5e-3, np.percentile(P, 99, axis=0) + 5e-3
+
+
+def _summary(m) -> dict:
+    return {"peak_rms_px": m.rms_peak_offset_px, "peak_max_px": m.max_peak_offset_px,
+            "peak_height_over_mean_median": float(np.nanmedian(m.peak_height)), "candidates": int(m.counts[0].sum())}
+
+
+def self_calibration(cams: list, body_px: np.ndarray, pts: np.ndarray):
+    """:func:`reconstruction.volume_selfcal.self_calibrate` of ``cams`` (the imported calibration) with the
+    body's dots ``body_px`` (``(4, n_body, 2)`` px) at ``pts`` on SELFCAL_FRAMES; returns it and its diagnostics."""
+    from reconstruction.volume_selfcal import self_calibrate
+
+    frames = [openptv.detect_frame(DATA, f) for f in SELFCAL_FRAMES]
+    sc = self_calibrate(frames, cams, selfcal_bounds(), pts, body_px, **SELFCAL)
+    passes = [{"tolerances_px": list(t), "candidates": n, "consistent": u, "particle_rms_px": r,
+               "disparity_before": _summary(m)}
+              for t, n, u, r, m in zip(SELFCAL["schedule"], sc.n_candidates, sc.n_used, sc.particle_rms_px, sc.maps)]
+    return sc, {"message": sc.message, "passes": passes, "disparity_after_last_tolerances": _summary(sc.maps[-1]),
+                "check_first_tolerances": {"before": _summary(sc.maps[0]), "after": _summary(sc.check_map)},
+                "tight_gates": {}, "imported_same_matching": {}}
+
+
+def _real_and_decoy(frame: int, dets: list, cams: list) -> dict:
+    """Points with >= 3 views including camera 1 with TIGHT_GATES, real and with camera 1's detections moved."""
+    r = frame_figures(frame, dets, cams, gates=TIGHT_GATES, decoy=True)
+    return {k: r[k] for k in ("our_points", "our_points_3plus_views", "our_points_3plus_views_with_cam1",
+                              "decoy_points_3plus_views_with_cam1", "reprojection_rms_px_ours", "agree_within_0p3mm")}
 
 
 def openptv_check(frames: list[int]) -> dict:
@@ -167,12 +226,16 @@ def table(res: dict) -> str:
             "reprojection_median_px_openptv", "agree_within_0p3mm", "our_points_3plus_views_with_cam1",
             "decoy_points_3plus_views_with_cam1"]
     lines = ["| calibration | frame | " + " | ".join(keys) + " |", "|" + "---|" * (len(keys) + 2)]
-    for cal in ("imported", "own", "no_refraction"):
+    for cal in ("imported", "own", "self_calibrated", "no_refraction"):
         for f, row in res[cal].items():
             lines.append(f"| {cal} | {f} | " + " | ".join(_fmt(row.get(k)) for k in keys) + " |")
     lines.append("")
     lines.append("calibration body RMS, own (px): " + ", ".join(f"{k} {v:.3f}" for k, v in res["calibration_body_rms_px"].items()))
     lines.append("calibration body RMS, imported (px): " + ", ".join(f"{k} {v:.3f}" for k, v in res["calibration_body_rms_px_imported"].items()))
+    lines.append("calibration body RMS, self-calibrated (px): " + ", ".join(
+        f"{k} {v:.3f}" for k, v in res["calibration_body_rms_px_self_calibrated"].items()))
+    lines.append("")
+    lines.append("self-calibration: " + json.dumps(res["self_calibration"]))
     return "\n".join(lines)
 
 
