@@ -542,7 +542,7 @@ def _inverse_first_row(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def surface_state(mesh: SurfaceMesh, aligned: np.ndarray, quadrature: int = 1,
                   smoothing: tuple | str | None = None, reject_outliers: bool = True,
                   weights: np.ndarray | None = None, smooth_reference: bool = False,
-                  reference_noise_correction: bool = False) -> SurfaceState:
+                  reference_noise_correction: bool = False, estimate_noise: bool = True) -> SurfaceState:
     """Cylindrical interpolation of the aligned positions ``(n_steps, n_markers, 3)``.
 
     ``smoothing=(axial degree, circumferential harmonics)`` smooths the displacement field first
@@ -554,7 +554,9 @@ def surface_state(mesh: SurfaceMesh, aligned: np.ndarray, quadrature: int = 1,
     reference metric (its slope noise biases the strains by ~sigma^2, see docs "Noise").
     ``reference_noise_correction`` (with smoothing): remove the errors-in-variables bias that the
     reference markers' own noise (estimated from the reference step) causes in the smoothed field.
-    ``reject_outliers`` first sets mis-tracked markers (``marker_outliers``)
+    ``estimate_noise=False`` (with ``reject_outliers=False``, a given smoothing basis and no reference noise
+    correction, as a bootstrap replicate): skip ``marker_outliers``, whose noise estimate (``noise``, NaN then) is
+    then used by nothing. ``reject_outliers`` first sets mis-tracked markers (``marker_outliers``)
     to NaN in the steps where they disagree with their neighbours. Triangles that are inverted in a step (a noisy marker crossed an
     edge) are excluded from that step like unobserved ones.
     """
@@ -564,7 +566,10 @@ def surface_state(mesh: SurfaceMesh, aligned: np.ndarray, quadrature: int = 1,
     geo = triangle_geometry(mesh)
     tri = mesh.triangles
     r, th, z, axes = step_cylindrical(mesh, aligned)  # (n_steps, n_markers)
-    outliers, noise = marker_outliers(mesh, r, th, z)
+    if estimate_noise or reject_outliers or isinstance(smoothing, str) or reference_noise_correction:
+        outliers, noise = marker_outliers(mesh, r, th, z)
+    else:
+        outliers, noise = np.zeros(r.shape, bool), np.full(r.shape[0], np.nan)
     if reject_outliers:
         if outliers.any():
             log.warning("markers disagreeing with their neighbours (set unobserved) per step: %s",
@@ -576,7 +581,7 @@ def surface_state(mesh: SurfaceMesh, aligned: np.ndarray, quadrature: int = 1,
     R_ref = mesh.r
     if smoothing is not None:
         # the reference step's own "noise" is 0 (d = X - X); the reference markers are measured like the others
-        level = float(np.nanmedian(noise[1:])) if noise.size > 1 else float("nan")
+        level = float(np.nanmedian(noise[1:])) if reference_noise_correction and noise.size > 1 else float("nan")
         ref_noise = level if reference_noise_correction and np.isfinite(level) else None
         r, th, z = smooth_cylindrical(mesh, r, th, z, smoothing, weights, reference_noise=ref_noise)
         if smooth_reference:
