@@ -179,9 +179,30 @@ def smoothing_basis(mesh: SurfaceMesh, degree: tuple[int, int]) -> tuple[np.ndar
     """Legendre(Z) x Fourier(Theta) functions at the reference markers.
 
     Returns ``basis`` of shape (n_markers, (degree[0] + 1) (2 degree[1] + 1)) and the markers
-    usable for fitting, shape (n_markers,) bool.
+    usable for fitting, shape (n_markers,) bool. Columns of the largest basis (at least the
+    ``AUTO_DEGREES`` ones) evaluated once for the last mesh asked: the same numbers (the Legendre
+    recurrence and the harmonics do not depend on the degree asked), without re-evaluating them for
+    every candidate of ``select_smoothing`` and every component of ``smooth_cylindrical``.
     """
+    global _BASIS_CACHE
     nz, nt = int(degree[0]), int(degree[1])
+    cached, full, ok_ref, (cz, ct) = _BASIS_CACHE
+    if cached is not mesh or nz > cz or nt > ct:
+        cz, ct = max(nz, _AUTO_NZ), max(nt, _AUTO_NT)
+        full, ok_ref = _evaluate_basis(mesh, cz, ct)
+        _BASIS_CACHE = (mesh, full, ok_ref, (cz, ct))  # one assignment: safe with other threads
+    cols = (np.arange(2 * nt + 1)[:, None] * (cz + 1) + np.arange(nz + 1)[None]).ravel()
+    return full[:, cols], ok_ref
+
+
+#: (mesh, basis, usable markers, (nz, nt)) of the last ``smoothing_basis`` evaluation.
+_BASIS_CACHE: tuple = (None, None, None, (-1, -1))
+_AUTO_NZ = max(d[0] for d in AUTO_DEGREES)
+_AUTO_NT = max(d[1] for d in AUTO_DEGREES)
+
+
+def _evaluate_basis(mesh: SurfaceMesh, nz: int, nt: int) -> tuple[np.ndarray, np.ndarray]:
+    """``smoothing_basis(mesh, (nz, nt))`` evaluated (no cache)."""
     Z, T = mesh.z, mesh.theta
     ok_ref = mesh.used & np.isfinite(Z)
     z0 = 0.5 * (np.nanmax(Z[ok_ref]) + np.nanmin(Z[ok_ref]))
