@@ -354,14 +354,18 @@ class _ProjectionRSS:
         count = np.maximum(self.ok.sum(axis=1), 1)
         yc = np.where(self.ok, self.y - (self.y.sum(axis=1) / count)[:, None], 0.0)
         yy = np.sum(yc**2, axis=1)  # (n_rows,)
+        groups = [np.flatnonzero(self.inverse == g) for g in range(len(self.gram))]
         out = {}
         for nt in range(self.nt + 1):
             cols = (np.arange(self.nz + 1)[:, None] + (self.nz + 1) * np.arange(2 * nt + 1)[None]).ravel()
             try:
                 chol = np.linalg.cholesky(self.gram[:, cols[:, None], cols[None, :]])  # (n_masks, q, q)
-                proj = np.linalg.solve(chol[self.inverse], (yc @ self.basis[:, cols])[..., None])[..., 0]
             except np.linalg.LinAlgError:
                 return {}
+            rhs = yc @ self.basis[:, cols]  # (n_rows, q)
+            proj = np.empty_like(rhs)
+            for g, rows in enumerate(groups):  # forward substitution, the rows of one set of markers at once
+                proj[rows] = solve_triangular(chol[g], rhs[rows].T, lower=True, check_finite=False).T
             rss = np.maximum(yy[:, None] - np.cumsum(proj**2, axis=1), 0.0)  # (n_rows, q)
             for nz in range(self.nz + 1):
                 out[nz, nt] = rss[:, (nz + 1) * (2 * nt + 1) - 1].reshape(self.shape)
