@@ -5,7 +5,9 @@
 
 Prints, as markdown, the median wall time (s) over ``--repeats`` fresh processes of ``vfmlab --help``,
 ``vfmlab info S``, ``vfmlab identify S --uncertainty gauss-newton`` and ``vfmlab identify S`` (defaults:
-bootstrap uncertainty), then the import-time breakdown of ``identify`` (``python -X importtime``, self
+bootstrap uncertainty), the CPU of one bootstrap re-identification (in one process, serial: the
+replicates of ``identification.uncertainty.bootstrap`` with the command's settings, min over repeats of the
+mean of 16), then the import-time breakdown of ``identify`` (``python -X importtime``, self
 time summed by top-level package) and the modules it must not import (drivers, pyserial, matplotlib...).
 
 ``S`` is a rendered session with marker tracks. Without ``--session`` one is made once in ``--work``
@@ -120,6 +122,37 @@ def time_commands(session: Path, roots: list[Path], repeats: int, tmp: Path) -> 
     return {key: tuple(np.median(np.array(v), axis=0)) for key, v in times.items()}, copies
 
 
+#: In-process CPU of the bootstrap the ``identify`` command runs, its replicates serial (``map``).
+_REPLICATE_CPU = """
+import sys, time
+import numpy as np
+from vfmlab.pipeline import FORCE_NOISE, PRESSURE_NOISE, read_identification_inputs, resolve_ends
+from identification import identify
+from identification.uncertainty import bootstrap
+d = read_identification_inputs(sys.argv[1])
+ends = resolve_ends(d["session_ends"], None)[0]
+result = identify(d["positions"], d["pressure"], d["force"], thickness=d["thickness"], ends=ends, smoothing="auto",
+                  uncertainty="gauss-newton")
+positions = d["positions"] if result.steps is None else d["positions"][list(result.steps)]
+sigma = None if d["uncertainty"] is None or result.steps is None else d["uncertainty"][list(result.steps)]
+times = []
+for _ in range(int(sys.argv[2]) + 1):  # the first run warms the caches of the process
+    t0 = time.process_time()
+    bootstrap(result.data, result, positions, marker_sigma=sigma, pressure_noise=PRESSURE_NOISE,
+              force_noise=FORCE_NOISE, n_replicates=16)
+    times.append((time.process_time() - t0) / 16)
+print(min(times[1:]))
+"""
+
+
+def replicate_cpu(root: Path, session: Path, repeats: int) -> float:
+    """CPU (s) of one bootstrap replicate of ``identify``'s defaults on ``session``, serial, in ``root``'s code
+    (including its share of the re-simulation: the bootstrap's CPU over its 16 replicates)."""
+    run = subprocess.run([sys.executable, "-c", _REPLICATE_CPU, str(session), str(repeats)], env=_env(root),
+                         cwd=root, check=True, capture_output=True, text=True)
+    return float(run.stdout.split()[-1])
+
+
 def import_breakdown(root: Path, session: Path, tmp: Path) -> tuple[dict, list[str], float]:
     """Self import time (s) of ``identify --uncertainty gauss-newton`` by top-level package, the
     modules of ``MUST_NOT_IMPORT`` it imported, and the total."""
@@ -195,6 +228,9 @@ def main(argv: list[str] | None = None) -> None:
             label = "identify S (default: bootstrap)"
             diff = max_relative_difference(copies[0, label, 0], copies[1, label, 0])
             print(f"\nLargest relative difference of the stored identification results between the trees: {diff:.1e}")
+        per = [replicate_cpu(root, session, args.repeats) for root in roots]
+        print("\nCPU of one bootstrap re-identification (in-process, serial, min over repeats of the mean of 16): "
+              + ", ".join(f"{names[r]} {per[r] * 1e3:.1f} ms" for r in range(len(roots))))
         for r, root in enumerate(roots):
             by_package, bad, total = import_breakdown(root, session, tmp)
             print(f"\nImports of `vfmlab identify` ({names[r]}): {total:.3f} s of self time (-X importtime)\n")

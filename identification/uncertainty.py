@@ -272,7 +272,7 @@ def _reidentify(data: VFMData, model, initial, pos, p, f, mesh, options, gap_wei
     try:
         with np.errstate(all="ignore"):
             d = prepare(pos, p, f, thickness=data.thickness, wall=data.wall, ends=data.ends, mesh=mesh,
-                        smoothing=data.smoothing, reject_outliers=False, **options)
+                        smoothing=data.smoothing, reject_outliers=False, estimate_noise=False, **options)
             if gap_weights is not None:
                 from .noise_weights import weighted_data
 
