@@ -7,7 +7,7 @@ import pytest
 
 from rig_sim.clamped import solve_clamped
 from rig_sim.materials import PAPER_PARAMETERS, membrane_cauchy
-from rig_sim.simulate import MMHG, PAPER_PRESSURES, simulate_test
+from rig_sim.simulate import MMHG, simulate_test
 from rig_sim.tube import inflate_membrane
 
 R, H, L = 10e-3, 1.3e-3, 35e-3

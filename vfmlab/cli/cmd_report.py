@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from vfmlab.cli._common import CliError, console, err_console, esc, print_json
+from vfmlab.cli._common import console, err_console, esc, print_json
 from vfmlab.cli._outputs import check_output_dir
 
 EPILOG = """

@@ -5,8 +5,7 @@ from __future__ import annotations
 import click
 from rich.table import Table
 
-from acquisition.session import SessionError
-from vfmlab.cli._common import CliError, console, esc, num, print_json, quantity
+from vfmlab.cli._common import console, esc, num, print_json, quantity
 from vfmlab.display import settings_text
 from vfmlab.cli._sessions import cli_session
 
