@@ -115,12 +115,12 @@ def _openptv_reprojection(P, tgt, dets, cams) -> float:
     return float(np.median(np.concatenate(d)))
 
 
-def selected_body_calibration(imported: list) -> tuple[list, dict]:
+def selected_body_calibration(imported: list, physical_media: bool = True) -> tuple[list, dict]:
     """Per camera, :func:`reconstruction.calibration_body.select_body_model` on the refined dots of
     ``cal/camN.tif`` (matched as ``openptv.calibrate_body_folder`` does), seeded by the imported camera with
-    PHYSICAL_MEDIA: only the terms the body's dots determine over the whole image are refined, the others
-    keep the imported values. Returns the cameras and per camera the chosen model, its body RMS (px), the
-    candidates' figures and the change of the projection at the image corners vs ``imported`` (px)."""
+    PHYSICAL_MEDIA (``physical_media``; else ptv.par's as written): only the terms the body's dots determine
+    over the whole image are refined, the others keep the imported values. Returns the cameras and per camera
+    the chosen model, its body RMS (px), the candidates' figures and the change of the projection at the image corners vs ``imported`` (px)."""
     from dataclasses import replace
 
     from reconstruction.calibration_body import (calibrate_from_body, match_body_points, refine_dot_centres,
@@ -134,7 +134,8 @@ def selected_body_calibration(imported: list) -> tuple[list, dict]:
         dots = detect_particles(image, **openptv.BODY_DOT_SETTINGS).centres
         coarse = calibrate_from_body(match_body_points(dots, seed, pts, gate_px=20.0), pts, seed, fix_focal=True)
         px = refine_dot_centres(image, match_body_points(dots, coarse.camera, pts, gate_px=4.0), radius_px=6.0)
-        sel = select_body_model(px, pts, replace(seed, window=replace(seed.window, **openptv.PHYSICAL_MEDIA)))
+        fine = replace(seed, window=replace(seed.window, **openptv.PHYSICAL_MEDIA)) if physical_media else seed
+        sel = select_body_model(px, pts, fine)
         cams.append(sel.calibration.camera)
         info[seed.name] = {"model": sel.chosen, "rms_px": sel.calibration.rms,
                            "corner_distortion_change_px": corner_distortion_change(sel.calibration.camera, seed),
@@ -158,7 +159,7 @@ def corner_distortion_change(cam, ref) -> float:
     return float(np.max(np.linalg.norm(disp(cam) - disp(ref), axis=1)))
 
 
-def run(frames: list[int], selfcal_seed: str = "imported", dense: bool = True) -> dict:
+def run(frames: list[int], selfcal_seed: str = "imported", dense: bool = True, body_weight: float = 1.0) -> dict:
     imported = openptv.load_cameras(DATA)
     straight = [c.without_window() for c in imported]
     body = openptv.calibrate_body_folder(DATA, imported, media=openptv.PHYSICAL_MEDIA, **openptv.BODY_FIT)
@@ -179,9 +180,9 @@ def run(frames: list[int], selfcal_seed: str = "imported", dense: bool = True) -
     out["calibration_body_corner_distortion_change_px"] = {
         b.camera.name: corner_distortion_change(b.camera, c) for b, c in zip(body, imported)}
     seed_cams = imported
-    if selfcal_seed == "selected":
-        seed_cams, out["selected_body_model"] = selected_body_calibration(imported)
-    sc, out["self_calibration"] = self_calibration(seed_cams, body_px, pts)
+    if selfcal_seed.startswith("selected"):
+        seed_cams, out["selected_body_model"] = selected_body_calibration(imported, selfcal_seed == "selected")
+    sc, out["self_calibration"] = self_calibration(seed_cams, body_px, pts, body_weight)
     out["self_calibration"]["seed"] = selfcal_seed
     out["self_calibration"]["body_rms_px_seed"] = {
         c.name: float(np.sqrt(np.nanmean(np.sum((c.project(pts) - px) ** 2, 1)))) for c, px in zip(seed_cams, body_px)}
@@ -217,13 +218,13 @@ def _summary(m) -> dict:
             "peak_height_over_mean_median": float(np.nanmedian(m.peak_height)), "candidates": int(m.counts[0].sum())}
 
 
-def self_calibration(cams: list, body_px: np.ndarray, pts: np.ndarray):
+def self_calibration(cams: list, body_px: np.ndarray, pts: np.ndarray, body_weight: float = 1.0):
     """:func:`reconstruction.volume_selfcal.self_calibrate` of ``cams`` (the imported calibration) with the
     body's dots ``body_px`` (``(4, n_body, 2)`` px) at ``pts`` on SELFCAL_FRAMES; returns it and its diagnostics."""
     from reconstruction.volume_selfcal import self_calibrate
 
     frames = [openptv.detect_frame(DATA, f) for f in SELFCAL_FRAMES]
-    sc = self_calibrate(frames, cams, selfcal_bounds(), pts, body_px, **SELFCAL)
+    sc = self_calibrate(frames, cams, selfcal_bounds(), pts, body_px, body_weight=body_weight, **SELFCAL)
     passes = [{"tolerances_px": list(t), "candidates": n, "consistent": u, "particle_rms_px": r,
                "disparity_before": _summary(m)}
               for t, n, u, r, m in zip(SELFCAL["schedule"], sc.n_candidates, sc.n_used, sc.particle_rms_px, sc.maps)]
@@ -306,9 +307,12 @@ def main(argv=None) -> int:
                          "error with and without the window model")
     ap.add_argument("--openptv-check", action="store_true",
                     help="instead: OpenPTV's own correspondences re-triangulated with our import (needs optv)")
-    ap.add_argument("--selfcal-seed", choices=("imported", "selected"), default="imported",
+    ap.add_argument("--selfcal-seed", choices=("imported", "selected", "selected-ptvpar"), default="imported",
                     help="seed of the volume self-calibration: the imported calibration, or the calibration body with "
-                         "the model the dots determine (select_body_model; key selected_body_model)")
+                         "the model the dots determine (select_body_model; key selected_body_model), with the media in "
+                         "physical order or as ptv.par writes them (selected-ptvpar)")
+    ap.add_argument("--body-weight", type=float, default=1.0,
+                    help="weight of the body's dot residuals against the particles' in the self-calibration")
     ap.add_argument("--skip-dense", action="store_true",
                     help="development: skip the imported/own/no_refraction matchings (the issue's keys stay empty)")
     a = ap.parse_args(argv)
@@ -326,7 +330,7 @@ def main(argv=None) -> int:
     if not (DATA / "parameters" / "ptv.par").is_file():
         print(f"data not found: {DATA}", file=sys.stderr)
         return 1
-    res = run(a.frames, selfcal_seed=a.selfcal_seed, dense=not a.skip_dense)
+    res = run(a.frames, selfcal_seed=a.selfcal_seed, dense=not a.skip_dense, body_weight=a.body_weight)
     print(json.dumps(res, indent=1) if a.json else table(res))
     return 0
 
