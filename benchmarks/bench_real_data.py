@@ -11,13 +11,16 @@ truth), with three calibrations:
   (vfmlab.openptv.BODY_FIT, PHYSICAL_MEDIA);
 - ``no_refraction``: the imported calibration with the media ignored (straight rays). Its reprojection RMS
   is that of the same correspondences as ``imported``, triangulated with straight rays;
-- ``self_calibrated``: ``own`` corrected by the volume self-calibration on the particles of frames 0-4
+- ``self_calibrated``: the imported calibration (``--selfcal-seed``: or the body calibration with the model its
+  dots determine, key ``selected_body_model``) corrected by the volume self-calibration on the particles of frames 0-4
   (reconstruction.volume_selfcal, Wieneke 2008: loose 3-view candidates, disparity peaks per camera and
   sub-volume, bundle adjustment with the calibration body). ``self_calibration`` holds its diagnostics:
   disparity peaks per pass, the check at the first pass's tolerances, the body RMS after, and the matching
   with tight gates (real vs decoy) with ``own`` and with the self-calibrated cameras.
 
     python benchmarks/bench_real_data.py [--json] [--frames 1 2 3 4]
+    python benchmarks/bench_real_data.py --selfcal-seed selected-ptvpar --body-weight 0.5 --skip-dense --frames 1
+        # self-calibration seeded by the body calibration with the model its dots determine (select_body_model)
     python benchmarks/bench_real_data.py --rendered   # rig_sim window renderer instead
     python benchmarks/bench_real_data.py --openptv-check   # OpenPTV's own matches, re-triangulated (needs optv)
 """
@@ -289,6 +292,9 @@ def table(res: dict) -> str:
     lines.append("calibration body RMS, imported (px): " + ", ".join(f"{k} {v:.3f}" for k, v in res["calibration_body_rms_px_imported"].items()))
     lines.append("calibration body RMS, self-calibrated (px): " + ", ".join(
         f"{k} {v:.3f}" for k, v in res["calibration_body_rms_px_self_calibrated"].items()))
+    if "selected_body_model" in res:
+        lines.append("calibration body, selected model (px): " + ", ".join(
+            f"{k} {v['model']} {v['rms_px']:.3f}" for k, v in res["selected_body_model"].items()))
     lines.append("")
     lines.append("self-calibration: " + json.dumps(res["self_calibration"]))
     return "\n".join(lines)
