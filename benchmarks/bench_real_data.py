@@ -11,9 +11,9 @@ truth), with three calibrations:
   (vfmlab.openptv.BODY_FIT, PHYSICAL_MEDIA);
 - ``no_refraction``: the imported calibration with the media ignored (straight rays). Its reprojection RMS
   is that of the same correspondences as ``imported``, triangulated with straight rays;
-- ``self_calibrated``: the imported calibration (``--selfcal-seed``: or the body calibration with the model its
-  dots determine, key ``selected_body_model``) corrected by the volume self-calibration on the particles of frames 0-4
-  (reconstruction.volume_selfcal, Wieneke 2008: loose 3-view candidates, disparity peaks per camera and
+- ``self_calibrated``: the imported calibration (``--selfcal-seed``: or the body calibration with the model
+  its dots determine, key ``selected_body_model``) corrected by the volume self-calibration on the particles of
+  frames 0-4 (reconstruction.volume_selfcal, Wieneke 2008: loose 3-view candidates, disparity peaks per camera and
   sub-volume, bundle adjustment with the calibration body). ``self_calibration`` holds its diagnostics:
   disparity peaks per pass, the check at the first pass's tolerances, the body RMS after, and the matching
   with tight gates (real vs decoy) with ``own`` and with the self-calibrated cameras.
