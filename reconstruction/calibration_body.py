@@ -61,7 +61,8 @@ class BodyCalibration:
         Points the final fit used (seen and not rejected).
     covariance : ndarray, shape (k, k), optional
         Covariance of the refined parameters ``free`` (their order in ``_NAMES``; tilts relative to the
-        result's window normal).
+        result's window normal), from the inverse normal matrix: poor when terms nearly trade off (the window
+        tilt and the pose); :func:`projection_sigma_px` recomputes it stably.
     free : tuple of str
         Names of the refined parameters.
     """
@@ -470,6 +471,9 @@ def _cv_rms(px: np.ndarray, body: np.ndarray, seed: Camera, terms, folds: list) 
     for f in folds:
         train = px.copy()
         train[f] = np.nan
-        cam = calibrate_from_body(train, body, seed, terms=terms, reject_sigma=None).camera
+        try:
+            cam = calibrate_from_body(train, body, seed, terms=terms, reject_sigma=None).camera
+        except ValueError:  # too few dots left to fix this model's parameters
+            return float("inf")
         err.append(np.sum((cam.project(body[f]) - px[f]) ** 2, axis=1))
     return float(np.sqrt(np.mean(np.concatenate(err))))
