@@ -11,13 +11,16 @@ truth), with three calibrations:
   (vfmlab.openptv.BODY_FIT, PHYSICAL_MEDIA);
 - ``no_refraction``: the imported calibration with the media ignored (straight rays). Its reprojection RMS
   is that of the same correspondences as ``imported``, triangulated with straight rays;
-- ``self_calibrated``: ``own`` corrected by the volume self-calibration on the particles of frames 0-4
-  (reconstruction.volume_selfcal, Wieneke 2008: loose 3-view candidates, disparity peaks per camera and
+- ``self_calibrated``: the imported calibration (``--selfcal-seed``: or the body calibration with the model
+  its dots determine, key ``selected_body_model``) corrected by the volume self-calibration on the particles of
+  frames 0-4 (reconstruction.volume_selfcal, Wieneke 2008: loose 3-view candidates, disparity peaks per camera and
   sub-volume, bundle adjustment with the calibration body). ``self_calibration`` holds its diagnostics:
   disparity peaks per pass, the check at the first pass's tolerances, the body RMS after, and the matching
   with tight gates (real vs decoy) with ``own`` and with the self-calibrated cameras.
 
     python benchmarks/bench_real_data.py [--json] [--frames 1 2 3 4]
+    python benchmarks/bench_real_data.py --selfcal-seed selected-ptvpar --body-weight 0.5 --skip-dense --frames 1
+        # self-calibration seeded by the body calibration with the model its dots determine (select_body_model)
     python benchmarks/bench_real_data.py --rendered   # rig_sim window renderer instead
     python benchmarks/bench_real_data.py --openptv-check   # OpenPTV's own matches, re-triangulated (needs optv)
 """
@@ -115,7 +118,51 @@ def _openptv_reprojection(P, tgt, dets, cams) -> float:
     return float(np.median(np.concatenate(d)))
 
 
-def run(frames: list[int]) -> dict:
+def selected_body_calibration(imported: list, physical_media: bool = True) -> tuple[list, dict]:
+    """Per camera, :func:`reconstruction.calibration_body.select_body_model` on the refined dots of
+    ``cal/camN.tif`` (matched as ``openptv.calibrate_body_folder`` does), seeded by the imported camera with
+    PHYSICAL_MEDIA (``physical_media``; else ptv.par's as written): only the terms the body's dots determine
+    over the whole image are refined, the others keep the imported values. Returns the cameras and per camera
+    the chosen model, its body RMS (px), the candidates' figures and the change of the projection at the image corners vs ``imported`` (px)."""
+    from dataclasses import replace
+
+    from reconstruction.calibration_body import (calibrate_from_body, match_body_points, refine_dot_centres,
+                                                 select_body_model)
+    from reconstruction.particles import detect_particles
+
+    _, pts = openptv.read_target_file(DATA / "cal" / "target_on_a_side.txt")
+    cams, info = [], {}
+    for i, seed in enumerate(imported):
+        image = openptv.read_image(DATA / "cal" / f"cam{i + 1}.tif")
+        dots = detect_particles(image, **openptv.BODY_DOT_SETTINGS).centres
+        coarse = calibrate_from_body(match_body_points(dots, seed, pts, gate_px=20.0), pts, seed, fix_focal=True)
+        px = refine_dot_centres(image, match_body_points(dots, coarse.camera, pts, gate_px=4.0), radius_px=6.0)
+        fine = replace(seed, window=replace(seed.window, **openptv.PHYSICAL_MEDIA)) if physical_media else seed
+        sel = select_body_model(px, pts, fine)
+        cams.append(sel.calibration.camera)
+        info[seed.name] = {"model": sel.chosen, "rms_px": sel.calibration.rms,
+                           "corner_distortion_change_px": corner_distortion_change(sel.calibration.camera, seed),
+                           "candidates": sel.table}
+    return cams, info
+
+
+def corner_distortion_change(cam, ref) -> float:
+    """Largest change (px) at the four image corners of the distortion displacement (distorted minus
+    pinhole pixel, each camera's own K and distortion) of ``cam`` vs ``ref``."""
+    from reconstruction.cameras import project_points
+
+    W, H = ref.image_size
+    u = np.array([[0, 0], [W - 1, 0], [0, H - 1], [W - 1, H - 1]], float)
+
+    def disp(c):
+        K = c.K
+        x = np.c_[(u[:, 0] - K[0, 2]) / K[0, 0], (u[:, 1] - K[1, 2]) / K[1, 1], np.ones(len(u))]
+        return project_points(K, c.dist, x) - u
+
+    return float(np.max(np.linalg.norm(disp(cam) - disp(ref), axis=1)))
+
+
+def run(frames: list[int], selfcal_seed: str = "imported", dense: bool = True, body_weight: float = 1.0) -> dict:
     imported = openptv.load_cameras(DATA)
     straight = [c.without_window() for c in imported]
     body = openptv.calibrate_body_folder(DATA, imported, media=openptv.PHYSICAL_MEDIA, **openptv.BODY_FIT)
@@ -133,15 +180,24 @@ def run(frames: list[int]) -> dict:
                         for i, cam in enumerate(imported)])
     for cam, px in zip(imported, body_px):
         out["calibration_body_rms_px_imported"][cam.name] = float(np.sqrt(np.nanmean(np.sum((cam.project(pts) - px) ** 2, 1))))
-    sc, out["self_calibration"] = self_calibration(imported, body_px, pts)
+    out["calibration_body_corner_distortion_change_px"] = {
+        b.camera.name: corner_distortion_change(b.camera, c) for b, c in zip(body, imported)}
+    seed_cams = imported
+    if selfcal_seed.startswith("selected"):
+        seed_cams, out["selected_body_model"] = selected_body_calibration(imported, selfcal_seed == "selected")
+    sc, out["self_calibration"] = self_calibration(seed_cams, body_px, pts, body_weight)
+    out["self_calibration"]["seed"] = selfcal_seed
+    out["self_calibration"]["body_rms_px_seed"] = {
+        c.name: float(np.sqrt(np.nanmean(np.sum((c.project(pts) - px) ** 2, 1)))) for c, px in zip(seed_cams, body_px)}
     out["self_calibrated"] = {}
     out["calibration_body_rms_px_self_calibrated"] = dict(zip(out["calibration_body_rms_px"], sc.body_rms_px.tolist()))
     for f in frames:
-        dets = openptv.detect_frame(DATA, f, **DETECTION)
-        out["imported"][str(f)], out["no_refraction"][str(f)] = frame_figures(f, dets, imported, straight=straight,
-                                                                               decoy=True)
-        out["own"][str(f)] = frame_figures(f, dets, own, decoy=True)
-        out["detections_per_camera"][str(f)] = [len(d) for d in dets]
+        if dense:
+            dets = openptv.detect_frame(DATA, f, **DETECTION)
+            out["imported"][str(f)], out["no_refraction"][str(f)] = frame_figures(f, dets, imported,
+                                                                                   straight=straight, decoy=True)
+            out["own"][str(f)] = frame_figures(f, dets, own, decoy=True)
+            out["detections_per_camera"][str(f)] = [len(d) for d in dets]
         bright = openptv.detect_frame(DATA, f)
         out["self_calibrated"][str(f)] = frame_figures(f, bright, sc.cameras, gates=SELFCAL_GATES, decoy=True)
         out["self_calibration"]["imported_same_matching"][str(f)] = frame_figures(f, bright, imported,
@@ -149,6 +205,8 @@ def run(frames: list[int]) -> dict:
         out["self_calibration"]["tight_gates"][str(f)] = {
             name: _real_and_decoy(f, bright, cams) for name, cams in (("imported", imported),
                                                                        ("self_calibrated", sc.cameras))}
+        if selfcal_seed != "imported":
+            out["self_calibration"]["tight_gates"][str(f)]["seed"] = _real_and_decoy(f, bright, seed_cams)
     return out
 
 
@@ -163,13 +221,13 @@ def _summary(m) -> dict:
             "peak_height_over_mean_median": float(np.nanmedian(m.peak_height)), "candidates": int(m.counts[0].sum())}
 
 
-def self_calibration(cams: list, body_px: np.ndarray, pts: np.ndarray):
+def self_calibration(cams: list, body_px: np.ndarray, pts: np.ndarray, body_weight: float = 1.0):
     """:func:`reconstruction.volume_selfcal.self_calibrate` of ``cams`` (the imported calibration) with the
     body's dots ``body_px`` (``(4, n_body, 2)`` px) at ``pts`` on SELFCAL_FRAMES; returns it and its diagnostics."""
     from reconstruction.volume_selfcal import self_calibrate
 
     frames = [openptv.detect_frame(DATA, f) for f in SELFCAL_FRAMES]
-    sc = self_calibrate(frames, cams, selfcal_bounds(), pts, body_px, **SELFCAL)
+    sc = self_calibrate(frames, cams, selfcal_bounds(), pts, body_px, body_weight=body_weight, **SELFCAL)
     passes = [{"tolerances_px": list(t), "candidates": n, "consistent": u, "particle_rms_px": r,
                "disparity_before": _summary(m)}
               for t, n, u, r, m in zip(SELFCAL["schedule"], sc.n_candidates, sc.n_used, sc.particle_rms_px, sc.maps)]
@@ -234,6 +292,9 @@ def table(res: dict) -> str:
     lines.append("calibration body RMS, imported (px): " + ", ".join(f"{k} {v:.3f}" for k, v in res["calibration_body_rms_px_imported"].items()))
     lines.append("calibration body RMS, self-calibrated (px): " + ", ".join(
         f"{k} {v:.3f}" for k, v in res["calibration_body_rms_px_self_calibrated"].items()))
+    if "selected_body_model" in res:
+        lines.append("calibration body, selected model (px): " + ", ".join(
+            f"{k} {v['model']} {v['rms_px']:.3f}" for k, v in res["selected_body_model"].items()))
     lines.append("")
     lines.append("self-calibration: " + json.dumps(res["self_calibration"]))
     return "\n".join(lines)
@@ -252,6 +313,14 @@ def main(argv=None) -> int:
                          "error with and without the window model")
     ap.add_argument("--openptv-check", action="store_true",
                     help="instead: OpenPTV's own correspondences re-triangulated with our import (needs optv)")
+    ap.add_argument("--selfcal-seed", choices=("imported", "selected", "selected-ptvpar"), default="imported",
+                    help="seed of the volume self-calibration: the imported calibration, or the calibration body with "
+                         "the model the dots determine (select_body_model; key selected_body_model), with the media in "
+                         "physical order or as ptv.par writes them (selected-ptvpar)")
+    ap.add_argument("--body-weight", type=float, default=1.0,
+                    help="weight of the body's dot residuals against the particles' in the self-calibration")
+    ap.add_argument("--skip-dense", action="store_true",
+                    help="development: skip the imported/own/no_refraction matchings (the issue's keys stay empty)")
     a = ap.parse_args(argv)
     if a.openptv_check:
         print(json.dumps(openptv_check(a.frames), indent=1))
@@ -267,7 +336,7 @@ def main(argv=None) -> int:
     if not (DATA / "parameters" / "ptv.par").is_file():
         print(f"data not found: {DATA}", file=sys.stderr)
         return 1
-    res = run(a.frames)
+    res = run(a.frames, selfcal_seed=a.selfcal_seed, dense=not a.skip_dense, body_weight=a.body_weight)
     print(json.dumps(res, indent=1) if a.json else table(res))
     return 0
 

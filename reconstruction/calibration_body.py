@@ -9,6 +9,12 @@ pixel residuals, with the refraction model of :class:`~reconstruction.cameras.Ca
 not fit (a defect on the body, a dot assigned to the wrong point) are found with a robust loss,
 dropped, and the fit is repeated on the rest (``reject_sigma``).
 
+A body that covers only a band of the image determines the terms that act there, not those whose effect
+grows towards the corners (k2, k3, the aspect ratio freed on cameras 1-2 of OpenPTV's test_cavity extrapolate
+by 60-1,600 px at the corners while fitting the dots to 0.13-0.26 px): :func:`select_body_model` frees only
+the combinations of terms that the dots determine over the whole image (:func:`projection_sigma_px` at
+:func:`coverage_points`) and among them picks the lowest cross-validated RMS.
+
 An ill-posed problem (a thin body seen once: focal length and distance trade off) is never
 returned silently: the result carries the parameter uncertainties and ``well_posed = False`` with
 the reason when the focal length is not determined to ``max_focal_rel_sigma``.
@@ -26,7 +32,9 @@ from scipy.spatial import cKDTree
 from reconstruction.cameras import Camera
 from reconstruction.refraction import Window
 
-__all__ = ["BodyCalibration", "match_body_points", "refine_dot_centres", "calibrate_from_body"]
+__all__ = ["BodyCalibration", "BodyModelSelection", "BODY_TERM_GROUPS", "body_models", "match_body_points",
+           "refine_dot_centres",
+           "calibrate_from_body", "select_body_model", "coverage_points", "projection_sigma_px"]
 
 log = logging.getLogger(__name__)
 
@@ -51,6 +59,12 @@ class BodyCalibration:
     message : str
     inliers : ndarray of bool, shape (n_points,)
         Points the final fit used (seen and not rejected).
+    covariance : ndarray, shape (k, k), optional
+        Covariance of the refined parameters ``free`` (their order in ``_NAMES``; tilts relative to the
+        result's window normal), from the inverse normal matrix: poor when terms nearly trade off (the window
+        tilt and the pose); :func:`projection_sigma_px` recomputes it stably.
+    free : tuple of str
+        Names of the refined parameters.
     """
 
     camera: Camera
@@ -60,6 +74,8 @@ class BodyCalibration:
     well_posed: bool
     message: str
     inliers: np.ndarray | None = None
+    covariance: np.ndarray | None = None
+    free: tuple = ()
 
     @property
     def n_rejected(self) -> int:
@@ -187,6 +203,20 @@ def _free_mask(seed: Camera, *, fix_focal, refine_k2, refine_k3, refine_tangenti
     return free
 
 
+def _terms_mask(seed: Camera, terms) -> np.ndarray:
+    """Free-parameter mask of the pose plus ``terms`` (names of :data:`_NAMES`; ``window_tilt`` = both tilts)."""
+    names = {"window_tilt_a", "window_tilt_b"} if "window_tilt" in terms else set()
+    names |= set(terms) - {"window_tilt", "pose"}
+    unknown = names - set(_NAMES)
+    if unknown:
+        raise ValueError(f"terms must be names of {_NAMES + ('window_tilt',)}; got unknown {sorted(unknown)}")
+    if seed.window is None:
+        names -= {"window_tilt_a", "window_tilt_b", "window_offset"}
+    free = np.array([n in names for n in _NAMES])
+    free[:6] = True
+    return free
+
+
 def calibrate_from_body(
     pixels: np.ndarray,
     body: np.ndarray,
@@ -202,6 +232,7 @@ def calibrate_from_body(
     reject_sigma: float | None = 3.0,
     max_focal_rel_sigma: float = 0.01,
     sigma_px: float | None = None,
+    terms: tuple[str, ...] | None = None,
 ) -> BodyCalibration:
     """Refine ``seed`` on the body's points ``body`` (m, ``(n, 3)``) observed at ``pixels`` (``(n, 2)``, NaN = unseen).
 
@@ -228,6 +259,10 @@ def calibrate_from_body(
         The calibration is flagged ill-posed when the focal length's 1-sigma exceeds this fraction.
     sigma_px : float, optional
         Pixel noise for the uncertainties; default the residual RMS per coordinate.
+    terms : tuple of str, optional
+        Instead of the flags above: exactly the parameters refined besides the pose, by name (``"f"``,
+        ``"cx"``, ``"cy"``, ``"k1"``, ``"k2"``, ``"k3"``, ``"p1"``, ``"p2"``, ``"aspect"``, ``"window_offset"``,
+        ``"window_tilt"``); the others keep the seed's values (:func:`body_models`).
     """
     pixels = np.asarray(pixels, float)
     body = np.asarray(body, float)
@@ -239,6 +274,8 @@ def calibrate_from_body(
     free = _free_mask(seed, fix_focal=fix_focal, refine_k2=refine_k2, refine_k3=refine_k3,
                       refine_tangential=refine_tangential, refine_aspect=refine_aspect, refine_window=refine_window,
                       refine_window_tilt=refine_window_tilt)
+    if terms is not None:
+        free = _terms_mask(seed, terms)
     if seen.sum() * 2 <= free.sum() + 2:
         raise ValueError(f"calibrate_from_body: {int(seen.sum())} matched points cannot fix {int(free.sum())} parameters")
     ok = seen
@@ -290,8 +327,10 @@ def _assess(cam, sol, free, res, rms, ok, sigma_px, max_rel) -> BodyCalibration:
         cov = s**2 * np.linalg.inv(JtJ)
         sig = np.sqrt(np.maximum(np.diag(cov), 0))
     except np.linalg.LinAlgError:
+        cov = None
         sig = np.full(int(free.sum()), np.inf)
-    sigma = dict(zip(np.array(_NAMES)[free].tolist(), sig.tolist()))
+    names = tuple(np.array(_NAMES)[free].tolist())
+    sigma = dict(zip(names, sig.tolist()))
     f = cam.K[1, 1]
     rel = sigma.get("f", 0.0) / f
     well = bool(np.isfinite(rel) and rel <= max_rel and sol.success)
@@ -301,4 +340,140 @@ def _assess(cam, sol, free, res, rms, ok, sigma_px, max_rel) -> BodyCalibration:
            + ("" if well else f": ILL-POSED (focal length not determined to {100 * max_rel:g} %; "
                                "use a deeper body, more views or a fixed focal length)"))
     (log.info if well else log.warning)(msg)
-    return BodyCalibration(cam, res, rms, sigma, well, msg, ok.copy())
+    return BodyCalibration(cam, res, rms, sigma, well, msg, ok.copy(), cov, names)
+
+
+#: groups of terms :func:`select_body_model` tries (every combination, besides the pose); the others keep the seed's
+BODY_TERM_GROUPS = {
+    "window_tilt": ("window_tilt",),
+    "principal_point": ("cx", "cy"),
+    "k1": ("k1",),
+    "k2,p1,p2": ("k2", "p1", "p2"),
+    "k3,aspect": ("k3", "aspect"),
+}
+
+
+def body_models(groups: dict | None = None, *, max_groups: int | None = None) -> dict:
+    """Candidate models: every combination of ``groups`` (default :data:`BODY_TERM_GROUPS`; up to ``max_groups``
+    of them), named ``"pose"`` or ``"pose+g1+g2"``, simplest first; values are the ``terms`` of
+    :func:`calibrate_from_body`."""
+    from itertools import combinations
+
+    groups = dict(BODY_TERM_GROUPS if groups is None else groups)
+    out = {}
+    for k in range(0, min(len(groups), max_groups if max_groups is not None else len(groups)) + 1):
+        for combo in combinations(groups, k):
+            out["+".join(("pose", *combo))] = tuple(t for g in combo for t in groups[g])
+    return out
+
+
+def coverage_points(camera: Camera, body: np.ndarray, *, grid: int = 5) -> np.ndarray:
+    """World points ``(grid**2, 3)`` (m) seen on a ``grid x grid`` lattice of pixels spanning the whole image
+    (corners included) at the median depth (camera z) of ``body``: where a calibration is used beyond the
+    band of the image the body's dots cover."""
+    W, H = camera.image_size
+    u, v = np.meshgrid(np.linspace(0, W - 1, grid), np.linspace(0, H - 1, grid))
+    o, d = camera.rays(np.stack([u.ravel(), v.ravel()], axis=1))
+    z = np.median(camera.to_camera(body)[:, 2])
+    zo, zd = camera.to_camera(o)[:, 2], (d @ camera.R.T)[:, 2]
+    return o + ((z - zo) / zd)[:, None] * d
+
+
+def projection_sigma_px(result: BodyCalibration, body: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """1-sigma (px, norm of the 2-D standard deviations) ``(n,)`` of the projections of ``points`` ``(n, 3)``
+    implied by the fit of ``result`` on its inlier dots at ``body`` (``(n_body, 3)``, m): how well the body
+    determines the calibration at those points.
+
+    The Jacobians at the dots and at ``points`` come from the same central differences, and the normal
+    matrix is inverted through the SVD of the column-scaled Jacobian (the window tilt and the pose nearly
+    trade off: a plain inverse of the normal matrix loses the cancellation)."""
+    free = np.array([n in result.free for n in _NAMES])
+    dots = np.asarray(body, float)[result.inliers]
+    Jb = _projection_jacobian(result.camera, free, dots).reshape(-1, int(free.sum()))
+    Jp = _projection_jacobian(result.camera, free, np.asarray(points, float))  # (n, 2, k)
+    dof = max(Jb.shape[0] - Jb.shape[1], 1)
+    s2 = float(np.nansum(result.residuals[result.inliers] ** 2)) / dof
+    D = np.linalg.norm(Jb, axis=0)
+    D = np.where(D > 0, D, 1.0)
+    _, S, Vt = np.linalg.svd(Jb / D, full_matrices=False)
+    keep = S > S[0] * 1e-12
+    A = np.einsum("nik,jk->nij", Jp / D, Vt[keep] / S[keep, None])  # (n, 2, r)
+    return np.sqrt(s2 * np.sum(A**2, axis=(1, 2)))
+
+
+def _projection_jacobian(camera: Camera, free: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """d project(points) / d parameters ``(n, 2, k)`` around ``camera`` (central differences)."""
+    x0 = _params(camera)[free]
+    steps = 1e-6 * np.maximum(np.abs(x0), 1e-2)
+    return np.stack([(_camera_from(x0 + h * e, camera, free).project(points)
+                      - _camera_from(x0 - h * e, camera, free).project(points)) / (2 * h)
+                     for h, e in zip(steps, np.eye(len(x0)))], axis=-1)
+
+
+@dataclass(frozen=True)
+class BodyModelSelection:
+    """Result of :func:`select_body_model`.
+
+    Attributes
+    ----------
+    chosen : str
+        Name of the model chosen (key of the ``models`` given).
+    calibration : BodyCalibration
+        The chosen model's fit.
+    table : dict
+        Per model: ``rms_px`` (fit), ``cv_rms_px`` (dots left out, predicted), ``image_sigma_px`` (largest
+        1-sigma of the projection over the whole image at the body's depth), ``admissible``.
+    """
+
+    chosen: str
+    calibration: BodyCalibration
+    table: dict
+
+
+def select_body_model(pixels: np.ndarray, body: np.ndarray, seed: Camera, *, models: dict | None = None,
+                      max_image_sigma_px: float = 1.0, folds: int = 5, tie_px: float = 0.005,
+                      reject_sigma: float = 3.0, seed_rng: int = 0) -> BodyModelSelection:
+    """Calibrate ``seed`` on the body with each of ``models`` (default :func:`body_models`: every combination of
+    :data:`BODY_TERM_GROUPS`; terms not freed keep the seed's values) and choose the one the dots determine.
+
+    A model is admissible when the body determines its projection over the whole image
+    (:func:`coverage_points`, :func:`projection_sigma_px`) to ``max_image_sigma_px`` (1 sigma): terms whose
+    effect outside the band of the dots is unconstrained are not freed. Among the admissible models the one
+    with the lowest ``folds``-fold cross-validated RMS (dots left out, predicted by the fit on the others)
+    is chosen; a simpler one within ``tie_px`` of it is preferred. Outliers are found once, with the richest
+    model (``reject_sigma``), and left out of every fit. When no model is admissible the simplest is chosen.
+    """
+    models = dict(models or body_models())
+    pixels = np.asarray(pixels, float)
+    body = np.asarray(body, float)
+    richest = calibrate_from_body(pixels, body, seed, terms=max(models.values(), key=len), reject_sigma=reject_sigma)
+    px = np.where(richest.inliers[:, None], pixels, np.nan)
+    idx = np.flatnonzero(richest.inliers)
+    np.random.default_rng(seed_rng).shuffle(idx)
+    table, fits = {}, {}
+    for name, terms in models.items():
+        fit = calibrate_from_body(px, body, seed, terms=terms, reject_sigma=None)
+        sigma_img = float(np.max(projection_sigma_px(fit, body, coverage_points(fit.camera, body))))
+        table[name] = {"rms_px": fit.rms, "cv_rms_px": _cv_rms(px, body, seed, terms, np.array_split(idx, folds)),
+                       "image_sigma_px": sigma_img, "admissible": bool(sigma_img <= max_image_sigma_px)}
+        fits[name] = fit
+    ok = [n for n in models if table[n]["admissible"]] or [next(iter(models))]
+    best = min(table[n]["cv_rms_px"] for n in ok)
+    chosen = next(n for n in ok if table[n]["cv_rms_px"] <= best + tie_px)
+    log.info("%s: body model %s (%s)", seed.name, chosen, ", ".join(
+        f"{n}: cv {t['cv_rms_px']:.3f} px, image sigma {t['image_sigma_px']:.2f} px" for n, t in table.items()))
+    return BodyModelSelection(chosen, fits[chosen], table)
+
+
+def _cv_rms(px: np.ndarray, body: np.ndarray, seed: Camera, terms, folds: list) -> float:
+    """RMS (px) of the dots of each fold predicted by the fit on the other folds."""
+    err = []
+    for f in folds:
+        train = px.copy()
+        train[f] = np.nan
+        try:
+            cam = calibrate_from_body(train, body, seed, terms=terms, reject_sigma=None).camera
+        except ValueError:  # too few dots left to fix this model's parameters
+            return float("inf")
+        err.append(np.sum((cam.project(body[f]) - px[f]) ** 2, axis=1))
+    return float(np.sqrt(np.mean(np.concatenate(err))))
