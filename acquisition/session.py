@@ -1058,11 +1058,12 @@ def _drop_pending() -> None:
                 os.waitpid(pid, 0)
 
 
-def _preflight(path: Path, timeout: float = PREFLIGHT_TIMEOUT) -> None:
+def _preflight(path: Path, timeout: float | None = None) -> None:
     """Walk the file's structure in a child process first: HDF5 can loop without end (holding the
     interpreter) on some corrupted headers, which no exception or signal can interrupt.
 
-    A child that does not finish within ``timeout`` s is killed and the file reported as damaged;
+    A child that does not finish within ``timeout`` s (default ``PREFLIGHT_TIMEOUT``, read at the
+    call) is killed and the file reported as damaged;
     every other outcome (including errors, which the parent reports with context) passes.
 
     The walk is not repeated for a file this process has walked cleanly and that has not changed
@@ -1072,6 +1073,7 @@ def _preflight(path: Path, timeout: float = PREFLIGHT_TIMEOUT) -> None:
     HDF5 library before a walk of those very bytes has finished.
     """
     global _pending
+    timeout = PREFLIGHT_TIMEOUT if timeout is None else timeout
     if not hasattr(os, "fork"):  # pragma: no cover - Windows: no preflight
         return
     real = os.path.realpath(path)

@@ -140,7 +140,12 @@ def test_short_model_parameters_give_a_warning_not_a_traceback(tmp_path, capsys,
     assert rc == 0 and "missing ['alpha22', 'alpha12']" in err
 
 
-def test_bit_flips_never_escape_as_tracebacks(tmp_path, capsys):
+def test_bit_flips_never_escape_as_tracebacks(tmp_path, capsys, monkeypatch):
+    import acquisition.session
+
+    # a sound 20-marker session is walked in milliseconds; the flips that make HDF5 loop for ever
+    # would otherwise each wait out the rig-sized 20 s limit
+    monkeypatch.setattr(acquisition.session, "PREFLIGHT_TIMEOUT", 3.0)
     markers, loads = _write_inputs(tmp_path, n_markers=20)
     assert _import(capsys, tmp_path, markers, loads)[0] == 0
     data = (tmp_path / "s.h5").read_bytes()
