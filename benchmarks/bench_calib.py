@@ -108,7 +108,8 @@ def bench_calibration(n_cams: int, n_views: int, size: tuple[int, int], fix_k3: 
 
 
 def bench_stereo() -> None:
-    root = "/work/shared/data/opencv-stereo-chessboard"
+    # the shared data sit beside the repository (../shared/data/...)
+    root = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "shared", "data", "opencv-stereo-chessboard")
     spec = BoardSpec(kind="chessboard", columns=9, rows=6, square_size=1.0, subpix_half_window=5)
     ids = sorted(os.path.basename(p)[4:6] for p in glob.glob(f"{root}/left*.jpg"))
     det = {s: [detect_board(cv2.imread(f"{root}/{s}{i}.jpg", cv2.IMREAD_GRAYSCALE), spec) for i in ids] for s in ("left", "right")}
