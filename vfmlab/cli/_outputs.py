@@ -8,6 +8,7 @@ own inputs is never overwritten; any other existing file is overwritten only wit
 from __future__ import annotations
 
 import os
+import time
 from pathlib import Path
 from typing import Iterable
 
@@ -42,14 +43,20 @@ def check_parent(path: str | os.PathLike, option: str = "--out") -> Path:
 
 def _session_note(path: Path) -> str:
     """' being recorded right now (writer pid N)' when a live writer is recording it, else ''."""
-    try:
-        from acquisition.session import SessionError, open_session
+    from acquisition.session import SessionError, open_session
 
-        with open_session(path) as s:
-            if s.status == "running":
-                return f" being recorded right now (writer pid {s.file['entry'].attrs.get('writer_pid', '?')})"
-    except (SessionError, OSError, KeyError):
-        pass
+    for attempt in range(3):
+        try:
+            with open_session(path) as s:
+                if s.status == "running":
+                    return f" being recorded right now (writer pid {s.file['entry'].attrs.get('writer_pid', '?')})"
+                return ""
+        except KeyError:
+            return ""
+        except (SessionError, OSError):
+            # a reader catches a live writer mid-append now and then (~4 % of opens: the file looks
+            # truncated until the append lands): look again, as the writer's own check does
+            time.sleep(0.2)
     return ""
 
 
