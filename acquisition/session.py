@@ -1157,6 +1157,29 @@ def _wait_child(pid: int, timeout: float) -> int | None:
     return None
 
 
+def _open_possibly_growing(path: Path) -> h5py.File:
+    """The HDF5 file opened for reading; a SessionError naming a truncated or damaged file.
+
+    A file a live writer is appending to looks truncated to a reader that catches it mid-append
+    (about 1 open in 25 against a writer appending continuously): if the file grew meanwhile it is
+    opened again (up to 3 times), so only a file that stays short is reported as truncated.
+    """
+    for attempt in range(4):
+        size = path.stat().st_size
+        try:
+            return _h5_open_read(path)
+        except OSError as exc:
+            reason = str(exc)
+        if not ("truncated" in reason or "eof" in reason.lower()):
+            raise SessionError(f"{path}: damaged HDF5 file, cannot be opened ({reason})") from None
+        if attempt < 3:
+            time.sleep(0.05)
+            if path.stat().st_size != size:
+                continue
+        raise SessionError(f"{path}: the file is truncated (incomplete copy or disk full?); cannot read it") from None
+    raise AssertionError("unreachable")  # pragma: no cover
+
+
 def open_session(path: str | os.PathLike) -> Session:
     """Open and validate a session file for reading.
 
@@ -1180,13 +1203,7 @@ def open_session(path: str | os.PathLike) -> Session:
     if head != b"\x89HDF\r\n\x1a\n":
         raise SessionError(f"{path}: not a session file (not HDF5: the file does not start with the HDF5 signature)")
     _preflight(path)
-    try:
-        f = _h5_open_read(path)
-    except OSError as exc:
-        reason = str(exc)
-        if "truncated" in reason or "eof" in reason.lower():
-            raise SessionError(f"{path}: the file is truncated (incomplete copy or disk full?); cannot read it") from None
-        raise SessionError(f"{path}: damaged HDF5 file, cannot be opened ({reason})") from None
+    f = _open_possibly_growing(path)
     try:
         _validate(f, path)
     except SessionError:
