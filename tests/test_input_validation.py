@@ -360,4 +360,7 @@ def test_ctrl_c_during_report_exits_130_without_traceback(tmp_path, full_session
     _, err = proc.communicate(timeout=120)
     assert proc.returncode == 130, err
     assert "Traceback" not in err and "Interrupted." in err
-    assert not (out / "report.html").exists()
+    # a loaded machine may deliver the signal only after the page was written (the report of this small
+    # session takes ~1 s): then the page must be whole; a half page never appears under its name
+    page = out / "report.html"
+    assert not page.exists() or page.read_text(encoding="utf-8").rstrip().endswith("</html>")

@@ -6,6 +6,7 @@ import base64
 import datetime as _dt
 import html
 import logging
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -517,7 +518,9 @@ def build_report(session_path: str | Path, out_dir: str | Path | None = None, *,
         specimen = session.specimen.specimen_id
         page = _page(specimen, session_path, rep)
     path = out / "report.html"
-    path.write_text(page, encoding="utf-8")
+    part = out / "report.html.part"  # a Ctrl-C or a full disk mid-write leaves no half page under the real name
+    part.write_text(page, encoding="utf-8")
+    os.replace(part, path)
     log.info("report %s: %d figures, %.1f s", path, len(rep.figures), sum(rep.timings.values()))
     return path
 
