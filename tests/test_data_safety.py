@@ -4,6 +4,7 @@ each asserting the message and the exit code."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -84,8 +85,9 @@ def test_report_and_calibrate_outputs_need_force(session, tmp_path, capsys):
 
 
 # ---------------------------------------------------------------- item 3: two writers never share a file
-def test_import_onto_a_session_being_recorded_is_refused(tmp_path, capsys):
-    path, ready = tmp_path / "live.h5", tmp_path / "ready.txt"
+@contextlib.contextmanager
+def _live_writer(path: Path, ready: Path):
+    """A real writer process recording into ``path`` (two steps complete on entry), killed on exit."""
     proc = subprocess.Popen([sys.executable, str(ROOT / "tests" / "session_writer_child.py"), str(path), str(ready)],
                             env=_env())
     try:
@@ -93,6 +95,15 @@ def test_import_onto_a_session_being_recorded_is_refused(tmp_path, capsys):
         while not (ready.exists() and len(ready.read_text().split()) >= 2):
             assert time.monotonic() < deadline and proc.poll() is None
             time.sleep(0.05)
+        yield proc
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+
+
+def test_import_onto_a_session_being_recorded_is_refused(tmp_path, capsys):
+    path = tmp_path / "live.h5"
+    with _live_writer(path, tmp_path / "ready.txt") as proc:
         markers, loads = tmp_path / "m.csv", tmp_path / "l.csv"
         markers.write_text("marker_id,step,x_mm,y_mm,z_mm\n" + "".join(
             f"{i},{s},{10 * np.cos(i)},{10 * np.sin(i)},{i % 7}\n" for s in (0, 1) for i in range(20)))
@@ -103,9 +114,6 @@ def test_import_onto_a_session_being_recorded_is_refused(tmp_path, capsys):
         with pytest.raises(SessionError, match="being recorded into this file right now"):
             SessionWriter.create(path, SpecimenInfo("x", 0.01, 0.03, 0.001), overwrite=True)
         assert proc.poll() is None  # the recording goes on
-    finally:
-        proc.send_signal(signal.SIGKILL)
-        proc.wait()
     with open_session(path) as s:
         assert s.n_steps >= 2
 
@@ -113,22 +121,13 @@ def test_import_onto_a_session_being_recorded_is_refused(tmp_path, capsys):
 def test_a_session_being_recorded_opens_for_reading_every_time(tmp_path):
     # a reader that catches the writer mid-append sees a file shorter than its header says (about 1 open
     # in 25 before the re-open): 100 opens in a row passed 2 % of the time then
-    path, ready = tmp_path / "live.h5", tmp_path / "ready.txt"
-    proc = subprocess.Popen([sys.executable, str(ROOT / "tests" / "session_writer_child.py"), str(path), str(ready)],
-                            env=_env())
-    try:
-        deadline = time.monotonic() + 60
-        while not (ready.exists() and len(ready.read_text().split()) >= 2):
-            assert time.monotonic() < deadline and proc.poll() is None
-            time.sleep(0.05)
+    path = tmp_path / "live.h5"
+    with _live_writer(path, tmp_path / "ready.txt") as proc:
         statuses = []
         for _ in range(100):
             with open_session(path) as s:
                 statuses.append(s.status)
         assert set(statuses) == {"running"} and proc.poll() is None
-    finally:
-        proc.send_signal(signal.SIGKILL)
-        proc.wait()
 
 
 # ---------------------------------------------------------------- item 4: safety numbers and protocol rules
