@@ -458,18 +458,16 @@ def _spurious_blobs(radiance, r_px, style: SceneStyle, rng, truth: MarkerTruth) 
     glare, debris = [], []
     if rows.size:
         scale = float(np.nanmedian(r_px)) if np.isfinite(r_px).any() else 5.0
-        for _ in range(style.n_glare):
-            j = rng.integers(rows.size)
-            c = np.array([cols[j] * 16 + rng.uniform(0, 16), rows[j] * 16 + rng.uniform(0, 16)])
-            ax = scale * rng.uniform(0.4, 1.5)
-            _blob_stamp(radiance, c, (ax, ax * rng.uniform(0.4, 1)), rng.uniform(0, np.pi), 1.5, "add")
-            glare.append(c)
-        for _ in range(style.n_debris):
-            j = rng.integers(rows.size)
-            c = np.array([cols[j] * 16 + rng.uniform(0, 16), rows[j] * 16 + rng.uniform(0, 16)])
-            ax = scale * rng.uniform(0.3, 3.0)
-            _blob_stamp(radiance, c, (ax, ax * rng.uniform(0.15, 0.6)), rng.uniform(0, np.pi), 0.3, "mul")
-            debris.append(c)
+        # (count, major axis / marker radius, minor / major, gain, blend, centres): glare first, as drawn always
+        kinds = ((style.n_glare, (0.4, 1.5), (0.4, 1.0), 1.5, "add", glare),
+                 (style.n_debris, (0.3, 3.0), (0.15, 0.6), 0.3, "mul", debris))
+        for count, size, aspect, gain, blend, centres in kinds:
+            for _ in range(count):
+                j = rng.integers(rows.size)
+                c = np.array([cols[j] * 16 + rng.uniform(0, 16), rows[j] * 16 + rng.uniform(0, 16)])
+                ax = scale * rng.uniform(*size)
+                _blob_stamp(radiance, c, (ax, ax * rng.uniform(*aspect)), rng.uniform(0, np.pi), gain, blend)
+                centres.append(c)
     truth.glare.append(np.array(glare).reshape(-1, 2))
     truth.debris.append(np.array(debris).reshape(-1, 2))
 

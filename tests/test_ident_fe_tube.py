@@ -18,11 +18,16 @@ DELFINO = PAPER_PARAMETERS["delfino"]
 PRESSURES = tuple(np.array([30.0, 60.0, 90.0, 120.0, 150.0]) * MMHG)
 
 
+def _fe(model, params, clamped, n_axial, n_radial):
+    """The FE tube at PRESSURES and stretch 1.1, with 200 markers on its outer surface."""
+    fe = solve_fe_tube(model, params, pressures=PRESSURES, stretch=1.1, clamped=clamped, n_axial=n_axial,
+                       n_radial=n_radial)
+    return fe, fe_markers(fe, 200, seed=1)
+
+
 def _data(clamped):
     # a small mesh keeps the test quick; benchmarks/bench_trust.py --part fe uses finer ones
-    fe = solve_fe_tube("hgo", HGO, pressures=PRESSURES, stretch=1.1, clamped=clamped,
-                       n_axial=24 if clamped else 4, n_radial=3)
-    return fe, fe_markers(fe, 200, seed=1)
+    return _fe("hgo", HGO, clamped, n_axial=24 if clamped else 4, n_radial=3)
 
 
 def test_free_fe_tube_matches_the_closed_form_thick_tube():
@@ -49,9 +54,7 @@ def test_thick_form_recovers_hgo_on_fe_tubes(clamped):
 
 def _delfino(clamped):
     # 4 elements through the wall: the free tube's radius is 2.7e-4 off the closed form (8: 6.9e-5)
-    fe = solve_fe_tube("delfino", DELFINO, pressures=PRESSURES, stretch=1.1, clamped=clamped,
-                       n_axial=24 if clamped else 2, n_radial=3 if clamped else 4)
-    return fe, fe_markers(fe, 200, seed=1)
+    return _fe("delfino", DELFINO, clamped, n_axial=24 if clamped else 2, n_radial=3 if clamped else 4)
 
 
 def test_free_delfino_fe_tube_matches_the_closed_form_and_is_identified():
