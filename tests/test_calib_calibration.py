@@ -2,6 +2,7 @@
 
 import glob
 import os
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -14,7 +15,7 @@ from reconstruction.targets import BoardSpec, detect_board
 from reconstruction.triangulation import triangulate
 from rig_sim.cameras import camera_ring, specimen_triangulation_error
 
-STEREO = "/work/shared/data/opencv-stereo-chessboard"
+STEREO = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "opencv-stereo-chessboard"
 
 
 @pytest.fixture(scope="module")
