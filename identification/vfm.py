@@ -37,7 +37,7 @@ from scipy.sparse import csr_matrix
 
 from .errors import DegenerateDataError
 from .kinematics import _cross, _grad, align_steps, reference_frame, surface_state, tangents
-from .mesh import SurfaceMesh, build_mesh, wrap_angle
+from .mesh import SurfaceMesh, build_mesh, unique_sorted, wrap_angle
 from .models import get_model
 from .models._base import Model, pk2_components, seed_virtual_strains, virtual_work_sensitivities
 from .virtual_fields import VirtualFields, check_fields, paper_fields
@@ -490,7 +490,7 @@ def _top_loop_area(mesh: SurfaceMesh, st, jac: np.ndarray, wall: str, e0: float)
         jm = jm / np.maximum(cnt, 1.0)
         kappa_m = e0 * (2.0 * mesh.r - e0)
         r2 = r2 - kappa_m[None] / np.where(jm > 0, jm, np.nan)
-    top = np.unique(mesh.top_edges)
+    top = unique_sorted(mesh.top_edges)
     r2_top = r2[:, top]
     fillv = np.nanmean(np.where(np.isfinite(r2_top), r2_top, np.nan), axis=1, keepdims=True)
     r2 = r2.copy()
@@ -504,7 +504,7 @@ def _clamp_area(mesh: SurfaceMesh, ends: str, wall: str, e0: float, clamp_radius
     """Area (m^2) on which the pressure pushes at the load-cell clamp; None for free ends."""
     if ends != "clamped":
         return None
-    rc = float(np.mean(mesh.r[np.unique(mesh.top_edges)])) if clamp_radius is None else float(clamp_radius)
+    rc = float(np.mean(mesh.r[unique_sorted(mesh.top_edges)])) if clamp_radius is None else float(clamp_radius)
     if clamp_radius is None and wall == "thick":
         rc -= e0
     return np.pi * rc * rc
