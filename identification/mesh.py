@@ -565,7 +565,8 @@ def _distinct_markers(ref: np.ndarray, idx: np.ndarray, tolerance: float | None,
     d_nn, _ = tree.query(ref[idx], k=2)
     spacing = float(np.median(d_nn[:, 1]))
     tol = fraction * spacing if tolerance is None else float(tolerance)
-    idx = idx[~_near_duplicates(ref[idx], tol, tree)]
+    if np.any(d_nn[:, 1] <= tol):  # (no nearest neighbour within tol: no pair either, skip the pair search)
+        idx = idx[~_near_duplicates(ref[idx], tol, tree)]
     if len(idx) < MIN_MARKERS:
         raise MeshError(f"meshing needs at least {MIN_MARKERS} distinct markers; got {len(idx)}")
     return idx, spacing, tol

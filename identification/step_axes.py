@@ -106,8 +106,10 @@ def fit_clouds(pts: np.ndarray, w: np.ndarray, frame0: np.ndarray, c0: np.ndarra
     floor = w.sum(axis=1) * (1e-12 * radius) ** 2  # cost at the rounding level of the radii
     delta = np.zeros_like(x)
     clouds = _clouds(pts, w, c0)
+    probe = False  # evaluate the point alone, without the Jacobian's trials: the last step looked like the last one
     for _ in range(max_iterations):
-        evaluated = _profile_residual(clouds, frame0, c0, x[:, None] + _TRIALS[None], profile_degree)
+        evaluated = _profile_residual(clouds, frame0, c0, x[:, None] + (_TRIALS[:1] if probe else _TRIALS)[None],
+                                      profile_degree)
         res = evaluated[0]
         cost = np.sum(res[:, 0] ** 2, axis=-1)
         worse = cost > previous * (1.0 + 1e-9) + floor  # a Gauss-Newton step that overshot: step back halfway
@@ -117,12 +119,17 @@ def fit_clouds(pts: np.ndarray, w: np.ndarray, frame0: np.ndarray, c0: np.ndarra
             continue
         if np.all(previous - cost <= 1e-10 * cost + floor):
             break
+        if probe:  # not converged after all: the trials at this point too
+            res = _profile_residual(clouds, frame0, c0, x[:, None] + _TRIALS[None], profile_degree)[0]
         previous = cost
         jac = np.swapaxes((res[:, 1:] - res[:, :1]) / _H, 1, 2)  # (s, n, 4)
         jtj = np.swapaxes(jac, 1, 2) @ jac
         jtj = jtj + 1e-12 * np.trace(jtj, axis1=1, axis2=2)[:, None, None] * np.eye(4)
         delta = -np.linalg.solve(jtj, np.swapaxes(jac, 1, 2) @ res[:, 0, :, None])[..., 0]
         x = x + delta
+        # the decrease Gauss-Newton predicts, |J delta|^2, within the stopping test: most likely the last step
+        predicted = np.sum((jac @ delta[..., None]) ** 2, axis=(1, 2))
+        probe = bool(np.all(predicted <= 1e-10 * (cost - predicted) + floor))
     else:  # out of iterations: evaluate where the last step went
         evaluated = _profile_residual(clouds, frame0, c0, x[:, None], profile_degree)
     return tuple(a[:, 0] for a in evaluated)  # the untouched trial set (offset 0) is the solution
