@@ -644,14 +644,15 @@ def surface_state(mesh: SurfaceMesh, aligned: np.ndarray, quadrature: int = 1,
         if smooth_reference:
             R_ref = smooth_reference_radius(mesh)
             r = r + (R_ref - mesh.r)[None]  # same displacement, from the smooth reference surface
-    rv, thv, zv = r[:, tri], th[:, tri], z[:, tri]  # (n_steps, n_tri, 3)
-    valid = np.all(np.isfinite(rv) & np.isfinite(thv) & np.isfinite(zv), axis=-1)
+    cyl = np.stack([r, th, z])[:, :, tri]  # (r, theta, z) at the vertices: (3, n_steps, n_tri, 3)
+    valid = np.all(np.isfinite(cyl), axis=(0, -1))
     # unwrap the current angles of each triangle relative to its first vertex
-    thv = thv[..., :1] + np.concatenate([np.zeros_like(thv[..., :1]), wrap_angle(thv[..., 1:] - thv[..., :1])], -1)
-    fill = lambda a: np.where(valid[..., None], a, 0.0)  # noqa: E731
-    rv, thv, zv = fill(rv), fill(thv), fill(zv)
+    thv = cyl[1]
+    cyl[1] = thv[..., :1] + np.concatenate([np.zeros_like(thv[..., :1]), wrap_angle(thv[..., 1:] - thv[..., :1])], -1)
+    cyl = np.where(valid[..., None], cyl, 0.0)
+    rv, thv, zv = cyl
     Rv = R_ref[tri]
-    theta_xi, z_xi = _grad(thv, geo.dinv), _grad(zv, geo.dinv)
+    r_xi, theta_xi, z_xi = _grad(cyl, geo.dinv)
     jac = theta_xi[..., 0] * z_xi[..., 1] - theta_xi[..., 1] * z_xi[..., 0]
     inverted = valid & ~(jac > 0.05)  # area in (theta, z) shrunk 20-fold or flipped: a marker crossed an edge
     if inverted.any():
@@ -659,7 +660,7 @@ def surface_state(mesh: SurfaceMesh, aligned: np.ndarray, quadrature: int = 1,
         valid = valid & ~inverted
     return SurfaceState(
         R=Rv @ bary.T, R_xi=_grad(Rv, geo.dinv),
-        r=rv @ bary.T, r_xi=_grad(rv, geo.dinv),
+        r=rv @ bary.T, r_xi=r_xi,
         theta=thv @ bary.T, theta_xi=theta_xi, z_xi=z_xi,
         valid=valid, outliers=outliers, noise=noise, r_markers=r, theta_markers=th, z_markers=z, axes=tuple(axes),
         bary=bary, qweight=qw, geometry=geo, smoothing=smoothing,
