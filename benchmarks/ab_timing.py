@@ -3,8 +3,8 @@
     OMP_NUM_THREADS=1 python benchmarks/ab_timing.py <old tree> [--rounds 3] [--cold 40]
 
 Each round runs, in a subprocess per tree (old first, then this one): ``bench_identification.py --part
-timing --quick --no-nelder-mead --in-process`` (this tree's benchmark file, with ``PYTHONPATH`` set to the
-tree, so both trees run the same measurement), and ``--cold`` cold ``prepare`` calls of the Fung bench data
+timing --quick --no-nelder-mead --in-process`` (each tree's own file, which puts its tree first on the path:
+the same measurement as long as their timing parts agree), and ``--cold`` cold ``prepare`` calls of the Fung bench data
 (mesh and surface-state caches cleared, CPU time). Prints every figure per round and its median over the
 rounds per tree, with the load average before and after: on a shared machine absolute times are upper
 bounds, the ratios of one run are what count. Then, finest-grained, ``--calls`` cold ``prepare`` calls of
@@ -47,17 +47,25 @@ for _ in range({n}):
     t = time.process_time()
     b._cold_prepare(sim)
     times.append(time.process_time() - t)
+import identification
+print("FROM", identification.__file__)
 print("COLD", np.median(times) * 1e3, np.min(times) * 1e3)
 """
 
 
 def run(tree: Path, cold: int) -> dict:
     env = dict(os.environ, PYTHONPATH=str(tree), OMP_NUM_THREADS="1")
-    out = subprocess.run([sys.executable, str(HERE / "bench_identification.py"), "--part", "timing", "--quick",
-                          "--no-nelder-mead", "--in-process"], env=env, capture_output=True, text=True, check=True).stdout
+    bench = tree / "benchmarks"  # each tree's own benchmark file: it puts its own tree first on the path
+    out = subprocess.run([sys.executable, str(bench / "bench_identification.py"), "--part", "timing", "--quick",
+                          "--no-nelder-mead", "--in-process"], env=env, cwd=tree, capture_output=True, text=True,
+                         check=True).stdout
     figures = {label: float(m.group(1)) for label, rx in FIGURES if (m := re.search(rx, out))}
-    cold_out = subprocess.run([sys.executable, "-c", COLD.format(bench=str(HERE), n=cold)], env=env,
+    # cwd: ``python -c`` puts the working directory first on the path, before PYTHONPATH
+    cold_out = subprocess.run([sys.executable, "-c", COLD.format(bench=str(bench), n=cold)], env=env, cwd=tree,
                               capture_output=True, text=True, check=True).stdout
+    source = Path(cold_out.split("FROM")[1].split()[0]).resolve()
+    if tree.resolve() not in source.parents:
+        raise RuntimeError(f"the run meant for {tree} imported {source}")
     med, low = map(float, cold_out.split("COLD")[1].split())
     figures[f"cold prepare, median of {cold} (ms)"] = med
     figures[f"cold prepare, min of {cold} (ms)"] = low
@@ -100,7 +108,7 @@ def interleaved(old: Path, calls: int) -> tuple[float, float]:
     """Median CPU times (ms) of the old and new tree's cold ``prepare``, alternated call by call in one process."""
     env = dict(os.environ, PYTHONPATH=str(HERE.parent), OMP_NUM_THREADS="1")
     out = subprocess.run([sys.executable, "-c", INTERLEAVED.format(bench=str(HERE), old=str(old), n=calls)], env=env,
-                         capture_output=True, text=True, check=True).stdout
+                         cwd=HERE.parent, capture_output=True, text=True, check=True).stdout
     o, n = map(float, out.split("INTERLEAVED")[1].split())
     return o, n
 
