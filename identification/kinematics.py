@@ -24,7 +24,7 @@ from scipy.linalg import solve_triangular
 from scipy.sparse import csr_matrix
 
 from .errors import DegenerateDataError
-from .mesh import SurfaceMesh, wrap_angle
+from .mesh import SurfaceMesh, unique_sorted, wrap_angle
 from .step_axes import refit_axes
 
 __all__ = ["AUTO_DEGREES", "Kinematics", "align_steps", "membrane_kinematics", "QUADRATURE", "select_smoothing",
@@ -111,13 +111,16 @@ def triangle_geometry(mesh: SurfaceMesh) -> TriangleGeometry:
     det = D0[:, 0, 0] * D0[:, 1, 1] - D0[:, 0, 1] * D0[:, 1, 0]
     if np.any(np.abs(det) <= 0):
         raise DegenerateDataError("a mesh triangle has zero area in the (theta, z) plane")
-    return TriangleGeometry(dinv=np.linalg.inv(D0), param_area=0.5 * np.abs(det), theta_offset=unwrapped - th)
+    # the 2 x 2 inverses by their adjugate (a quarter of np.linalg.inv's time on ~600 small matrices)
+    dinv = np.stack([np.stack([D0[:, 1, 1], -D0[:, 0, 1]], -1), np.stack([-D0[:, 1, 0], D0[:, 0, 0]], -1)], -2)
+    return TriangleGeometry(dinv=dinv / det[:, None, None], param_area=0.5 * np.abs(det), theta_offset=unwrapped - th)
 
 
 def _grad(values: np.ndarray, dinv: np.ndarray) -> np.ndarray:
     """Vertex values ``(..., n_tri, 3)`` -> xi-gradient ``(..., n_tri, 2)``."""
     delta = values[..., 1:] - values[..., :1]
-    return np.einsum("...te,tej->...tj", delta, dinv)
+    # the two-term sum written out: ~3x faster than einsum's generic loop over the batch axes, same numbers
+    return delta[..., :1] * dinv[:, 0] + delta[..., 1:] * dinv[:, 1]
 
 
 @dataclass(frozen=True)
@@ -160,7 +163,7 @@ def step_cylindrical(mesh: SurfaceMesh, aligned: np.ndarray):
     axes = refit_axes(aligned, observed, mesh.axis)
     origin = np.stack([a.origin for a in axes])  # (n_steps, 3)
     basis = np.stack([a.basis for a in axes])  # (n_steps, 3, 3)
-    local = np.einsum("snk,sjk->snj", aligned - origin[:, None], basis)
+    local = (aligned - origin[:, None]) @ np.swapaxes(basis, 1, 2)  # (n_steps, n_markers, 3)
     return np.hypot(local[..., 0], local[..., 1]), np.arctan2(local[..., 1], local[..., 0]), local[..., 2], axes
 
 
@@ -555,12 +558,13 @@ def _centre_sums(A: np.ndarray, ci: np.ndarray, n: int):
     ``pair_sum`` (6 n, n_e2): rows m n + i sum A_k A_l over the edges of centre i, for the six (k, l) of
     ``_PAIRS``; ``first_sum`` (3 n, n_e2): rows k n + i sum A_k.
     """
-    e = np.arange(len(ci))
+    m = len(ci)
+    e = np.arange(m)
+    row_end = np.cumsum(np.bincount(ci, minlength=n))  # the edges of centre i end there (sorted by centre)
+    indptr = np.concatenate([[0]] + [row_end + k * m for k in range(6)])  # block k: the k-th product's rows
     pair_vals = np.concatenate([A[:, k] * A[:, l] for k, l in _PAIRS])
-    pair_sum = csr_matrix((pair_vals, (np.concatenate([m * n + ci for m in range(6)]), np.tile(e, 6))),
-                          shape=(6 * n, len(ci)))
-    first_sum = csr_matrix((A.T.ravel(), (np.concatenate([k * n + ci for k in range(3)]), np.tile(e, 3))),
-                           shape=(3 * n, len(ci)))
+    pair_sum = csr_matrix((pair_vals, np.tile(e, 6), indptr), shape=(6 * n, m))
+    first_sum = csr_matrix((A.T.ravel(), np.tile(e, 3), indptr[:3 * n + 1]), shape=(3 * n, m))
     return pair_sum, first_sum
 
 
@@ -580,7 +584,7 @@ def _nanmedian_rows(a: np.ndarray) -> np.ndarray:
 def _mesh_edges(tri: np.ndarray, n: int) -> np.ndarray:
     """Undirected edges (lower index first) of the triangles ``tri`` (t, 3) over n markers, sorted: (e, 2)."""
     e = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
-    key = np.unique(np.minimum(e[:, 0], e[:, 1]).astype(np.int64) * n + np.maximum(e[:, 0], e[:, 1]))
+    key = unique_sorted(np.minimum(e[:, 0], e[:, 1]).astype(np.int64) * n + np.maximum(e[:, 0], e[:, 1]))
     return np.column_stack([key // n, key % n])
 
 
@@ -640,14 +644,15 @@ def surface_state(mesh: SurfaceMesh, aligned: np.ndarray, quadrature: int = 1,
         if smooth_reference:
             R_ref = smooth_reference_radius(mesh)
             r = r + (R_ref - mesh.r)[None]  # same displacement, from the smooth reference surface
-    rv, thv, zv = r[:, tri], th[:, tri], z[:, tri]  # (n_steps, n_tri, 3)
-    valid = np.all(np.isfinite(rv) & np.isfinite(thv) & np.isfinite(zv), axis=-1)
+    cyl = np.stack([r, th, z])[:, :, tri]  # (r, theta, z) at the vertices: (3, n_steps, n_tri, 3)
+    valid = np.all(np.isfinite(cyl), axis=(0, -1))
     # unwrap the current angles of each triangle relative to its first vertex
-    thv = thv[..., :1] + np.concatenate([np.zeros_like(thv[..., :1]), wrap_angle(thv[..., 1:] - thv[..., :1])], -1)
-    fill = lambda a: np.where(valid[..., None], a, 0.0)  # noqa: E731
-    rv, thv, zv = fill(rv), fill(thv), fill(zv)
+    thv = cyl[1]
+    cyl[1] = thv[..., :1] + np.concatenate([np.zeros_like(thv[..., :1]), wrap_angle(thv[..., 1:] - thv[..., :1])], -1)
+    cyl = np.where(valid[..., None], cyl, 0.0)
+    rv, thv, zv = cyl
     Rv = R_ref[tri]
-    theta_xi, z_xi = _grad(thv, geo.dinv), _grad(zv, geo.dinv)
+    r_xi, theta_xi, z_xi = _grad(cyl, geo.dinv)
     jac = theta_xi[..., 0] * z_xi[..., 1] - theta_xi[..., 1] * z_xi[..., 0]
     inverted = valid & ~(jac > 0.05)  # area in (theta, z) shrunk 20-fold or flipped: a marker crossed an edge
     if inverted.any():
@@ -655,7 +660,7 @@ def surface_state(mesh: SurfaceMesh, aligned: np.ndarray, quadrature: int = 1,
         valid = valid & ~inverted
     return SurfaceState(
         R=Rv @ bary.T, R_xi=_grad(Rv, geo.dinv),
-        r=rv @ bary.T, r_xi=_grad(rv, geo.dinv),
+        r=rv @ bary.T, r_xi=r_xi,
         theta=thv @ bary.T, theta_xi=theta_xi, z_xi=z_xi,
         valid=valid, outliers=outliers, noise=noise, r_markers=r, theta_markers=th, z_markers=z, axes=tuple(axes),
         bary=bary, qweight=qw, geometry=geo, smoothing=smoothing,

@@ -209,14 +209,37 @@ def _quality(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
     return 4.0 * np.sqrt(3.0) * area / np.where(s > 0, s, 1.0)
 
 
+def _runs(key: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Integer keys (k,) sorted (stable): the order, the sorted keys and which of them starts a run of equal
+    keys, (k,) bool. A sort-based ``np.unique`` (numpy >= 2.3 hashes, ~4x slower at these sizes); keys below
+    2**31 are sorted as int32 (half the time of int64)."""
+    if len(key) and key.max() < 2**31 and key.min() >= 0:
+        key = key.astype(np.int32)
+    order = np.argsort(key, kind="stable")
+    srt = key[order]
+    first = np.empty(len(srt), bool)
+    first[:1] = True
+    np.not_equal(srt[1:], srt[:-1], out=first[1:])
+    return order, srt, first
+
+
+def unique_sorted(a: np.ndarray) -> np.ndarray:
+    """``np.unique(a)`` (flattened, sorted) of an integer array, sort-based (see ``_runs``)."""
+    srt = np.sort(np.ravel(a))
+    return srt[np.concatenate([[True], srt[1:] != srt[:-1]])] if srt.size else srt
+
+
 def _edge_ids(tri: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
     """Oriented edges of the triangles (3 n_tri, 2), edge (0-1) of every triangle first, then (1-2), (2-0);
-    the id of each one's undirected edge, shape (3 n_tri,), and the number of distinct edges."""
+    the id of each one's undirected edge (ids in the order of the sorted edge keys), shape (3 n_tri,), and
+    the number of distinct edges."""
     edges = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
     lo, hi = np.minimum(edges[:, 0], edges[:, 1]), np.maximum(edges[:, 0], edges[:, 1])
     key = lo.astype(np.int64) * (int(tri.max(initial=0)) + 1) + hi  # one integer per undirected edge
-    unique, inv = np.unique(key, return_inverse=True)
-    return edges, inv.ravel(), len(unique)
+    order, _, first = _runs(key)
+    ids = np.empty(len(key), np.intp)
+    ids[order] = np.cumsum(first) - 1
+    return edges, ids, int(first.sum())
 
 
 def _edge_counts(tri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -269,17 +292,17 @@ def _delaunay(pts2: np.ndarray) -> np.ndarray:
         raise MeshError(f"Delaunay triangulation failed: {exc}") from exc
 
 
-def _central_triangles(pts2: np.ndarray, simplices: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
-    """The triangles of the replicated triangulation ``simplices`` kept once (centroid angle in [-pi, pi)),
-    counter-clockwise, and their quality (-1 for hull triangles spanning the ends)."""
-    centroid_s = pts2[simplices, 0].mean(axis=1)
-    simp = simplices[(centroid_s >= -np.pi * radius) & (centroid_s < np.pi * radius)]
-    quality = _quality(pts2, simp)
-    simp = np.where((quality < 0)[:, None], simp[:, [0, 2, 1]], simp)  # make counter-clockwise
-    quality = np.abs(quality)
-    span = np.ptp(pts2[simp, 0], axis=1) / radius
-    quality = np.where(span > 0.5 * np.pi, -1.0, quality)  # hull triangles spanning the ends
-    return simp, quality
+def _classified(pts2: np.ndarray, simplices: np.ndarray, radius: float):
+    """Per triangle of ``simplices`` (t, 3): whether it is kept once (centroid angle in [-pi, pi)), shape (t,)
+    bool; its vertices counter-clockwise (t, 3); its quality (-1 for hull triangles spanning the ends), (t,)."""
+    s0, s1, s2 = pts2[simplices[:, 0], 0], pts2[simplices[:, 1], 0], pts2[simplices[:, 2], 0]
+    centroid_s = (s0 + s1 + s2) / 3.0
+    central = (centroid_s >= -np.pi * radius) & (centroid_s < np.pi * radius)
+    quality = _quality(pts2, simplices)
+    oriented = np.where((quality < 0)[:, None], simplices[:, [0, 2, 1]], simplices)  # make counter-clockwise
+    span = (np.maximum(np.maximum(s0, s1), s2) - np.minimum(np.minimum(s0, s1), s2)) / radius
+    quality = np.where(span > 0.5 * np.pi, -1.0, np.abs(quality))  # hull triangles spanning the ends
+    return central, oriented, quality
 
 
 def _orientation(pts2: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
@@ -312,11 +335,12 @@ def _cavity_triangles(pts2: np.ndarray, cavity: np.ndarray, verts: np.ndarray) -
         return None
     new = verts[dl.simplices]
     cav_key, cav_ab, cav_opp = _edges_with_opposite(cavity, n)
-    keys, first, counts = np.unique(cav_key, return_index=True, return_counts=True)
-    boundary = first[counts == 1]  # boundary edges of the cavity, with the cavity's vertex beyond each
-    bkey = cav_key[boundary]
+    order, srt, starts = _runs(cav_key)
+    single = starts & np.concatenate([starts[1:], [True]])  # keys seen once: boundary edges of the cavity
+    boundary = order[single]  # with the cavity's vertex beyond each
+    bkey = cav_key[boundary]  # sorted
     new_key, new_ab, new_opp = _edges_with_opposite(new, n)
-    pos = np.searchsorted(bkey, new_key)  # (np.unique returned bkey sorted)
+    pos = np.searchsorted(bkey, new_key)
     on_boundary = bkey[np.minimum(pos, len(bkey) - 1)] == new_key
     j = boundary[pos[on_boundary]]
     a, b = new_ab[on_boundary, 0], new_ab[on_boundary, 1]
@@ -357,8 +381,9 @@ def _remove_vertices(pts2: np.ndarray, simplices: np.ndarray, removed: np.ndarra
     gone[removed] = True
     in_cavity = gone[simplices].any(axis=1)
     cavity = simplices[in_cavity]
-    verts = np.unique(cavity)
-    verts = verts[~gone[verts]]
+    touched = np.zeros(len(pts2), bool)
+    touched[cavity] = True
+    verts = np.flatnonzero(touched & ~gone)  # the cavity's remaining vertices, sorted (as np.unique gives them)
     new = _cavity_triangles(pts2, cavity, verts) if len(verts) >= 3 else None
     if new is None:
         return None
@@ -415,26 +440,41 @@ def _clean_triangulation(s, z, radius, min_quality, sliver_quality):
     n_corner = 0
     pts2 = _replicate(s, z, radius)
     simplices = _delaunay(pts2)
+    classified = _classified(pts2, simplices, radius)
     for _ in range(MAX_REMESH + 1):
-        simp, quality = _central_triangles(pts2, simplices, radius)
+        central, oriented, quality_all = classified
+        simp, quality = oriented[central], quality_all[central]
         local = simp % n
         alive, n_peeled = _peel(local, quality, max(min_quality, sliver_quality))
         bad = alive & (quality >= 0) & (quality < sliver_quality)  # (hull triangles spanning the ends: < 0)
         if not bad.any() or n_corner >= _MAX_CORNER_FRACTION * n:
             break
-        corners = np.unique(_obtuse_corners(pts2, simp[bad]) % n)
+        corners = unique_sorted(_obtuse_corners(pts2, simp[bad]) % n)
         kept[corners] = False
         n_corner += len(corners)
         if kept.sum() < MIN_MARKERS:
             raise MeshError(f"meshing needs at least {MIN_MARKERS} markers; only {int(kept.sum())} are left after "
                             "dropping the corners of sliver triangles")
         removed = np.concatenate([corners, corners + n, corners + 2 * n])
-        updated = _remove_vertices(pts2, simplices, removed)
-        if updated is None:
-            sel = np.flatnonzero(np.tile(kept, 3))
-            updated = sel[_delaunay(pts2[sel])]
-        simplices = updated
+        simplices, classified = _without_vertices(pts2, simplices, classified, removed, kept, radius)
     return kept, local, quality, alive, n_peeled, n_corner
+
+
+def _without_vertices(pts2, simplices, classified, removed, kept, radius):
+    """The triangulation ``simplices`` without the vertices ``removed`` (``_remove_vertices``, or a full
+    re-triangulation of the ``kept`` markers' copies) and its ``_classified`` arrays: those of the untouched
+    triangles carried over (``_remove_vertices`` keeps them first, in order), the new ones' computed."""
+    updated = _remove_vertices(pts2, simplices, removed)
+    if updated is None:
+        sel = np.flatnonzero(np.tile(kept, 3))
+        updated = sel[_delaunay(pts2[sel])]
+        return updated, _classified(pts2, updated, radius)
+    gone = np.zeros(len(pts2), bool)
+    gone[removed] = True
+    untouched = ~gone[simplices].any(axis=1)
+    n_old = int(untouched.sum())
+    fresh = _classified(pts2, updated[n_old:], radius)
+    return updated, tuple(np.concatenate([a[untouched], b]) for a, b in zip(classified, fresh))
 
 
 #: At most this fraction of the markers is dropped as sliver corners (beyond it the cloud is too irregular).
@@ -498,8 +538,8 @@ def build_mesh(
     if len(tri) == 0:
         raise MeshError("no usable triangle left after removing slivers")
     bottom_edges, top_edges, n_holes = _end_loops(tri, theta, z, n)
-    z_bottom = float(z[np.unique(bottom_edges)].max())
-    z_top = float(z[np.unique(top_edges)].min())
+    z_bottom = float(z[bottom_edges].max())
+    z_top = float(z[top_edges].min())
     if not z_top > z_bottom:
         raise MeshError(f"the two ends overlap axially (bottom boundary up to z={z_bottom}, top from z={z_top})")
     used = np.zeros(n, bool)
@@ -525,7 +565,8 @@ def _distinct_markers(ref: np.ndarray, idx: np.ndarray, tolerance: float | None,
     d_nn, _ = tree.query(ref[idx], k=2)
     spacing = float(np.median(d_nn[:, 1]))
     tol = fraction * spacing if tolerance is None else float(tolerance)
-    idx = idx[~_near_duplicates(ref[idx], tol, tree)]
+    if np.any(d_nn[:, 1] <= tol):  # (no nearest neighbour within tol: no pair either, skip the pair search)
+        idx = idx[~_near_duplicates(ref[idx], tol, tree)]
     if len(idx) < MIN_MARKERS:
         raise MeshError(f"meshing needs at least {MIN_MARKERS} distinct markers; got {len(idx)}")
     return idx, spacing, tol
@@ -542,12 +583,13 @@ def _end_loops(tri: np.ndarray, theta: np.ndarray, z: np.ndarray, n: int) -> tup
     comp = labels[bnd[:, 0]]
     dtheta = wrap_angle(theta[bnd[:, 1]] - theta[bnd[:, 0]])
     loops = []
-    for c in np.unique(comp):
+    components = unique_sorted(comp)
+    for c in components:
         sel = comp == c
         winding = dtheta[sel].sum() / (2.0 * np.pi)
         if abs(abs(winding) - 1.0) < 0.25:
             loops.append((float(np.mean(z[bnd[sel]])), sel))
-    n_holes = len(np.unique(comp)) - len(loops)
+    n_holes = len(components) - len(loops)
     if len(loops) != 2:
         raise MeshError(
             f"the markers must cover the whole circumference between two ends; found {len(loops)} "

@@ -36,8 +36,8 @@ import numpy as np
 from scipy.sparse import csr_matrix
 
 from .errors import DegenerateDataError
-from .kinematics import _cross, _grad, align_steps, reference_frame, surface_state, tangents
-from .mesh import SurfaceMesh, build_mesh, wrap_angle
+from .kinematics import _cross, _grad, align_steps, reference_frame, surface_state
+from .mesh import SurfaceMesh, build_mesh, unique_sorted, wrap_angle
 from .models import get_model
 from .models._base import Model, pk2_components, seed_virtual_strains, virtual_work_sensitivities
 from .virtual_fields import VirtualFields, check_fields, paper_fields
@@ -405,7 +405,8 @@ def _layer(g: _WallGeometry, sv: float):
     r_s = np.sqrt(np.where(r2 > 0, r2, 1.0))
     r_s_xi = (r[..., None] * r_xi - depth * R_xi / J[..., None]) / r_s[..., None]
     ginv, area_factor = reference_frame(np.broadcast_to(R_xi, R.shape + (2,)), R - depth)  # (1, t, q, ...)
-    Fxi = tangents(r_s, r_s_xi, thx, zx)  # (s, t, q, 3, 2)
+    # the current xi-tangents t_j = (r_s,xi_j, r_s theta,xi_j, z,xi_j) in cylindrical components, (s, t, q) each
+    tan = [[r_s_xi[..., j], r_s * thx[..., j], np.broadcast_to(zx[..., j], r_s.shape)] for j in (0, 1)]
     g00, g01, g11 = ginv[..., 0, 0], ginv[..., 0, 1], ginv[..., 1, 1]  # ginv is upper triangular
     # divergence-free extension of the fields to this layer
     ur_o = g.u_q[..., 0][:, None]  # (f, 1, t, q)
@@ -422,11 +423,11 @@ def _layer(g: _WallGeometry, sv: float):
     uz, uz_xi = g.u_q[..., 2][:, None], g.u_xi[:, None, :, None, 2, :]
     du = (ur_xi - ut[..., None] * thx, ut_xi + ur[..., None] * thx, uz_xi)  # (f, s, t, q, 2) per (r, theta, z)
     # G_ij = t_i . du_j (the xi-tangents t_i = columns of Fxi), then dE = sym(ginv^T G ginv), in components
-    G = [[sum(Fxi[..., c, i] * du[c][..., j] for c in range(3)) for j in (0, 1)] for i in (0, 1)]
+    G = [[sum(tan[i][c] * du[c][..., j] for c in range(3)) for j in (0, 1)] for i in (0, 1)]
     dE = _congruent_components(g00, g01, g11, G[0][0], 0.5 * (G[0][1] + G[1][0]), G[1][1])
-    M = [[np.einsum("...c,...c->...", Fxi[..., i], Fxi[..., j]) for j in (0, 1)] for i in (0, 1)]
+    M = [[sum(tan[i][c] * tan[j][c] for c in range(3)) for j in (0, 1)] for i in (0, 1)]
     C = _congruent_components(g00, g01, g11, M[0][0], M[0][1], M[1][1])  # C = F^T F with F = Fxi ginv
-    normal_da = _cross(Fxi[..., 0], Fxi[..., 1]) * g.area_q[..., None]  # (s, t, q, 3)
+    normal_da = _cross(np.stack(tan[0], -1), np.stack(tan[1], -1)) * g.area_q[..., None]  # (s, t, q, 3)
     u_here = np.stack([ur, np.broadcast_to(ut, ur.shape), np.broadcast_to(uz, ur.shape)], -1)
     return C, dE, area_factor * g.area_q, normal_da, u_here
 
@@ -490,7 +491,7 @@ def _top_loop_area(mesh: SurfaceMesh, st, jac: np.ndarray, wall: str, e0: float)
         jm = jm / np.maximum(cnt, 1.0)
         kappa_m = e0 * (2.0 * mesh.r - e0)
         r2 = r2 - kappa_m[None] / np.where(jm > 0, jm, np.nan)
-    top = np.unique(mesh.top_edges)
+    top = unique_sorted(mesh.top_edges)
     r2_top = r2[:, top]
     fillv = np.nanmean(np.where(np.isfinite(r2_top), r2_top, np.nan), axis=1, keepdims=True)
     r2 = r2.copy()
@@ -504,7 +505,7 @@ def _clamp_area(mesh: SurfaceMesh, ends: str, wall: str, e0: float, clamp_radius
     """Area (m^2) on which the pressure pushes at the load-cell clamp; None for free ends."""
     if ends != "clamped":
         return None
-    rc = float(np.mean(mesh.r[np.unique(mesh.top_edges)])) if clamp_radius is None else float(clamp_radius)
+    rc = float(np.mean(mesh.r[unique_sorted(mesh.top_edges)])) if clamp_radius is None else float(clamp_radius)
     if clamp_radius is None and wall == "thick":
         rc -= e0
     return np.pi * rc * rc
