@@ -122,7 +122,8 @@ def time_commands(session: Path, trees: list[Tree], repeats: int, tmp: Path) -> 
     """Median (wall, CPU, main-process CPU) times ``{(tree index, command): (s, s, s)}`` and the copies
     identified by each tree. CPU = user + system of the command and its children (the damaged-file
     walk, bootstrap workers); main-process CPU = the command's own process alone, what its wall time
-    is on an idle machine when the children run on the other core (a load-independent figure)."""
+    is on an idle machine when the children run on the other core (a load-independent figure), up to
+    its ``atexit`` handlers: the interpreter's teardown after them shows in the other two only."""
     copies = _copies(session, tmp, trees, repeats)
     times = defaultdict(list)
     for k in range(repeats):

@@ -1,8 +1,8 @@
 """Start-up of a command that loads the numerical stack: the cyclic garbage collector kept off the loaded modules.
 
-Loading numpy, h5py, scipy and the stage packages creates ~0.3 million long-lived objects (functions,
-classes, docstrings), none of them garbage. CPython's collector scans them again and again while they
-load (every 700 allocations, a full pass at the end): ~35 ms of the ~0.6 s of CPU of
+Loading numpy, h5py, scipy and the stage packages leaves ~92 000 objects tracked by the collector
+(functions, classes, dicts), none of them garbage. CPython's collector scans them again and again while
+they load (the young ones every 700 allocations, all of them once at the end): ~35 ms of the ~0.6 s of CPU of
 ``vfmlab identify --uncertainty gauss-newton`` (benchmarks/bench_cli.py; ``gc.callbacks`` timing).
 :func:`modules_loading` pauses the collector while a command imports, then freezes what is loaded
 (``gc.freeze``: moved to the permanent generation, never scanned again; the CPython documentation's
