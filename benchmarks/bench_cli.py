@@ -1,7 +1,8 @@
 """Start-up and whole-command wall time of the ``vfmlab`` command line (issue 11: ``vfmlab identify`` <= 0.5 s).
 
     PYTHONPATH=. python benchmarks/bench_cli.py [--session S.h5] [--work DIR] [--repeats 5]
-                                                [--compare-root OTHER_CHECKOUT]
+                                                [--compare-root OTHER_CHECKOUT] [--compare-python PYTHON]
+                                                [--commands-only]
 
 Prints, as markdown, the median wall time (s) over ``--repeats`` fresh processes of ``vfmlab --help``,
 ``vfmlab info S``, ``vfmlab identify S --uncertainty gauss-newton`` and ``vfmlab identify S`` (defaults:
@@ -18,7 +19,9 @@ result); the copies are made first and left alone for a few seconds, as a sessio
 ``--compare-root`` times a second source tree (e.g. ``git worktree add /tmp/before main``) in the same run,
 interleaved command by command (ratios are what count on a loaded machine), and prints the largest
 relative difference between the two trees' stored identification results (parameters, standard
-errors, intervals, virtual works, residuals).
+errors, intervals, virtual works, residuals). ``--compare-python`` runs the compared tree (this one if no
+``--compare-root``) on another interpreter, e.g. a scratch venv with another scipy release.
+``--commands-only`` stops after the command timings.
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ import tempfile
 import time
 from collections import defaultdict
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -65,11 +69,18 @@ _REPORTING = ("import atexit, os, runpy, sys, time\n"
               "runpy.run_module('vfmlab', run_name='__main__')\n")
 
 
-def _timed(root: Path, args: list[str]) -> tuple[float, float, float]:
+class Tree(NamedTuple):
+    """A timed configuration: a source tree of vfmlab and the interpreter (environment) that runs it."""
+
+    root: Path
+    python: str
+
+
+def _timed(tree: Tree, args: list[str]) -> tuple[float, float, float]:
     """(wall, CPU of the command and its children, CPU of the command's own process) in s."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    run = subprocess.run([sys.executable, "-c", _REPORTING, *args], env=_env(root), cwd=root, check=True,
+    run = subprocess.run([tree.python, "-c", _REPORTING, *args], env=_env(tree.root), cwd=tree.root, check=True,
                          stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -93,10 +104,10 @@ def make_session(work: Path) -> Path:
     return session
 
 
-def _copies(session: Path, tmp: Path, roots: list[Path], repeats: int) -> dict:
-    """(root index, command, repeat) -> its own copy of the session, for the commands that write."""
+def _copies(session: Path, tmp: Path, trees: list[Tree], repeats: int) -> dict:
+    """(tree index, command, repeat) -> its own copy of the session, for the commands that write."""
     out = {}
-    for r in range(len(roots)):
+    for r in range(len(trees)):
         for label, args in COMMANDS.items():
             if args[0] != "identify":
                 continue
@@ -107,18 +118,19 @@ def _copies(session: Path, tmp: Path, roots: list[Path], repeats: int) -> dict:
     return out
 
 
-def time_commands(session: Path, roots: list[Path], repeats: int, tmp: Path) -> tuple[dict, dict]:
-    """Median (wall, CPU, main-process CPU) times ``{(root index, command): (s, s, s)}`` and the copies
-    identified by each root. CPU = user + system of the command and its children (the damaged-file
+def time_commands(session: Path, trees: list[Tree], repeats: int, tmp: Path) -> tuple[dict, dict]:
+    """Median (wall, CPU, main-process CPU) times ``{(tree index, command): (s, s, s)}`` and the copies
+    identified by each tree. CPU = user + system of the command and its children (the damaged-file
     walk, bootstrap workers); main-process CPU = the command's own process alone, what its wall time
-    is on an idle machine when the children run on the other core (a load-independent figure)."""
-    copies = _copies(session, tmp, roots, repeats)
+    is on an idle machine when the children run on the other core (a load-independent figure), up to
+    its ``atexit`` handlers: the interpreter's teardown after them shows in the other two only."""
+    copies = _copies(session, tmp, trees, repeats)
     times = defaultdict(list)
     for k in range(repeats):
         for label, args in COMMANDS.items():
-            for r, root in enumerate(roots):  # interleaved: the same load for every tree
+            for r, tree in enumerate(trees):  # interleaved: the same load for every tree
                 target = copies.get((r, label, k), session)
-                times[r, label].append(_timed(root, [a.format(s=target) for a in args]))
+                times[r, label].append(_timed(tree, [a.format(s=target) for a in args]))
     return {key: tuple(np.median(np.array(v), axis=0)) for key, v in times.items()}, copies
 
 
@@ -145,22 +157,22 @@ print(min(times[1:]))
 """
 
 
-def replicate_cpu(root: Path, session: Path, repeats: int) -> float:
+def replicate_cpu(tree: Tree, session: Path, repeats: int) -> float:
     """CPU (s) of one bootstrap replicate of ``identify``'s defaults on ``session``, serial, in ``root``'s code
     (including its share of the re-simulation: the bootstrap's CPU over its 16 replicates)."""
-    run = subprocess.run([sys.executable, "-c", _REPLICATE_CPU, str(session), str(repeats)], env=_env(root),
-                         cwd=root, check=True, capture_output=True, text=True)
+    run = subprocess.run([tree.python, "-c", _REPLICATE_CPU, str(session), str(repeats)], env=_env(tree.root),
+                         cwd=tree.root, check=True, capture_output=True, text=True)
     return float(run.stdout.split()[-1])
 
 
-def import_breakdown(root: Path, session: Path, tmp: Path) -> tuple[dict, list[str], float]:
+def import_breakdown(tree: Tree, session: Path, tmp: Path) -> tuple[dict, list[str], float]:
     """Self import time (s) of ``identify --uncertainty gauss-newton`` by top-level package, the
     modules of ``MUST_NOT_IMPORT`` it imported, and the total."""
-    target = tmp / f"imports-{abs(hash(str(root)))}.h5"
+    target = tmp / f"imports-{abs(hash(tree))}.h5"
     shutil.copyfile(session, target)
-    args = [sys.executable, "-X", "importtime", "-m", "vfmlab", "identify", str(target), "--uncertainty",
+    args = [tree.python, "-X", "importtime", "-m", "vfmlab", "identify", str(target), "--uncertainty",
             "gauss-newton"]
-    err = subprocess.run(args, env=_env(root), cwd=root, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+    err = subprocess.run(args, env=_env(tree.root), cwd=tree.root, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                          text=True, check=True).stderr
     by_package, loaded = defaultdict(float), set()
     for line in err.splitlines():
@@ -206,33 +218,44 @@ def main(argv: list[str] | None = None) -> None:
                         help="folder where the rendered session is made once (without --session)")
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--compare-root", type=Path, help="another source tree of vfmlab, timed alongside")
+    parser.add_argument("--compare-python", help="the interpreter of the compared tree (default: this one); with no "
+                                                 "--compare-root, this tree on that interpreter (e.g. a venv with "
+                                                 "another scipy release)")
+    parser.add_argument("--commands-only", action="store_true",
+                        help="only the command timings and the stored-result comparison")
     args = parser.parse_args(argv)
     if args.session is None:
         args.work.mkdir(parents=True, exist_ok=True)
         session = make_session(args.work)
     else:
         session = args.session
-    roots = [ROOT] + ([args.compare_root.resolve()] if args.compare_root else [])
-    names = ["this tree"] + ([f"{args.compare_root}"] if args.compare_root else [])
+    trees = [Tree(ROOT, sys.executable)]
+    names = ["this tree"]
+    if args.compare_root or args.compare_python:
+        trees.append(Tree(args.compare_root.resolve() if args.compare_root else ROOT,
+                          args.compare_python or sys.executable))
+        names.append(" on ".join(str(v) for v in (args.compare_root, args.compare_python) if v))
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        medians, copies = time_commands(session, roots, args.repeats, tmp)
+        medians, copies = time_commands(session, trees, args.repeats, tmp)
         print(f"Median of {args.repeats} fresh processes, session {session.name}, load average "
               f"{os.getloadavg()[0]:.1f}: wall / CPU of the command and its children / CPU of its main process (s)\n")
         print("| command | " + " | ".join(names) + " |")
-        print("|---|" + "---|" * len(roots))
+        print("|---|" + "---|" * len(trees))
         for label in COMMANDS:
             print(f"| `vfmlab {label}` | " + " | ".join(" / ".join(f"{t:.3f}" for t in medians[r, label])
-                                                     for r in range(len(roots))) + " |")
-        if len(roots) == 2:
+                                                     for r in range(len(trees))) + " |")
+        if len(trees) == 2:
             label = "identify S (default: bootstrap)"
             diff = max_relative_difference(copies[0, label, 0], copies[1, label, 0])
             print(f"\nLargest relative difference of the stored identification results between the trees: {diff:.1e}")
-        per = [replicate_cpu(root, session, args.repeats) for root in roots]
+        if args.commands_only:
+            return
+        per = [replicate_cpu(tree, session, args.repeats) for tree in trees]
         print("\nCPU of one bootstrap re-identification (in-process, serial, min over repeats of the mean of 16): "
-              + ", ".join(f"{names[r]} {per[r] * 1e3:.1f} ms" for r in range(len(roots))))
-        for r, root in enumerate(roots):
-            by_package, bad, total = import_breakdown(root, session, tmp)
+              + ", ".join(f"{names[r]} {per[r] * 1e3:.1f} ms" for r in range(len(trees))))
+        for r, tree in enumerate(trees):
+            by_package, bad, total = import_breakdown(tree, session, tmp)
             print(f"\nImports of `vfmlab identify` ({names[r]}): {total:.3f} s of self time (-X importtime)\n")
             print("| package | s |\n|---|---|")
             for name, t in sorted(by_package.items(), key=lambda kv: -kv[1])[:10]:

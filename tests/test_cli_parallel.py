@@ -2,6 +2,7 @@
 and the bootstrap of ``vfmlab identify`` run through it gives the very same uncertainty."""
 
 import os
+import time
 
 import numpy as np
 import pytest
@@ -13,11 +14,40 @@ def _square_and_pid(x):
     return x * x, os.getpid()
 
 
-def test_fork_map_returns_map_in_order_from_two_processes():
-    out = fork_map(_square_and_pid, range(7), workers=2)
+def test_fork_map_returns_map_in_order_from_two_processes(tmp_path):
+    flag = tmp_path / "a-child-computed-an-item"
+
+    def square_once_a_child_has_worked(x, parent=os.getpid()):
+        if os.getpid() != parent:
+            flag.touch()
+        else:  # this process finishes no item before a child has computed one (<= 30 s)
+            deadline = time.monotonic() + 30.0
+            while not flag.exists() and time.monotonic() < deadline:
+                time.sleep(0.005)
+        return _square_and_pid(x)
+
+    out = fork_map(square_once_a_child_has_worked, range(7), workers=2)
     assert [v for v, _ in out] == [x * x for x in range(7)]
     pids = {pid for _, pid in out}
-    assert os.getpid() in pids and len(pids) == 2  # the odd items came back from a child
+    assert os.getpid() in pids and len(pids) == 2  # some items came back from a child
+
+
+def test_items_are_dealt_to_whichever_process_is_free(tmp_path):
+    # a child stuck on its first item (a busy core) takes no other: this process computes all the rest
+    last_done = tmp_path / "item-11-computed"
+
+    def stuck_in_child(x, parent=os.getpid()):
+        if os.getpid() != parent:
+            deadline = time.monotonic() + 30.0
+            while not last_done.exists() and time.monotonic() < deadline:
+                time.sleep(0.005)
+        elif x == 11:
+            last_done.touch()
+        return _square_and_pid(x)
+
+    out = fork_map(stuck_in_child, range(12), workers=2)
+    assert [v for v, _ in out] == [x * x for x in range(12)]
+    assert sum(pid == os.getpid() for _, pid in out) >= 11  # a fixed half each would give 6
 
 
 def _fails_on_three(x):
@@ -27,7 +57,7 @@ def _fails_on_three(x):
 
 
 def test_an_exception_in_a_childs_share_surfaces_as_in_map():
-    with pytest.raises(ValueError, match="item 3 is bad"):  # item 3 is the child's (odd items)
+    with pytest.raises(ValueError, match="item 3 is bad"):  # whichever process took item 3
         fork_map(_fails_on_three, range(6), workers=2)
     assert fork_map(_fails_on_three, [0, 1, 2], workers=2) == [0, 1, 2]
 

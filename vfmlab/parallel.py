@@ -1,8 +1,9 @@
 """Independent computations of one command on the machine's cores: :func:`fork_map`.
 
 The bootstrap of ``vfmlab identify`` re-identifies 16 re-simulated measurements, each independent of
-the others (~40 ms each on a rendered session): on two idle cores half of them run in a forked child
-(benchmarks/bench_cli.py). Forking, not a process pool: the child inherits the loaded modules and the
+the others (~15 ms each on a rendered session): this process and a forked child take them one after
+the other as each is free, so on two idle cores each computes about half, and on a busy machine the
+process that gets more CPU computes more (benchmarks/bench_cli.py). Forking, not a process pool: the child inherits the loaded modules and the
 prepared data, so nothing is imported or pickled on the way in, only the small results on the way out.
 """
 
@@ -34,9 +35,11 @@ def fork_map(fn: Callable[[Any], Any], items: Iterable[Any], workers: int | None
 
     The results, and any exception ``fn`` raises, are those of the builtin ``map`` (same order, same
     values: each item is computed by the same code on the same data); only the wall time differs.
-    Items are dealt round-robin to ``workers`` processes (default: the usable cores, at most the
-    number of items); this process computes its own share, then collects the children's. A child
-    that fails (killed, out of memory, an exception in ``fn``) has its share recomputed here, so an
+    The items are dealt as they are asked for: every process (this one and ``workers - 1`` children;
+    default: the usable cores, at most the number of items) takes the next item when it has finished
+    its last, so a worker that gets less of a busy machine computes fewer of them and nobody waits
+    for a fixed share (``_Queue``). This process then collects the children's results. Items a child
+    took but did not return (killed, out of memory, an exception in ``fn``) are computed here, so an
     exception surfaces exactly as in ``map``.
 
     Serial (the builtin ``map``) where forking is unsafe or useless: one core, one item, no
@@ -46,29 +49,57 @@ def fork_map(fn: Callable[[Any], Any], items: Iterable[Any], workers: int | None
     n = min(usable_cores() if workers is None else int(workers), len(items))
     if n < 2 or not hasattr(os, "fork") or threading.active_count() > 1:
         return [fn(item) for item in items]
-    shares = [list(range(k, len(items), n)) for k in range(n)]
+    queue = _Queue(len(items))
     children: list[dict] = []
-    results: list[Any] = [None] * len(items)
+    done: dict[int, Any] = {}
     try:
-        for share in shares[1:]:
-            pid, fd = _fork_share(fn, [items[i] for i in share])
-            children.append({"pid": pid, "fd": fd, "share": share, "reaped": False})
-        for i in shares[0]:
-            results[i] = fn(items[i])
+        for _ in range(n - 1):
+            pid, fd = _fork_worker(fn, items, queue)
+            children.append({"pid": pid, "fd": fd, "reaped": False})
+        for i in queue:
+            done[i] = fn(items[i])
         for child in children:
-            values = _collect(child, len(child["share"]))
-            if values is None:  # the child failed: its share computed here, exceptions and all
-                values = [fn(items[i]) for i in child["share"]]
-            for i, value in zip(child["share"], values):
-                results[i] = value
+            done.update(_collect(child))
+        return [done[i] if i in done else fn(items[i]) for i in range(len(items))]  # a failed child's: here
     finally:
+        queue.close()
         for child in children:
             _discard(child)
-    return results
 
 
-def _fork_share(fn: Callable[[Any], Any], items: list) -> tuple[int, int]:
-    """Fork a child computing ``fn`` over ``items``; (pid, read end of its result pipe)."""
+class _Queue:
+    """The indices 0 .. n-1 of the items, taken in order by any of the processes forked after it was made.
+
+    A pipe holding one 4-byte token per block of consecutive indices (at most ``MAX_TOKENS`` blocks,
+    so that all fit in the pipe before anyone reads): a ``read`` of 4 bytes is atomic between
+    processes, and the write end is closed before the fork, so an empty pipe reads as the end.
+    """
+
+    MAX_TOKENS = 4096  # 16 KiB: within the smallest pipe buffer of Linux (64 KiB) and macOS (16 KiB)
+
+    def __init__(self, n: int) -> None:
+        self.block = -(-n // self.MAX_TOKENS)
+        self.n = n
+        self.read_fd, write_fd = os.pipe()
+        try:
+            os.write(write_fd, b"".join(k.to_bytes(4, "little") for k in range(-(-n // self.block))))
+        finally:
+            os.close(write_fd)
+
+    def __iter__(self):
+        while token := os.read(self.read_fd, 4):
+            start = int.from_bytes(token, "little") * self.block
+            yield from range(start, min(start + self.block, self.n))
+
+    def close(self) -> None:
+        try:
+            os.close(self.read_fd)
+        except OSError:
+            pass
+
+
+def _fork_worker(fn: Callable[[Any], Any], items: list, queue: _Queue) -> tuple[int, int]:
+    """Fork a child computing ``fn`` over the items it takes from ``queue``; (pid, read end of its result pipe)."""
     read_fd, write_fd = os.pipe()
     main_thread = threading.current_thread() is threading.main_thread()
     if main_thread:  # Ctrl-C during fork() would be raised in an at-fork hook and lost: hold it
@@ -79,10 +110,10 @@ def _fork_share(fn: Callable[[Any], Any], items: list) -> tuple[int, int]:
             code = 0
             try:
                 os.close(read_fd)
-                payload = pickle.dumps([fn(item) for item in items], protocol=pickle.HIGHEST_PROTOCOL)
+                payload = pickle.dumps({i: fn(items[i]) for i in queue}, protocol=pickle.HIGHEST_PROTOCOL)
                 with os.fdopen(write_fd, "wb") as out:
                     out.write(payload)
-            except BaseException:  # noqa: BLE001 - the parent recomputes this share and sees the error itself
+            except BaseException:  # noqa: BLE001 - the parent recomputes what it took and sees the error itself
                 code = 3
             os._exit(code)
     finally:
@@ -92,8 +123,8 @@ def _fork_share(fn: Callable[[Any], Any], items: list) -> tuple[int, int]:
     return pid, read_fd
 
 
-def _collect(child: dict, n: int) -> list | None:
-    """The child's ``n`` results (read to the end of its pipe, then reaped), or None if it failed."""
+def _collect(child: dict) -> dict:
+    """The child's results ``{index: value}`` (read to the end of its pipe, then reaped); {} if it failed."""
     chunks = []
     while True:
         chunk = os.read(child["fd"], 1 << 16)
@@ -103,13 +134,13 @@ def _collect(child: dict, n: int) -> list | None:
     _, status = os.waitpid(child["pid"], 0)
     child["reaped"] = True
     if not (os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0):
-        log.debug("fork_map: worker %d failed (wait status %d); its share is recomputed", child["pid"], status)
-        return None
+        log.debug("fork_map: worker %d failed (wait status %d); its items are recomputed", child["pid"], status)
+        return {}
     try:
         values = pickle.loads(b"".join(chunks))
     except Exception:  # noqa: BLE001 - a truncated or garbled result: recompute
-        return None
-    return values if isinstance(values, list) and len(values) == n else None
+        return {}
+    return values if isinstance(values, dict) else {}
 
 
 def _discard(child: dict) -> None:

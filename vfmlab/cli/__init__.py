@@ -101,7 +101,14 @@ def main(argv: list[str] | None = None) -> int:
     failed), 2 bad input (usage, malformed/damaged/implausible file or value), 130 interrupted by
     the user (Ctrl-C). Every error is one line on stderr, never a traceback (``-vv`` logs it).
     Warnings from NumPy and other libraries never reach the user: they are logged at debug level.
+    Without ``argv`` (the arguments of this process: the console script, ``python -m vfmlab``) the
+    process ends after the command, which lets a command leave its loaded modules to the exit
+    (``vfmlab/cli/_startup.py``).
     """
+    if argv is None:
+        from vfmlab.cli._startup import process_ends_after_command
+
+        process_ends_after_command()
     with warnings.catch_warnings(), _InterruptGuard() as interrupt:
         warnings.simplefilter("default")
         warnings.showwarning = _log_library_warning

@@ -21,7 +21,6 @@ import sys
 from typing import Any
 
 import click
-import numpy as np
 
 from vfmlab.display import display_quantity, fixed, num, quantity  # noqa: F401 - re-exported for the commands
 
@@ -124,13 +123,19 @@ def to_jsonable(obj: Any) -> Any:
         return {str(k): to_jsonable(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
         return [to_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return to_jsonable(obj.tolist())
-    if isinstance(obj, (np.bool_,)):
-        return bool(obj)
-    if isinstance(obj, (np.integer,)):
-        return int(obj)
-    if isinstance(obj, (float, np.floating)):
+    # numpy is not imported for this (the commands load it, under their start-up's paused collector,
+    # vfmlab/cli/_startup.py): an object can be a numpy one only if numpy is loaded
+    np = sys.modules.get("numpy")
+    if np is not None:
+        if isinstance(obj, np.ndarray):
+            return to_jsonable(obj.tolist())
+        if isinstance(obj, (np.bool_,)):
+            return bool(obj)
+        if isinstance(obj, (np.integer,)):
+            return int(obj)
+        if isinstance(obj, np.floating):
+            obj = float(obj)
+    if isinstance(obj, float):
         value = float(obj)
         return None if math.isnan(value) or math.isinf(value) else value
     if isinstance(obj, bytes):
