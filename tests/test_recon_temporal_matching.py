@@ -3,6 +3,7 @@ glass and water into 4 cameras, dense enough that one frame cannot tell true mat
 
 import cv2
 import numpy as np
+import pytest
 
 from reconstruction.cameras import Camera
 from reconstruction.refraction import Window
@@ -108,3 +109,12 @@ def test_pixel_correction_recovers_a_smooth_residual_map():
     err = np.stack(moved) - px - field
     assert np.sqrt(np.mean(err[0, 20:] ** 2)) < 0.02 and np.sqrt(np.mean(err[1] ** 2)) < 0.02  # px
     assert np.all(fit_pixel_correction(px[:, :10], res[:, :10], sizes) == 0)  # too few: no correction
+
+
+def test_empty_frames_keep_their_shapes_and_two_frames_are_refused():
+    cams = _rig()
+    empty = [[np.zeros((0, 2)) for _ in cams] for _ in range(3)]
+    tm = temporal_match(empty, cams, BOUNDS, **GATES, **MOTION)
+    assert [o.shape for o in tm.observations] == [(0, 4)] * 3 and [p.shape for p in tm.points] == [(0, 3)] * 3
+    with pytest.raises(ValueError, match="frames must hold at least 3"):
+        temporal_match(empty[:2], cams, BOUNDS, **GATES, **MOTION)
