@@ -3,8 +3,10 @@
 At a high particle density a single frame cannot tell a true three-camera match from a chance coincidence
 along the epipolar curves (``docs/reconstruction.md``, "Real data"). Consecutive frames of the same particles
 can: a true match is a 3-D point whose track continues smoothly through the neighbouring frames (small
-displacement, consistent in every camera), a chance match made of detections of unrelated particles moves
-as they do, i.e. incoherently, and is not found again where its track predicts it.
+displacement, consistent in every camera). A chance match is made of detections of unrelated particles; when
+they move coherently (a smooth flow, small steps) it persists too, but its reprojection residuals change as
+they move apart, whereas a true match's residual is the local calibration error, constant over a small step.
+A chance match of particles that do not move persists unchanged: static chains prove nothing.
 
 :func:`temporal_match` works on per-frame candidates with loose gates:
 
@@ -15,16 +17,18 @@ as they do, i.e. incoherently, and is not found again where its track predicts i
    ``max_step_m``.
 3. **Smooth triplets** (:func:`smooth_triplets`): chains ``a -> b -> c`` over three consecutive frames
    whose second difference ``|X_c - 2 X_b + X_a|`` (the acceleration times dt^2) is at most
-   ``max_accel_m``. A candidate in at least one such triplet is *supported*; its score is the number of
-   triplets it belongs to (a track through 5 frames gives its middle candidate 3).
+   ``max_accel_m``, that move by at least ``min_motion_m`` and whose residual changes by at most
+   ``max_residual_change_px`` from frame to frame in every camera. A candidate in at least one such triplet
+   is *supported*; its score is the number of triplets it belongs to (a track through 5 frames gives its
+   middle candidate 3).
 4. **Selection** (:func:`select_per_frame`): per frame, supported candidates in order of score, then
    views, then reprojection RMS; each detection is used once.
 5. **Recovery** (:func:`recover_from_tracks`; optionally first :func:`extend_pairs`, which completes
-   consistent two-frame links by a third frame the same way): the selected points are chained over the frames; where a
-   chain has no point in a neighbouring frame, its position there is predicted (constant velocity), projected
-   into every camera and the nearest unused detection within ``recover_radius_px`` taken; >= ``min_views``
-   views within ``max_residual_px`` of their triangulation and within ``max_accel_m`` of the prediction are
-   added. The chain vouches for the match, so the single-frame ambiguity no longer matters.
+   consistent two-frame links by a third frame the same way): the selected points are chained over the
+   frames; where a chain has no point in a neighbouring frame, its position there is predicted (constant
+   velocity), projected into every camera and the nearest unused detection within ``recover_radius_px``
+   taken; >= ``min_views`` views within ``max_residual_px`` of their triangulation and within ``max_accel_m``
+   of the prediction are added. The chain vouches for the match, so the single-frame ambiguity no longer matters.
 
 :func:`match_over_time` runs it once with loose gates, fits a smooth per-camera map of the residuals of those
 matches over the image (:func:`fit_pixel_correction`: the calibration error the camera model leaves), moves the
