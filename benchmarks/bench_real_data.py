@@ -16,11 +16,18 @@ truth), with three calibrations:
   frames 0-4 (reconstruction.volume_selfcal, Wieneke 2008: loose 3-view candidates, disparity peaks per camera and
   sub-volume, bundle adjustment with the calibration body). ``self_calibration`` holds its diagnostics:
   disparity peaks per pass, the check at the first pass's tolerances, the body RMS after, and the matching
-  with tight gates (real vs decoy) with ``own`` and with the self-calibrated cameras.
+  with tight gates (real vs decoy) with ``own`` and with the self-calibrated cameras;
+- ``temporal``: matching over time with the self-calibrated cameras (reconstruction.temporal_matching.match_over_time,
+  TEMPORAL) on DETECTION's particles of frames 0-4: a >= 3-camera match is kept when it persists as a smooth track
+  with a constant residual per camera; the decoy runs through the same pipeline. ``temporal_diagnostics``: the same
+  without the pixel correction, the correction's size, the true matches with camera 1 estimated among one frame's
+  candidates and, with ``--temporal-variants``, one setting changed at a time.
 
     python benchmarks/bench_real_data.py [--json] [--frames 1 2 3 4]
     python benchmarks/bench_real_data.py --selfcal-seed selected-ptvpar --body-weight 0.5 --skip-dense --frames 1
         # self-calibration seeded by the body calibration with the model its dots determine (select_body_model)
+    python benchmarks/bench_real_data.py --selfcal-seed selected-ptvpar --body-weight 0.5 --skip-dense --temporal-variants
+        # key temporal: matching over time (reconstruction.temporal_matching) with the self-calibrated cameras
     python benchmarks/bench_real_data.py --rendered   # rig_sim window renderer instead
     python benchmarks/bench_real_data.py --openptv-check   # OpenPTV's own matches, re-triangulated (needs optv)
 """
@@ -61,6 +68,15 @@ SELFCAL = {"grid": (2, 2, 2), "free": ("pose", "k1", "principal_point", "window_
 #: GATES, chance coincidences dominate whatever the calibration); the imported calibration is matched the same way
 SELFCAL_GATES = {"epipolar_px": 1.5, "max_reprojection_px": 1.0, "max_pair_angle_deg": 180.0}
 TIGHT_GATES = {"epipolar_px": 1.0, "max_reprojection_px": 0.7, "max_pair_angle_deg": 180.0}
+#: matching over time (reconstruction.temporal_matching.match_over_time) with the self-calibrated cameras on DETECTION's
+#: particles of frames 0-4: 3-D links up to 1 mm per frame (particles move 0.2-1 mm; chance neighbours 1.5-5 mm),
+#: second difference <= 0.6 mm (depth noise of 3-view points; 0.4 mm: 8-14 % fewer real matches), residual per
+#: camera changing <= 0.5 px per frame, >= 0.2 mm of motion over a triplet (a static chance match persists as well
+#: as a true one); a pixel correction map (degree 3) fit on the matches with loose gates (epipolar, radius,
+#: residual px), then the final gates
+TEMPORAL_FRAMES = (0, 1, 2, 3, 4)
+TEMPORAL = {"max_step_m": 1e-3, "max_accel_m": 0.6e-3, "max_residual_change_px": 0.5, "min_motion_m": 0.2e-3,
+            "loose_gates": (3.0, 2.5, 2.5), "gates": (2.0, 1.5, 1.5), "degree": 3}
 
 
 def openptv_result(frame: int):
@@ -162,7 +178,8 @@ def corner_distortion_change(cam, ref) -> float:
     return float(np.max(np.linalg.norm(disp(cam) - disp(ref), axis=1)))
 
 
-def run(frames: list[int], selfcal_seed: str = "imported", dense: bool = True, body_weight: float = 1.0) -> dict:
+def run(frames: list[int], selfcal_seed: str = "imported", dense: bool = True, body_weight: float = 1.0,
+        variants: bool = False) -> dict:
     imported = openptv.load_cameras(DATA)
     straight = [c.without_window() for c in imported]
     body = openptv.calibrate_body_folder(DATA, imported, media=openptv.PHYSICAL_MEDIA, **openptv.BODY_FIT)
@@ -191,6 +208,9 @@ def run(frames: list[int], selfcal_seed: str = "imported", dense: bool = True, b
         c.name: float(np.sqrt(np.nanmean(np.sum((c.project(pts) - px) ** 2, 1)))) for c, px in zip(seed_cams, body_px)}
     out["self_calibrated"] = {}
     out["calibration_body_rms_px_self_calibrated"] = dict(zip(out["calibration_body_rms_px"], sc.body_rms_px.tolist()))
+    out["temporal"], out["temporal_diagnostics"] = temporal(frames, sc.cameras)
+    if variants:
+        out["temporal_diagnostics"]["variants"] = temporal_variants(frames, sc.cameras)
     for f in frames:
         if dense:
             dets = openptv.detect_frame(DATA, f, **DETECTION)
@@ -207,6 +227,111 @@ def run(frames: list[int], selfcal_seed: str = "imported", dense: bool = True, b
                                                                        ("self_calibrated", sc.cameras))}
         if selfcal_seed != "imported":
             out["self_calibration"]["tight_gates"][str(f)]["seed"] = _real_and_decoy(f, bright, seed_cams)
+    return out
+
+
+#: ``--temporal-variants``: TEMPORAL with one setting changed at a time (key temporal_diagnostics.variants)
+TEMPORAL_VARIANTS = {"second difference <= 0.4 mm": {"max_accel_m": 0.4e-3},
+                     "second difference <= 0.8 mm": {"max_accel_m": 0.8e-3},
+                     "residual change <= 0.4 px": {"max_residual_change_px": 0.4},
+                     "residual change <= 0.7 px": {"max_residual_change_px": 0.7},
+                     "no residual test": {"max_residual_change_px": float("inf")},
+                     "static chains allowed": {"min_motion_m": 0.0},
+                     "extend_pairs on": {"extend": True}}
+
+
+def temporal_variants(frames: list[int], cams: list) -> dict:
+    """Per TEMPORAL_VARIANTS entry and frame of ``frames``: points seen by >= 3 cameras, >= 3-view matches with
+    camera 1, real and decoy, and the reprojection RMS (px)."""
+    from reconstruction.temporal_matching import match_over_time
+
+    bounds = selfcal_bounds()
+    dets = [openptv.detect_frame(DATA, f, **DETECTION) for f in TEMPORAL_FRAMES]
+    decoy = [[d[0] + np.asarray(DECOY_SHIFT_PX), *d[1:]] for d in dets]
+    out = {}
+    for name, change in TEMPORAL_VARIANTS.items():
+        opts = {**TEMPORAL, **change}
+        tm, tm_decoy = match_over_time(dets, cams, bounds, **opts)[0], match_over_time(decoy, cams, bounds, **opts)[0]
+        out[name] = {str(f): {"our_points_3plus_views": int(((tm.observations[t] >= 0).sum(1) >= 3).sum()),
+                              "our_points_3plus_views_with_cam1": _with_cam1(tm.observations[t]),
+                              "decoy_points_3plus_views_with_cam1": _with_cam1(tm_decoy.observations[t]),
+                              "reprojection_rms_px_ours": float(np.sqrt(np.nanmean(tm.rms[t] ** 2)))}
+                     for f in frames for t in [TEMPORAL_FRAMES.index(f)]}
+    return out
+
+
+def temporal(frames: list[int], cams: list) -> tuple[dict, dict]:
+    """Matching over time (TEMPORAL) with ``cams`` on DETECTION's particles of TEMPORAL_FRAMES, the same with
+    camera 1's detections moved by DECOY_SHIFT_PX in every frame (the whole pipeline, correction included), per
+    frame of ``frames``; diagnostics: without the pixel correction, the correction's size, and per frame the
+    true >= 3-view matches with camera 1 among the single-frame candidates (estimated from the decoy)."""
+    from reconstruction.temporal_matching import match_over_time
+
+    bounds = selfcal_bounds()
+    dets = [openptv.detect_frame(DATA, f, **DETECTION) for f in TEMPORAL_FRAMES]
+    decoy = [[d[0] + np.asarray(DECOY_SHIFT_PX), *d[1:]] for d in dets]
+    runs = {}
+    for name, degree in (("corrected", TEMPORAL["degree"]), ("no_correction", 0)):
+        opts = {**TEMPORAL, "degree": degree}
+        runs[name] = (match_over_time(dets, cams, bounds, **opts), match_over_time(decoy, cams, bounds, **opts)[0])
+    out, diag = {}, {"settings": {k: list(v) if isinstance(v, tuple) else v for k, v in TEMPORAL.items()},
+                     "no_correction": {}, "candidates_with_cam1": {}}
+    (tm, corrected, coef), tm_decoy = runs["corrected"]
+    sizes = [c.image_size for c in cams]
+    diag["correction_rms_px"] = [float(np.sqrt(np.mean(np.sum((a - b) ** 2, 1))))
+                                 for a, b in zip(corrected[1], dets[1])]
+    diag["correction_max_px"] = _correction_max(coef, sizes)
+    for f in frames:
+        t = TEMPORAL_FRAMES.index(f)
+        out[str(f)] = _temporal_figures(f, tm, tm_decoy, t, corrected[t], cams)
+        (m0, c0, _), d0 = runs["no_correction"]
+        diag["no_correction"][str(f)] = _temporal_figures(f, m0, d0, t, c0[t], cams)
+        diag["candidates_with_cam1"][str(f)] = _true_candidates(dets[t], decoy[t], cams, bounds)
+    return out, diag
+
+
+def _correction_max(coef, sizes) -> list[float]:
+    """Largest correction (px) of each camera over a 33 x 33 lattice of its image."""
+    from reconstruction.temporal_matching import apply_pixel_correction
+
+    grids = [np.stack(np.meshgrid(np.linspace(0, W - 1, 33), np.linspace(0, H - 1, 33)), -1).reshape(-1, 2)
+             for W, H in sizes]
+    moved = apply_pixel_correction(grids, coef, sizes)
+    return [float(np.max(np.linalg.norm(m - g, axis=1))) for m, g in zip(moved, grids)]
+
+
+def _temporal_figures(frame: int, tm, tm_decoy, t: int, dets: list, cams: list) -> dict:
+    """The issue's per-frame keys for frame index ``t`` of a TemporalMatch, and the decoy count."""
+    obs, X = tm.observations[t], tm.points[t]
+    nv = (obs >= 0).sum(axis=1)
+    out = {"our_points": int(len(obs)), "our_points_3plus_views": int((nv >= 3).sum()),
+           "reprojection_rms_px_ours": float(np.sqrt(np.nanmean(tm.rms[t] ** 2))),
+           "our_points_3plus_views_with_cam1": _with_cam1(obs),
+           "decoy_points_3plus_views_with_cam1": _with_cam1(tm_decoy.observations[t]),
+           "recovered_from_tracks": int(tm.n_recovered[t]), "candidates": int(tm.n_candidates[t]),
+           "candidates_in_smooth_triplets": int(tm.n_supported[t])}
+    P, tgt = openptv_result(frame)
+    if P is not None:
+        out["openptv_points_3plus_views"] = int(((tgt >= 0).sum(axis=1) >= 3).sum())
+        out["reprojection_median_px_openptv"] = _openptv_reprojection(P, tgt, dets, cams)
+        out["agree_within_0p3mm"] = float(np.mean(cKDTree(X).query(P)[0] <= 0.3e-3)) if len(X) else 0.0
+    return out
+
+
+def _true_candidates(dets: list, decoy: list, cams: list, bounds) -> dict:
+    """Single-frame candidates (frame_candidates) with camera 1, per gate set (epipolar, radius, residual px): camera 1
+    detections taking part, real and decoy, and the true ones estimated as (real - decoy) / (1 - decoy / n_cam1)
+    (a detection with a true match also takes part by chance at the decoy's rate)."""
+    from reconstruction.temporal_matching import frame_candidates
+
+    out = {}
+    for g in (TEMPORAL["gates"], TEMPORAL["loose_gates"]):
+        n = []
+        for d in (dets, decoy):
+            obs = frame_candidates(d, cams, bounds, epipolar_px=g[0], radius_px=g[1], max_residual_px=g[2]).observations
+            n.append(len(np.unique(obs[obs[:, 0] >= 0, 0])))
+        out["/".join(f"{v:g}" for v in g)] = {"cam1_detections_real": n[0], "cam1_detections_decoy": n[1],
+                                              "true_estimate": float((n[0] - n[1]) / (1 - n[1] / len(dets[0])))}
     return out
 
 
@@ -284,8 +409,8 @@ def table(res: dict) -> str:
             "reprojection_median_px_openptv", "agree_within_0p3mm", "our_points_3plus_views_with_cam1",
             "decoy_points_3plus_views_with_cam1"]
     lines = ["| calibration | frame | " + " | ".join(keys) + " |", "|" + "---|" * (len(keys) + 2)]
-    for cal in ("imported", "own", "self_calibrated", "no_refraction"):
-        for f, row in res[cal].items():
+    for cal in ("imported", "own", "self_calibrated", "temporal", "no_refraction"):
+        for f, row in res.get(cal, {}).items():
             lines.append(f"| {cal} | {f} | " + " | ".join(_fmt(row.get(k)) for k in keys) + " |")
     lines.append("")
     lines.append("calibration body RMS, own (px): " + ", ".join(f"{k} {v:.3f}" for k, v in res["calibration_body_rms_px"].items()))
@@ -321,6 +446,9 @@ def main(argv=None) -> int:
                     help="weight of the body's dot residuals against the particles' in the self-calibration")
     ap.add_argument("--skip-dense", action="store_true",
                     help="development: skip the imported/own/no_refraction matchings (the issue's keys stay empty)")
+    ap.add_argument("--temporal-variants", action="store_true",
+                    help="also the matching over time with one setting changed at a time (TEMPORAL_VARIANTS; "
+                         "about 1 min each)")
     a = ap.parse_args(argv)
     if a.openptv_check:
         print(json.dumps(openptv_check(a.frames), indent=1))
@@ -336,7 +464,8 @@ def main(argv=None) -> int:
     if not (DATA / "parameters" / "ptv.par").is_file():
         print(f"data not found: {DATA}", file=sys.stderr)
         return 1
-    res = run(a.frames, selfcal_seed=a.selfcal_seed, dense=not a.skip_dense, body_weight=a.body_weight)
+    res = run(a.frames, selfcal_seed=a.selfcal_seed, dense=not a.skip_dense, body_weight=a.body_weight,
+              variants=a.temporal_variants)
     print(json.dumps(res, indent=1) if a.json else table(res))
     return 0
 
