@@ -30,6 +30,7 @@ truth), with three calibrations:
         # key temporal: matching over time (reconstruction.temporal_matching) with the self-calibrated cameras
     python benchmarks/bench_real_data.py --rendered   # rig_sim window renderer instead
     python benchmarks/bench_real_data.py --openptv-check   # OpenPTV's own matches, re-triangulated (needs optv)
+    python benchmarks/bench_real_data.py --openptv-persistence   # how many of OpenPTV's points persist over time
 """
 
 from __future__ import annotations
@@ -404,6 +405,37 @@ def openptv_check(frames: list[int]) -> dict:
     return out
 
 
+#: OpenPTV's points shifted by this much (m) for the persistence decoy: beyond the 1 mm links, within the volume
+PERSISTENCE_DECOY_SHIFT_M = (2.0e-3, 1.5e-3, 0.0)
+
+
+def openptv_persistence() -> dict:
+    """How many of OpenPTV's own points of frames 2 and 3 continue in its frames before and after as a smooth
+    track, with TEMPORAL's criteria (links <= max_step_m, second difference <= max_accel_m, motion >=
+    min_motion_m; no residual test: OpenPTV's pixel lists are not in the data set), by number of cameras.
+    The decoy: the same points shifted by PERSISTENCE_DECOY_SHIFT_M (what chance neighbours give)."""
+    from reconstruction.temporal_matching import link_frames, smooth_triplets
+
+    res = {f: openptv_result(f) for f in range(1, 5)}
+    kw = {"max_accel_m": TEMPORAL["max_accel_m"], "min_motion_m": TEMPORAL["min_motion_m"]}
+    out = {}
+    for f in (2, 3):
+        prev, (P, tgt), nxt = res[f - 1][0], res[f], res[f + 1][0]
+        n_views = (tgt >= 0).sum(axis=1)
+        row = {}
+        for name, shift in (("real", 0.0), ("decoy", np.asarray(PERSISTENCE_DECOY_SHIFT_M))):
+            pts = [prev, P + shift, nxt]
+            links = [link_frames(pts[0], pts[1], TEMPORAL["max_step_m"]),
+                     link_frames(pts[1], pts[2], TEMPORAL["max_step_m"])]
+            persistent = np.zeros(len(P), bool)
+            persistent[smooth_triplets(pts, links, **kw)[:, 2]] = True
+            for k in (2, 3, 4):
+                row[f"{name}_{k}_views_persistent"] = int((persistent & (n_views == k)).sum())
+        row.update({f"openptv_{k}_views": int((n_views == k).sum()) for k in (2, 3, 4)})
+        out[str(f)] = row
+    return out
+
+
 def table(res: dict) -> str:
     keys = ["our_points", "our_points_3plus_views", "openptv_points_3plus_views", "reprojection_rms_px_ours",
             "reprojection_median_px_openptv", "agree_within_0p3mm", "our_points_3plus_views_with_cam1",
@@ -449,7 +481,13 @@ def main(argv=None) -> int:
     ap.add_argument("--temporal-variants", action="store_true",
                     help="also the matching over time with one setting changed at a time (TEMPORAL_VARIANTS; "
                          "about 1 min each)")
+    ap.add_argument("--openptv-persistence", action="store_true",
+                    help="instead: how many of OpenPTV's own points of frames 2-3 persist as smooth tracks in its "
+                         "frames before and after (TEMPORAL's criteria), with a decoy")
     a = ap.parse_args(argv)
+    if a.openptv_persistence:
+        print(json.dumps(openptv_persistence(), indent=1))
+        return 0
     if a.openptv_check:
         print(json.dumps(openptv_check(a.frames), indent=1))
         return 0
