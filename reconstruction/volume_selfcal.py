@@ -36,9 +36,9 @@ from scipy.optimize import least_squares
 from scipy.sparse import lil_matrix
 from scipy.spatial import cKDTree
 
-from reconstruction.calibration_body import _camera_from, _params
+from reconstruction.calibration_body import camera_parameters, camera_with_parameters
 from reconstruction.cameras import Camera
-from reconstruction.correspondence import _sampled_curve_pairs, observed_pixels
+from reconstruction.correspondence import epipolar_curve_pairs, observed_pixels
 from reconstruction.triangulation import triangulate
 
 __all__ = ["DisparityMap", "SelfCalibration", "loose_candidates", "disparity_map", "consistent_candidates",
@@ -171,7 +171,7 @@ def loose_candidates(detections: list[np.ndarray], cameras: list[Camera], bounds
         for j in range(i + 1, n):
             if _crossing_deg(cameras[i], cameras[j]) < min_crossing_deg or not (len(dets[i]) and len(dets[j])):
                 continue
-            a, b, X, _ = _sampled_curve_pairs(i, j, dets, cameras, rays, epipolar_px, (lo, hi))
+            a, b, X, _ = epipolar_curve_pairs(i, j, dets, cameras, rays, epipolar_px, (lo, hi))
             inside = np.all(np.isfinite(X) & (X >= lo) & (X <= hi), axis=1)
             obs = np.full((int(inside.sum()), n), -1, np.int64)
             obs[:, i], obs[:, j] = a[inside], b[inside]
@@ -345,7 +345,7 @@ def bundle_adjust(cameras: list[Camera], pixels: np.ndarray, points: np.ndarray,
 
     def unpack(x):
         par = x[:n_cams * n_par].reshape(n_cams, n_par)
-        return [_camera_from(par[c], cameras[c], mask) for c in range(n_cams)], x[n_cams * n_par:].reshape(-1, 3)
+        return [camera_with_parameters(par[c], cameras[c], mask) for c in range(n_cams)], x[n_cams * n_par:].reshape(-1, 3)
 
     def fun(x):
         cams, X = unpack(x)
@@ -355,7 +355,7 @@ def bundle_adjust(cameras: list[Camera], pixels: np.ndarray, points: np.ndarray,
             parts.append(body_weight * (cam.project(body[bseen[c]]) - body_pixels[c, bseen[c]]).ravel())
         return np.nan_to_num(np.concatenate(parts), nan=1e3)
 
-    x0 = np.concatenate([np.concatenate([_params(c)[mask] for c in cameras]), points.ravel()])
+    x0 = np.concatenate([np.concatenate([camera_parameters(c)[mask] for c in cameras]), points.ravel()])
     sol = least_squares(fun, x0, jac_sparsity=_sparsity(seen, bseen, n_par), loss="soft_l1", f_scale=f_scale_px,
                         x_scale="jac", method="trf", max_nfev=max_nfev)
     cams, X = unpack(sol.x)

@@ -128,7 +128,7 @@ def test_sampled_epipolar_curves_find_every_pair(frame1):
     rays = [c.rays(d) for c, d in zip(cams, dets)]
     for i, j in ((0, 1), (0, 3)):
         a1, b1, X1, _ = corr._refracted_pairs(i, j, dets, cams, rays, 1.5)
-        a2, b2, X2, _ = corr._sampled_curve_pairs(i, j, dets, cams, rays, 1.5, bounds)
+        a2, b2, X2, _ = corr.epipolar_curve_pairs(i, j, dets, cams, rays, 1.5, bounds)
         inside = [np.all((X >= bounds[0]) & (X <= bounds[1]), axis=1) for X in (X1, X2)]
         every = set(zip(a1[inside[0]], b1[inside[0]]))
         assert len(every) > 500  # measured 887 (pair 1-2) and 1,538 (pair 1-4)
