@@ -28,6 +28,7 @@ OpenCV: ``docs/decisions/0002-frames-and-shapes.md``).
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,12 +43,14 @@ from reconstruction.correspondence import epipolar_curve_pairs, observed_pixels
 from reconstruction.triangulation import triangulate
 
 __all__ = ["DisparityMap", "SelfCalibration", "loose_candidates", "disparity_map", "consistent_candidates",
-           "bundle_adjust", "body_rms", "self_calibrate", "FREE_PARAMETERS"]
+           "bundle_adjust", "body_rms", "self_calibrate", "common_view_box", "FREE_PARAMETERS"]
 
 log = logging.getLogger(__name__)
 
 #: parameter groups :func:`bundle_adjust` can free, with their indices in the body-calibration parameter vector
-FREE_PARAMETERS = {"pose": (0, 1, 2, 3, 4, 5), "principal_point": (7, 8), "k1": (9,), "k2": (10,), "window_offset": (11,),
+#: (:data:`reconstruction.calibration_body.CAMERA_PARAMETERS`)
+FREE_PARAMETERS = {"pose": (0, 1, 2, 3, 4, 5), "focal_length": (6,), "principal_point": (7, 8), "k1": (9,),
+                   "k2": (10,), "window_offset": (11,), "k3": (12,), "tangential": (13, 14), "aspect": (15,),
                    "window_tilt": (16, 17)}
 #: shrinking tolerances of :func:`self_calibrate`: (epipolar_px, radius_px, keep_px) per pass
 SCHEDULE = ((4.0, 3.0, 1.5), (3.0, 2.0, 1.0), (2.0, 1.5, 0.7), (1.5, 1.0, 0.5))
@@ -318,8 +321,8 @@ def bundle_adjust(cameras: list[Camera], pixels: np.ndarray, points: np.ndarray,
         Parameter groups refined per camera (keys of :data:`FREE_PARAMETERS`).
     f_scale_px : float
         Soft-L1 loss scale, px: residuals beyond it count linearly.
-    body_weight : float
-        Weight of a body residual relative to a particle residual.
+    body_weight : float or ndarray, shape (n_cameras,)
+        Weight of a body residual relative to a particle residual (one for all cameras, or per camera).
 
     Returns
     -------
@@ -338,6 +341,10 @@ def bundle_adjust(cameras: list[Camera], pixels: np.ndarray, points: np.ndarray,
                          f"got {body_pixels.shape}")
     mask = _free_mask(tuple(free))
     n_par = int(mask.sum())
+    weights = np.broadcast_to(np.asarray(body_weight, float), (n_cams,)) if np.ndim(body_weight) == 0 else \
+        np.asarray(body_weight, float)
+    if weights.shape != (n_cams,) or not np.all(np.isfinite(weights) & (weights >= 0)):
+        raise ValueError(f"body_weight must be one weight >= 0 or one per camera ({n_cams}); got {body_weight!r}")
     seen = np.all(np.isfinite(pixels), axis=-1)
     bseen = np.all(np.isfinite(body_pixels), axis=-1)
     if np.any(bseen.sum(axis=1) < 4):
@@ -352,7 +359,7 @@ def bundle_adjust(cameras: list[Camera], pixels: np.ndarray, points: np.ndarray,
         parts = []
         for c, cam in enumerate(cams):
             parts.append((cam.project(X[seen[c]]) - pixels[c, seen[c]]).ravel())
-            parts.append(body_weight * (cam.project(body[bseen[c]]) - body_pixels[c, bseen[c]]).ravel())
+            parts.append(weights[c] * (cam.project(body[bseen[c]]) - body_pixels[c, bseen[c]]).ravel())
         return np.nan_to_num(np.concatenate(parts), nan=1e3)
 
     x0 = np.concatenate([np.concatenate([camera_parameters(c)[mask] for c in cameras]), points.ravel()])
@@ -390,7 +397,8 @@ def body_rms(cameras: list[Camera], body: np.ndarray, body_pixels: np.ndarray) -
 def self_calibrate(frames: list[list[np.ndarray]], cameras: list[Camera], bounds, body: np.ndarray,
                    body_pixels: np.ndarray, *, schedule=SCHEDULE, grid=(2, 2, 2), free: tuple[str, ...] = ("pose",),
                    min_views: int = 3, bin_px: float = 0.2, f_scale_px: float = 0.5,
-                   body_weight: float = 1.0, min_consistent: int = 20) -> SelfCalibration:
+                   body_weight=1.0, min_consistent: int = 20,
+                   progress: Callable[[int, int, str], None] | None = None) -> SelfCalibration:
     """Volume self-calibration (module docstring): passes of loose candidates, disparity maps, consistent
     candidates and a bundle adjustment with the body, with the tolerances of ``schedule``.
 
@@ -413,14 +421,20 @@ def self_calibrate(frames: list[list[np.ndarray]], cameras: list[Camera], bounds
         Camera parameter groups refined (:data:`FREE_PARAMETERS`).
     min_views : int
         Views a candidate needs.
+    body_weight : float or ndarray, shape (n_cameras,)
+        Weight of a body residual relative to a particle residual (:func:`bundle_adjust`).
     min_consistent : int
         Fewer candidates on the disparity peaks stop the schedule (see ``SelfCalibration.message``).
+    progress : callable (done, total, what) -> None, optional
+        Called after each step (a pass, the two closing disparity maps): ``total`` = len(schedule) + 2.
     """
     if not len(schedule):
         raise ValueError("schedule must hold at least one (epipolar_px, radius_px, keep_px) pass; got none")
     cams = list(cameras)
     maps, n_cand, n_used, rms = [], [], [], []
     message = f"{len(schedule)} passes"
+    total = len(schedule) + 2
+    tick = progress if progress is not None else (lambda done, total, what: None)
     for epi, rad, keep in schedule:
         pixels, X, res = _candidates_all_frames(frames, cams, bounds, epi, rad, min_views)
         dmap = disparity_map(res, X, bounds, grid=grid, half_width_px=max(epi, rad) + 1.0, bin_px=bin_px)
@@ -439,11 +453,73 @@ def self_calibrate(frames: list[list[np.ndarray]], cameras: list[Camera], bounds
         cams, _, r = bundle_adjust(cams, pixels[:, ok], X[ok], body, body_pixels, free=free, f_scale_px=f_scale_px,
                                    body_weight=body_weight)
         rms.append(r)
+        tick(len(rms), total, f"pass {len(rms)}: particle RMS {r:.2f} px")
     epi, rad, _ = schedule[len(rms) - 1] if rms else schedule[0]
     _, X, res = _candidates_all_frames(frames, cams, bounds, epi, rad, min_views)
     maps.append(disparity_map(res, X, bounds, grid=grid, half_width_px=max(epi, rad) + 1.0, bin_px=bin_px))
+    tick(total - 1, total, "disparity after the last pass")
     epi, rad, _ = schedule[0]
     _, X, res = _candidates_all_frames(frames, cams, bounds, epi, rad, min_views)
     check = disparity_map(res, X, bounds, grid=grid, half_width_px=max(epi, rad) + 1.0, bin_px=bin_px)
+    tick(total, total, "disparity check at the first pass's tolerances")
     return SelfCalibration(cams, maps, n_cand, n_used, rms, body_rms(cams, body, body_pixels), check, message)
 
+
+
+def common_view_box(cameras: list[Camera], depth_range, *, min_views: int = 3, axis: int = 2,
+                    step: float = 2e-3) -> tuple[np.ndarray, np.ndarray]:
+    """World box of the points inside the images of at least ``min_views`` cameras between two planes.
+
+    The cameras' image borders are cast (through their windows) onto the planes ``axis = depth_range[0]``
+    and ``depth_range[1]``; a lattice of ``step`` over the box of those footprints is kept where
+    ``min_views`` cameras see it. A default measurement volume for :func:`self_calibrate` when only the
+    depth range is known (e.g. OpenPTV's ``criteria.par``).
+
+    Parameters
+    ----------
+    cameras : list of Camera
+    depth_range : (float, float)
+        Range along ``axis``, m.
+    min_views : int
+    axis : int
+        World axis of the depth (0, 1 or 2).
+    step : float
+        Lattice spacing, m.
+
+    Returns
+    -------
+    (ndarray (3,), ndarray (3,))
+        Lower and upper corners, m.
+    """
+    z0, z1 = sorted(float(v) for v in depth_range)
+    if not z1 > z0:
+        raise ValueError(f"depth_range must span a non-empty range, m; got {tuple(depth_range)}")
+    if not 1 <= min_views <= len(cameras):
+        raise ValueError(f"min_views must be in [1, {len(cameras)}]; got {min_views}")
+    feet = []
+    for cam in cameras:
+        W, H = cam.image_size
+        u = np.linspace(0.0, 1.0, 9)
+        border = np.concatenate([np.c_[u * (W - 1), np.zeros(9)], np.c_[u * (W - 1), np.full(9, H - 1.0)],
+                                 np.c_[np.zeros(9), u * (H - 1)], np.c_[np.full(9, W - 1.0), u * (H - 1)]])
+        o, d = cam.rays(border)
+        for z in (z0, z1):
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = (z - o[:, axis]) / d[:, axis]
+            feet.append((o + t[:, None] * d)[np.isfinite(t) & (t > 0)])
+    feet = np.concatenate(feet)
+    lo, hi = feet.min(axis=0), feet.max(axis=0)
+    lo[axis], hi[axis] = z0, z1
+    axes = [np.arange(lo[k], hi[k] + 0.5 * step, step) for k in range(3)]
+    X = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    views = np.zeros(len(X), np.int64)
+    for cam in cameras:
+        px = cam.project(X)
+        W, H = cam.image_size
+        with np.errstate(invalid="ignore"):
+            views += np.all(np.isfinite(px), axis=1) & (px[:, 0] >= 0) & (px[:, 0] <= W - 1) & (px[:, 1] >= 0) & \
+                (px[:, 1] <= H - 1)
+    seen = X[views >= min_views]
+    if not len(seen):
+        raise ValueError(f"no point between the planes {axis=} = {z0:.4g}..{z1:.4g} m is seen by {min_views} cameras")
+    return seen.min(axis=0), seen.max(axis=0)

@@ -106,11 +106,17 @@ def _body_media(cams: list) -> tuple[dict | None, str]:
                    f"{window.n_bath:.3f}: swapped to the physical order, glass denser than water)")
 
 
-def _import(path: Path, file_units: str, session, store: bool, out, units: str, as_json: bool, body: str | None = None) -> None:
-    """``--import``: read a calibration, check it against the session's cameras, store and/or convert it."""
+def _import(path: Path, file_units: str, session, store: bool, out, units: str, as_json: bool, body: str | None = None,
+            selfcal: dict | None = None) -> None:
+    """``--import``: read a calibration, check it against the session's cameras, optionally refine it on the
+    particles (``selfcal``: options of :func:`_self_calibrate`), store and/or convert it."""
     from reconstruction.calibration_io import cameras_to_arrays, cameras_to_toml, cameras_to_yaml
 
+    if selfcal is not None:
+        _check_selfcal_input(path, out)
     cams, meta = _read_calibration(path, file_units, body)
+    if selfcal is not None:
+        cams, meta = _self_calibrate(path, cams, meta, **selfcal)
     if out is not None and any(c.window is not None for c in cams):
         raise CliInputError(f"-o {out}: TOML/YAML files hold no window (refraction); store the calibration in a session instead")
     stored = None
@@ -133,15 +139,18 @@ def _import(path: Path, file_units: str, session, store: bool, out, units: str, 
         rms = np.asarray(rms, float) if isinstance(rms, list) and len(rms) == len(names) else None
         arrays = cameras_to_arrays(cams, None if rms is None else [rms[names.index(c.name)] for c in cams])
         try:
-            stored = write_result(session, "calibration", arrays,
-                                  {"source": str(path), "imported": True, "file_units": meta.get("units", file_units)},
-                                  {"converged": True, "n_observations": 0, "n_outliers": 0},
+            params = {"source": str(path), "imported": True, "file_units": meta.get("units", file_units)}
+            attrs = {"converged": True, "n_observations": 0, "n_outliers": 0}
+            if "self_calibration" in meta:
+                params["self_calibration"] = meta["self_calibration_settings"]
+                attrs["self_calibration"] = meta["self_calibration"]
+            stored = write_result(session, "calibration", arrays, params, attrs,
                                   units={"K": "px", "tvec": "m", "rvec": "rad", "rms": "px", "image_size": "px",
                                          "window_offset": "m", "window_thickness": "m", "window_normal": "1", "window_index": "1"})
         except SessionError as exc:
             raise CliError(str(exc)) from None
     if out is not None:
-        meta = {k: v for k, v in meta.items() if k != "units"}
+        meta = {k: v for k, v in meta.items() if k not in ("units", "self_calibration", "self_calibration_settings")}
         meta["imported_from"] = str(path)
         writer = cameras_to_toml if out.suffix.lower() == ".toml" else cameras_to_yaml
         out.write_text(writer(cams, units=units, metadata=meta))
@@ -150,6 +159,8 @@ def _import(path: Path, file_units: str, session, store: bool, out, units: str, 
     if "body_rms_px" in meta:
         summary["body_rms_px"] = meta["body_rms_px"]
         summary["media_assumed"] = meta["media_assumed"]
+    if "self_calibration" in meta:
+        summary["self_calibration"] = {**meta["self_calibration_settings"], **meta["self_calibration"]}
     if as_json:
         print_json(summary)
         return
@@ -157,10 +168,121 @@ def _import(path: Path, file_units: str, session, store: bool, out, units: str, 
     if "body_rms_px" in meta:
         console.print("calibration body RMS: " + ", ".join(f"{esc(n)} {r:.3f} px" for n, r in meta["body_rms_px"].items())
                       + f"; media assumed: {esc(meta['media_assumed'])}")
+    if "self_calibration" in meta:
+        _print_selfcal(meta["self_calibration"])
     if stored:
         console.print(f"stored as {stored} in {esc(session)}")
     if out is not None:
         console.print(f"wrote {esc(out)}")
+
+
+# ------------------------------------------------------------------------------------- --self-calibrate
+
+def _parse_frames(text: str) -> list[int]:
+    """``10000-10004`` or ``10000,10002`` (or both mixed) -> frame numbers."""
+    frames: list[int] = []
+    try:
+        for part in text.split(","):
+            lo, _, hi = part.strip().partition("-")
+            frames += list(range(int(lo), int(hi) + 1)) if hi else [int(lo)]
+    except ValueError:
+        raise CliInputError(f"--self-calibrate must list frame numbers like 10000-10004 or 10000,10002; got {text!r}") from None
+    if not frames:
+        raise CliInputError(f"--self-calibrate must name at least one frame; got {text!r}")
+    return sorted(set(frames))
+
+
+def _parse_volume(text: str | None):
+    """``XMIN,XMAX,YMIN,YMAX,ZMIN,ZMAX`` in mm -> ``(lo, hi)`` in m, or None."""
+    if text is None:
+        return None
+    try:
+        v = np.array([float(x) for x in text.split(",")]) * 1e-3
+    except ValueError:
+        v = np.zeros(0)
+    if v.shape != (6,) or not np.all(np.isfinite(v)) or np.any(v[1::2] <= v[0::2]):
+        raise CliInputError(f"--volume-mm must be XMIN,XMAX,YMIN,YMAX,ZMIN,ZMAX in mm with each min < max; got {text!r}")
+    return v[0::2], v[1::2]
+
+
+def _check_selfcal_input(path: Path, out) -> None:
+    from vfmlab import openptv
+
+    if not openptv.is_openptv_folder(path):
+        raise CliInputError(f"--self-calibrate needs an OpenPTV folder for --import (its particle images, cal/camN.tif "
+                            f"and cal/target_on_a_side.txt); got {path}")
+    if out is not None:
+        raise CliInputError(f"-o {out}: TOML/YAML files hold no window (refraction); store the self-calibration in a session")
+
+
+def _self_calibrate(folder: Path, cams: list, meta: dict, *, frames: str, images: str, body_weight: float,
+                    volume: str | None) -> tuple[list, dict]:
+    """Refine ``cams`` on the particles of ``frames`` (volume self-calibration) with progress; the cameras and
+    ``meta`` with ``self_calibration`` (figures, SI/px keys) and ``self_calibration_settings``."""
+    from vfmlab import openptv
+
+    numbers, bounds = _parse_frames(frames), _parse_volume(volume)
+    if not body_weight > 0:
+        raise CliInputError(f"--body-weight must be > 0 (the body's dots fix the gauge); got {body_weight}")
+    no_window = [c.name for c in cams if c.window is None]
+    if no_window:
+        raise CliInputError(f"--self-calibrate: cameras {no_window} of --import {folder} have no window (ptv.par's media "
+                            "are all air?); the self-calibration refines the window's tilt through glass and water")
+    with Progress(console=err_console, transient=True) as progress:
+        task = progress.add_task("self-calibration", total=None)
+
+        def tick(done, total, what):
+            progress.update(task, completed=done, total=total, description=f"self-calibration: {esc(what)}")
+
+        try:
+            sc, bounds, pts, px, dets = openptv.self_calibrate_folder(folder, cams, numbers, images=images,
+                                                                      body_weight=body_weight, bounds=bounds, progress=tick)
+        except FileNotFoundError as exc:
+            raise CliInputError(f"--self-calibrate {frames} (--particle-images {images}): {exc}") from None
+        except ValueError as exc:
+            raise CliInputError(f"--self-calibrate {frames}: {exc}") from None
+    if not sc.particle_rms_px:
+        raise CliError(f"--self-calibrate: {sc.message}; nothing stored (more frames, or a calibration closer to "
+                       "consistent, e.g. --body)")
+    out = _selfcal_meta(sc, cams, numbers, images, body_weight, bounds, pts, px, dets)
+    if not out["self_calibration"]["disparity_improved"]:
+        err_console.print("warning: --self-calibrate made the cameras less consistent (disparity peaks "
+                          f"{sc.maps[0].rms_peak_offset_px:.3f} -> {sc.check_map.rms_peak_offset_px:.3f} px RMS at the first "
+                          "pass's tolerances); a calibration whose distortion extrapolates (e.g. --body fixed) is a poor seed")
+    return sc.cameras, {**meta, **out}
+
+
+def _selfcal_meta(sc, before: list, frames, images, body_weight, bounds, pts, px, dets) -> dict:
+    """What the session and --json keep of a self-calibration (SI and px, the unit in every key)."""
+    from reconstruction.volume_selfcal import body_rms
+    from vfmlab import openptv
+
+    names = [c.name for c in before]
+    settings = {"frames": frames, "particle_images": images, "body_weight": body_weight,
+                "refined": list(openptv.SELFCAL_SETTINGS["free"]),
+                "schedule_px": [list(t) for t in openptv.SELFCAL_SETTINGS["schedule"]],
+                "volume_min_m": [float(v) for v in bounds[0]], "volume_max_m": [float(v) for v in bounds[1]]}
+    figures = {"message": sc.message, "passes_run": len(sc.particle_rms_px),
+               "particles_per_frame": {str(f): [len(d) for d in row] for f, row in zip(frames, dets)},
+               "candidates": sc.n_candidates, "consistent": sc.n_used,
+               "particle_rms_px": [float(r) for r in sc.particle_rms_px],
+               "disparity_peak_rms_px_before": sc.maps[0].rms_peak_offset_px,
+               "disparity_peak_rms_px_after": sc.check_map.rms_peak_offset_px,
+               "disparity_peak_max_px_before": sc.maps[0].max_peak_offset_px,
+               "disparity_peak_max_px_after": sc.check_map.max_peak_offset_px,
+               "disparity_improved": bool(sc.check_map.rms_peak_offset_px < sc.maps[0].rms_peak_offset_px),
+               "body_rms_px_before": dict(zip(names, body_rms(before, pts, px).tolist())),
+               "body_rms_px_after": dict(zip(names, sc.body_rms_px.tolist()))}
+    return {"self_calibration": figures, "self_calibration_settings": settings, "rms_px": sc.body_rms_px.tolist()}
+
+
+def _print_selfcal(f: dict) -> None:
+    console.print(f"self-calibration: {esc(f['message'])}; particle RMS after the last pass {f['particle_rms_px'][-1]:.3f} px")
+    console.print(f"disparity peaks at the first pass's tolerances: {f['disparity_peak_rms_px_before']:.3f} px RMS "
+                  f"(max {f['disparity_peak_max_px_before']:.3f} px) before, {f['disparity_peak_rms_px_after']:.3f} px RMS "
+                  f"(max {f['disparity_peak_max_px_after']:.3f} px) after")
+    console.print("calibration body RMS before -> after: " + ", ".join(
+        f"{esc(n)} {f['body_rms_px_before'][n]:.3f} -> {r:.3f} px" for n, r in f["body_rms_px_after"].items()))
 
 
 EPILOG = """
@@ -171,6 +293,7 @@ Examples:
   vfmlab calibrate a1.h5 --import calibration.toml --import-units mm
   vfmlab calibrate a1.h5 --refine-window                  # through the rig file's [window], its plane refined
   vfmlab calibrate a1.h5 --import openptv-project/ --body fixed   # OpenPTV cameras + window, refined on its body
+  vfmlab calibrate a1.h5 --import openptv-project/ --self-calibrate 10000-10004   # then on the particles
 """
 
 
@@ -208,6 +331,20 @@ Examples:
               help="With an OpenPTV folder: refine every camera on its image of the 3-D calibration body "
                    "(cal/camN.tif, cal/target_on_a_side.txt) through the window; 'fixed' keeps the imported focal "
                    "length, 'free' refines it too and refuses the result if one view cannot determine it.")
+@click.option("--self-calibrate", "selfcal_frames", metavar="FRAMES", default=None,
+              help="With an OpenPTV folder for --import: refine the cameras (imported, or refined on the body with "
+                   "--body) on the particles of these frames, e.g. 10000-10004 or 10000,10002 (volume "
+                   "self-calibration: pose, k1, principal point and window tilt per camera, jointly with the "
+                   "calibration body's dots; about 2 min for 5 frames). The figures before/after are stored with "
+                   "the calibration.")
+@click.option("--particle-images", default="img_1/cam{camera}.{frame}", show_default=True,
+              help="With --self-calibrate: the particle images inside the --import folder; {camera} = 1, 2, ..., "
+                   "{frame} = the frame number.")
+@click.option("--body-weight", type=float, default=0.5, show_default=True,
+              help="With --self-calibrate: weight of a calibration-body dot's residual against a particle's.")
+@click.option("--volume-mm", metavar="XMIN,XMAX,YMIN,YMAX,ZMIN,ZMAX", default=None,
+              help="With --self-calibrate: the measurement volume, mm (world frame of the calibration). Default: "
+                   "the region seen by >= 3 cameras within criteria.par's depth range (Zmin/Zmax) +- 5 mm.")
 @click.option("--import-units", type=click.Choice(["m", "cm", "mm", "um"]), default="mm", show_default=True,
               help="Length unit of an imported file's translations when the file does not say (aniposelib does not).")
 @click.option("--refine-window", is_flag=True,
@@ -216,7 +353,8 @@ Examples:
                    "recorded window is used as it is; a session without one calibrates with straight rays.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
 def command(session, images_dir, board, squares, square_size_mm, marker_size_mm, dictionary, subpix_window, reference,
-            world_view, fix_k3, out, force, units, store, import_file, import_units, body, refine_window, as_json):
+            world_view, fix_k3, out, force, units, store, import_file, selfcal_frames, particle_images, body_weight,
+            volume_mm, import_units, body, refine_window, as_json):
     """Calibrate the cameras jointly from calibration-board images.
 
     Each camera is initialised alone (OpenCV), camera poses are chained through shared board
@@ -233,8 +371,12 @@ def command(session, images_dir, board, squares, square_size_mm, marker_size_mm,
     if import_file is not None:
         if images_dir is not None:
             raise CliInputError("--import and --images exclude each other: calibrate from images or import a calibration")
-        _import(import_file, import_units, session, store, out, units, as_json, body)
+        selfcal = None if selfcal_frames is None else dict(frames=selfcal_frames, images=particle_images,
+                                                           body_weight=body_weight, volume=volume_mm)
+        _import(import_file, import_units, session, store, out, units, as_json, body, selfcal)
         return
+    if selfcal_frames is not None:
+        raise CliInputError("--self-calibrate needs --import FOLDER (an OpenPTV folder with its particle images)")
     if session is None and images_dir is None:
         raise CliInputError("give a SESSION (its calibration images) or --images DIR")
     spec = _board_spec(board, squares, square_size_mm, marker_size_mm, dictionary, subpix_window)
