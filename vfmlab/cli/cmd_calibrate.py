@@ -79,6 +79,8 @@ def _refine_on_body(folder: Path, cams: list, focal: str) -> tuple[list, dict]:
     """Refine the imported cameras on the calibration body, through the window; refuse an ill-posed result."""
     from vfmlab import openptv
 
+    if focal == "selected":
+        return _select_on_body(folder, cams)
     media, note = _body_media(cams)
     err_console.print(f"media assumed: {note}")
     res = openptv.calibrate_body_folder(folder, cams, media=media, **{**openptv.BODY_FIT, "fix_focal": focal == "fixed"})
@@ -91,6 +93,26 @@ def _refine_on_body(folder: Path, cams: list, focal: str) -> tuple[list, dict]:
     return [r.camera for r in res], {"units": "m", "rms_px": [r.rms for r in res],
                                      "body_calibration": f"{folder}/cal (focal {focal})", "media_assumed": note,
                                      "body_rms_px": {r.camera.name: float(r.rms) for r in res}}
+
+
+def _select_on_body(folder: Path, cams: list) -> tuple[list, dict]:
+    """``--body selected``: per camera only the terms the body's dots determine over the whole image, media as
+    in ptv.par (as OpenPTV's calibration was made)."""
+    from vfmlab import openptv
+
+    window = next((c.window for c in cams if c.window is not None), None)
+    note = f"{openptv.describe_media(window)} (as in ptv.par)"
+    err_console.print(f"media assumed: {note}")
+    with Progress(console=err_console, transient=True) as progress:
+        task = progress.add_task("body model selection (32 models per camera)", total=len(cams))
+        sel = openptv.select_body_folder(folder, cams, progress=lambda d, t, name: progress.update(task, completed=d))
+    for s in sel:
+        err_console.print(f"{s.calibration.camera.name}: model {s.chosen}, RMS {s.calibration.rms:.3f} px "
+                          f"(cross-validated {s.table[s.chosen]['cv_rms_px']:.3f} px)")
+    return [s.calibration.camera for s in sel], {
+        "units": "m", "rms_px": [s.calibration.rms for s in sel], "body_calibration": f"{folder}/cal (selected models)",
+        "media_assumed": note, "body_rms_px": {s.calibration.camera.name: float(s.calibration.rms) for s in sel},
+        "body_models": {s.calibration.camera.name: s.chosen for s in sel}}
 
 
 def _body_media(cams: list) -> tuple[dict | None, str]:
@@ -141,6 +163,9 @@ def _import(path: Path, file_units: str, session, store: bool, out, units: str, 
         try:
             params = {"source": str(path), "imported": True, "file_units": meta.get("units", file_units)}
             attrs = {"converged": True, "n_observations": 0, "n_outliers": 0}
+            for key in ("body_calibration", "body_models", "media_assumed"):
+                if key in meta:
+                    params[key] = meta[key]
             if "self_calibration" in meta:
                 params["self_calibration"] = meta["self_calibration_settings"]
                 attrs["self_calibration"] = meta["self_calibration"]
@@ -159,6 +184,8 @@ def _import(path: Path, file_units: str, session, store: bool, out, units: str, 
     if "body_rms_px" in meta:
         summary["body_rms_px"] = meta["body_rms_px"]
         summary["media_assumed"] = meta["media_assumed"]
+    if "body_models" in meta:
+        summary["body_models"] = meta["body_models"]
     if "self_calibration" in meta:
         summary["self_calibration"] = {**meta["self_calibration_settings"], **meta["self_calibration"]}
     if as_json:
@@ -216,7 +243,7 @@ def _check_selfcal_input(path: Path, out) -> None:
 
 
 def _self_calibrate(folder: Path, cams: list, meta: dict, *, frames: str, images: str, body_weight: float,
-                    volume: str | None) -> tuple[list, dict]:
+                    volume: str | None, body_sides: bool) -> tuple[list, dict]:
     """Refine ``cams`` on the particles of ``frames`` (volume self-calibration) with progress; the cameras and
     ``meta`` with ``self_calibration`` (figures, SI/px keys) and ``self_calibration_settings``."""
     from vfmlab import openptv
@@ -236,7 +263,8 @@ def _self_calibrate(folder: Path, cams: list, meta: dict, *, frames: str, images
 
         try:
             sc, bounds, pts, px, dets = openptv.self_calibrate_folder(folder, cams, numbers, images=images,
-                                                                      body_weight=body_weight, bounds=bounds, progress=tick)
+                                                                      body_weight=body_weight, bounds=bounds, progress=tick,
+                                                                      body_sides=body_sides)
         except FileNotFoundError as exc:
             raise CliInputError(f"--self-calibrate {frames} (--particle-images {images}): {exc}") from None
         except ValueError as exc:
@@ -244,7 +272,7 @@ def _self_calibrate(folder: Path, cams: list, meta: dict, *, frames: str, images
     if not sc.particle_rms_px:
         raise CliError(f"--self-calibrate: {sc.message}; nothing stored (more frames, or a calibration closer to "
                        "consistent, e.g. --body)")
-    out = _selfcal_meta(sc, cams, numbers, images, body_weight, bounds, pts, px, dets)
+    out = _selfcal_meta(sc, cams, numbers, images, body_weight, bounds, pts, px, dets, body_sides)
     if not out["self_calibration"]["disparity_improved"]:
         err_console.print("warning: --self-calibrate made the cameras less consistent (disparity peaks "
                           f"{sc.maps[0].rms_peak_offset_px:.3f} -> {sc.check_map.rms_peak_offset_px:.3f} px RMS at the first "
@@ -252,7 +280,7 @@ def _self_calibrate(folder: Path, cams: list, meta: dict, *, frames: str, images
     return sc.cameras, {**meta, **out}
 
 
-def _selfcal_meta(sc, before: list, frames, images, body_weight, bounds, pts, px, dets) -> dict:
+def _selfcal_meta(sc, before: list, frames, images, body_weight, bounds, pts, px, dets, body_sides: bool) -> dict:
     """What the session and --json keep of a self-calibration (SI and px, the unit in every key)."""
     from reconstruction.volume_selfcal import body_rms
     from vfmlab import openptv
@@ -260,7 +288,7 @@ def _selfcal_meta(sc, before: list, frames, images, body_weight, bounds, pts, px
     names = [c.name for c in before]
     settings = {"frames": frames, "particle_images": images, "body_weight": body_weight,
                 "refined": list(openptv.SELFCAL_SETTINGS["free"]),
-                "schedule_px": [list(t) for t in openptv.SELFCAL_SETTINGS["schedule"]],
+                "schedule_px": [list(t) for t in openptv.SELFCAL_SETTINGS["schedule"]], "body_sides": body_sides,
                 "volume_min_m": [float(v) for v in bounds[0]], "volume_max_m": [float(v) for v in bounds[1]]}
     figures = {"message": sc.message, "passes_run": len(sc.particle_rms_px),
                "particles_per_frame": {str(f): [len(d) for d in row] for f, row in zip(frames, dets)},
@@ -271,6 +299,8 @@ def _selfcal_meta(sc, before: list, frames, images, body_weight, bounds, pts, px
                "disparity_peak_max_px_before": sc.maps[0].max_peak_offset_px,
                "disparity_peak_max_px_after": sc.check_map.max_peak_offset_px,
                "disparity_improved": bool(sc.check_map.rms_peak_offset_px < sc.maps[0].rms_peak_offset_px),
+               "body_offset_m": sc.body_offset_m,
+               "body_far_side_cameras": [] if sc.far_side is None else [n for n, f in zip(names, sc.far_side) if f],
                "body_rms_px_before": dict(zip(names, body_rms(before, pts, px).tolist())),
                "body_rms_px_after": dict(zip(names, sc.body_rms_px.tolist()))}
     return {"self_calibration": figures, "self_calibration_settings": settings, "rms_px": sc.body_rms_px.tolist()}
@@ -281,6 +311,9 @@ def _print_selfcal(f: dict) -> None:
     console.print(f"disparity peaks at the first pass's tolerances: {f['disparity_peak_rms_px_before']:.3f} px RMS "
                   f"(max {f['disparity_peak_max_px_before']:.3f} px) before, {f['disparity_peak_rms_px_after']:.3f} px RMS "
                   f"(max {f['disparity_peak_max_px_after']:.3f} px) after")
+    if f["body_far_side_cameras"]:
+        console.print(f"body as {esc(', '.join(f['body_far_side_cameras']))} see it (its other side): offset "
+                      f"{1e3 * f['body_offset_m']:+.3f} mm along its normal")
     console.print("calibration body RMS before -> after: " + ", ".join(
         f"{esc(n)} {f['body_rms_px_before'][n]:.3f} -> {r:.3f} px" for n, r in f["body_rms_px_after"].items()))
 
@@ -327,10 +360,12 @@ Examples:
               help="Take the calibration from a file instead of board images: aniposelib calibration.toml, "
                    "OpenCV FileStorage .yaml/.yml/.xml/.json, or an OpenPTV working folder (parameters/ptv.par, "
                    "cal/*.ori + .addpar: cameras with their glass/water window). Store it in SESSION and/or convert it with -o.")
-@click.option("--body", type=click.Choice(["fixed", "free"]), default=None,
+@click.option("--body", type=click.Choice(["fixed", "free", "selected"]), default=None,
               help="With an OpenPTV folder: refine every camera on its image of the 3-D calibration body "
                    "(cal/camN.tif, cal/target_on_a_side.txt) through the window; 'fixed' keeps the imported focal "
-                   "length, 'free' refines it too and refuses the result if one view cannot determine it.")
+                   "length, 'free' refines it too and refuses the result if one view cannot determine it; 'selected' "
+                   "refines per camera only the terms the dots determine over the whole image (the better seed for "
+                   "--self-calibrate; a few minutes).")
 @click.option("--self-calibrate", "selfcal_frames", metavar="FRAMES", default=None,
               help="With an OpenPTV folder for --import: refine the cameras (imported, or refined on the body with "
                    "--body) on the particles of these frames, e.g. 10000-10004 or 10000,10002 (volume "
@@ -342,6 +377,10 @@ Examples:
                    "{frame} = the frame number.")
 @click.option("--body-weight", type=float, default=0.5, show_default=True,
               help="With --self-calibrate: weight of a calibration-body dot's residual against a particle's.")
+@click.option("--body-sides/--one-body", default=True, show_default=True,
+              help="With --self-calibrate: cameras looking at the calibration body from its other side see it offset "
+                   "along its normal by a distance refined with the cameras (a body whose dots are seen from both "
+                   "faces, the target file giving one; test_cavity: 1.8-2.0 mm), or one body for all cameras.")
 @click.option("--volume-mm", metavar="XMIN,XMAX,YMIN,YMAX,ZMIN,ZMAX", default=None,
               help="With --self-calibrate: the measurement volume, mm (world frame of the calibration). Default: "
                    "the region seen by >= 3 cameras within criteria.par's depth range (Zmin/Zmax) +- 5 mm.")
@@ -354,7 +393,7 @@ Examples:
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
 def command(session, images_dir, board, squares, square_size_mm, marker_size_mm, dictionary, subpix_window, reference,
             world_view, fix_k3, out, force, units, store, import_file, selfcal_frames, particle_images, body_weight,
-            volume_mm, import_units, body, refine_window, as_json):
+            body_sides, volume_mm, import_units, body, refine_window, as_json):
     """Calibrate the cameras jointly from calibration-board images.
 
     Each camera is initialised alone (OpenCV), camera poses are chained through shared board
@@ -372,7 +411,8 @@ def command(session, images_dir, board, squares, square_size_mm, marker_size_mm,
         if images_dir is not None:
             raise CliInputError("--import and --images exclude each other: calibrate from images or import a calibration")
         selfcal = None if selfcal_frames is None else dict(frames=selfcal_frames, images=particle_images,
-                                                           body_weight=body_weight, volume=volume_mm)
+                                                           body_weight=body_weight, volume=volume_mm,
+                                                           body_sides=body_sides)
         _import(import_file, import_units, session, store, out, units, as_json, body, selfcal)
         return
     if selfcal_frames is not None:
