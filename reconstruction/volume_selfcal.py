@@ -435,12 +435,20 @@ def body_normal(body: np.ndarray) -> np.ndarray:
     return n if n[k] > 0 else -n
 
 
-def far_side(cameras: list[Camera], body: np.ndarray) -> np.ndarray:
-    """Cameras ``(n_cameras,)`` bool looking at the body from the other side than the first camera (the
-    sign of their optical axis along :func:`body_normal`)."""
+def far_side(cameras: list[Camera], body: np.ndarray, body_pixels: np.ndarray | None = None) -> np.ndarray:
+    """Cameras ``(n_cameras,)`` bool looking at the body from its far side (the sign of their optical axis
+    along :func:`body_normal`). The near side, whose view the body's coordinates describe, is the one whose
+    cameras see the most of its points in ``body_pixels`` ``(n_cameras, n_body, 2)`` (the face with every
+    dot; from behind some are hidden); without ``body_pixels``, or on a tie, the first camera's side."""
     n = body_normal(body)
     side = np.array([np.sign(c.R[2] @ n) for c in cameras])
-    return side != side[0]
+    near = side[0]
+    if body_pixels is not None:
+        seen = np.all(np.isfinite(np.asarray(body_pixels, float)), axis=-1).sum(axis=1)
+        count = {v: int(seen[side == v].sum()) for v in np.unique(side)}
+        best = max(count.values())
+        near = side[0] if count[side[0]] == best else next(v for v, k in count.items() if k == best)
+    return side != near
 
 
 def self_calibrate(frames: list[list[np.ndarray]], cameras: list[Camera], bounds, body: np.ndarray,
@@ -487,7 +495,7 @@ def self_calibrate(frames: list[list[np.ndarray]], cameras: list[Camera], bounds
     maps, n_cand, n_used, rms = [], [], [], []
     message = f"{len(schedule)} passes"
     total = len(schedule) + 2
-    far = far_side(cams, body) if body_sides else None
+    far = far_side(cams, body, body_pixels) if body_sides else None
     far = far if far is not None and np.any(far) else None
     offset = 0.0
     tick = progress if progress is not None else (lambda done, total, what: None)
