@@ -119,23 +119,25 @@ def run() -> dict:
             P, X = _kept_particles(base, frames, bounds)
             sp = np.sqrt(np.nanmean(np.sum((np.stack([c.project(X) for c in base.cameras]) - P) ** 2, -1), axis=1))
             opts = {"body_weight": sp / V.body_rms(seed, pts, px)}
-        body, dots = pts, clean if use_clean else px
+        body, all_dots, clean_dots = pts, px.copy(), clean.copy()
         opts = dict(opts)
         if "z_scale" in opts:  # the body's depth levels scaled
             body = pts * np.array([1.0, 1.0, opts.pop("z_scale")])
         if "far_shift_mm" in opts:  # cameras 3-4 see the body shifted along z (to first order: their dots moved)
             d = np.array([0.0, 0.0, 1e-3 * opts.pop("far_shift_mm")])
-            dots = dots.copy()
             for c in (2, 3):
-                dots[c] = dots[c] - (seed[c].project(pts + d) - seed[c].project(pts))
+                move = seed[c].project(pts + d) - seed[c].project(pts)
+                all_dots[c] -= move
+                clean_dots[c] -= move
+        dots = clean_dots if use_clean else all_dots
         t = time.perf_counter()
         sc = V.self_calibrate(frames, seed, bounds, body, dots, **{**B.SELFCAL, **opts})
         base = base or sc
         res["variants"][name] = {
             "s": time.perf_counter() - t, "message": sc.message,
             "body_weight": np.round(np.atleast_1d(opts.get("body_weight", 1.0)), 3).tolist(),
-            "body_rms_px": sc.body_rms_px.tolist() if not use_clean else V.body_rms(sc.cameras, body, px).tolist(),
-            "body_rms_px_clean_dots": V.body_rms(sc.cameras, body, clean, sc.far_side, sc.body_offset_m).tolist(),
+            "body_rms_px": V.body_rms(sc.cameras, body, all_dots, sc.far_side, sc.body_offset_m).tolist(),
+            "body_rms_px_clean_dots": V.body_rms(sc.cameras, body, clean_dots, sc.far_side, sc.body_offset_m).tolist(),
             "body_offset_mm": 1e3 * sc.body_offset_m,
             "check_rms_px": [sc.maps[0].rms_peak_offset_px, sc.check_map.rms_peak_offset_px],
             "check_max_px": [sc.maps[0].max_peak_offset_px, sc.check_map.max_peak_offset_px],
