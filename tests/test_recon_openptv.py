@@ -405,3 +405,32 @@ def test_cli_self_calibration_stored_with_its_figures_and_bad_input_named(tmp_pa
         err = capsys.readouterr().err
         assert "--self-calibrate" in err or "--volume-mm" in err, err
         assert words in err, (args, err)
+
+
+def test_cli_body_selected_keeps_the_terms_the_dots_determine(tmp_path, capsys, monkeypatch):
+    # vfmlab calibrate --import FOLDER --body selected: select_body_model per camera (here among two models, pose and
+    # pose + principal point, to stay within the CI budget; all 32: ~2.5 min of CPU, docs/calibration.md). Measured
+    # with all 32: pose + principal point (cameras 1-2), pose + window tilt (3-4), 0.22-0.70 px.
+    import json
+
+    from acquisition.session import CameraSpec, SessionWriter, SpecimenInfo, open_session
+    from reconstruction import calibration_body
+    from vfmlab.cli import main
+
+    monkeypatch.setattr(calibration_body, "body_models", lambda: {"pose": (), "pose+principal_point": ("cx", "cy")})
+    session = tmp_path / "s.h5"
+    specs = [CameraSpec(f"cam{i}", "imported", 1280, 1024, "uint8") for i in range(1, 5)]
+    with SessionWriter.create(session, SpecimenInfo("cavity", 5e-3, 50e-3, 0.5e-3, ""), cameras=specs, protocol_text="", rig={}):
+        pass
+    assert main(["calibrate", str(session), "--import", str(DATA), "--body", "selected", "--json"]) == 0
+    captured = capsys.readouterr()
+    out = json.loads(captured.out)
+    assert set(out["body_models"].values()) <= {"pose", "pose+principal_point"} and len(out["body_models"]) == 4
+    assert all(0 < r < 1.0 for r in out["body_rms_px"].values()), out["body_rms_px"]
+    assert "(as in ptv.par)" in out["media_assumed"] and "model pose" in captured.err
+    imported = openptv.load_cameras(DATA)
+    with open_session(session) as s:
+        res = s.result(out["stored_as"])
+    assert res["parameters"]["body_models"] == out["body_models"]
+    K = res["arrays"]["K"]
+    assert np.allclose(K[:, 0, 0], [c.K[0, 0] for c in imported])  # the focal length is never refined
