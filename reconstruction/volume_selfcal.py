@@ -19,7 +19,9 @@ uses the particles themselves:
    ``keep_px`` of its sub-volume's peak in every camera.
 4. **Bundle adjustment** (:func:`bundle_adjust`): the cameras (pose, optionally principal point, k1, k2, the
    window's position and tilt) and the candidates' 3-D points on their pixel residuals, jointly with the
-   calibration body's dots (known 3-D points: they fix the gauge and the scale), with a robust loss.
+   calibration body's dots (known 3-D points: they fix the gauge and the scale), with a robust loss;
+   optionally (``body_sides``) the body as the cameras on its far side see it is offset along its normal by
+   a refined distance (a body whose dots are seen from both faces, its file giving one: :func:`far_side`).
 
 :func:`self_calibrate` repeats 1-4 with shrinking tolerances. Pure functions over arrays (metres, pixels as
 OpenCV: ``docs/decisions/0002-frames-and-shapes.md``).
