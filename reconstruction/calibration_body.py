@@ -34,11 +34,15 @@ from reconstruction.refraction import Window
 
 __all__ = ["BodyCalibration", "BodyModelSelection", "BODY_TERM_GROUPS", "body_models", "match_body_points",
            "refine_dot_centres",
-           "calibrate_from_body", "select_body_model", "coverage_points", "projection_sigma_px"]
+           "calibrate_from_body", "select_body_model", "coverage_points", "projection_sigma_px",
+           "CAMERA_PARAMETERS", "camera_parameters", "camera_with_parameters"]
 
 log = logging.getLogger(__name__)
 
-_NAMES = ("rx", "ry", "rz", "tx", "ty", "tz", "f", "cx", "cy", "k1", "k2", "window_offset",
+#: the parameters of a camera the body calibration and the volume self-calibration refine, in the order of
+#: :func:`camera_parameters` (pose rvec (rad) and tvec (m), focal length fy (px), principal point (px), distortion,
+#: window offset (m), aspect fx/fy, the window normal's two tilts (rad) relative to its current direction)
+CAMERA_PARAMETERS = ("rx", "ry", "rz", "tx", "ty", "tz", "f", "cx", "cy", "k1", "k2", "window_offset",
           "k3", "p1", "p2", "aspect", "window_tilt_a", "window_tilt_b")
 
 
@@ -60,7 +64,7 @@ class BodyCalibration:
     inliers : ndarray of bool, shape (n_points,)
         Points the final fit used (seen and not rejected).
     covariance : ndarray, shape (k, k), optional
-        Covariance of the refined parameters ``free`` (their order in ``_NAMES``; tilts relative to the
+        Covariance of the refined parameters ``free`` (their order in ``CAMERA_PARAMETERS``; tilts relative to the
         result's window normal), from the inverse normal matrix: poor when terms nearly trade off (the window
         tilt and the pose); :func:`projection_sigma_px` recomputes it stably.
     free : tuple of str
@@ -170,8 +174,10 @@ def _tilt_basis(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return a, np.cross(normal, a)
 
 
-def _camera_from(x: np.ndarray, seed: Camera, free: np.ndarray) -> Camera:
-    p = _params(seed)
+def camera_with_parameters(x: np.ndarray, seed: Camera, free: np.ndarray) -> Camera:
+    """``seed`` with the parameters selected by ``free`` (bool, shape (18,), order of :data:`CAMERA_PARAMETERS`)
+    replaced by ``x`` (shape (free.sum(),)); the inverse of ``camera_parameters(cam)[free]``."""
+    p = camera_parameters(seed)
     p[free] = x
     K = seed.K.copy()
     K[0, 0], K[1, 1], K[0, 2], K[1, 2] = p[6] * p[15], p[6], p[7], p[8]
@@ -184,7 +190,9 @@ def _camera_from(x: np.ndarray, seed: Camera, free: np.ndarray) -> Camera:
     return replace(seed, K=K, dist=dist, rvec=p[0:3], tvec=p[3:6], window=win)
 
 
-def _params(cam: Camera) -> np.ndarray:
+def camera_parameters(cam: Camera) -> np.ndarray:
+    """The parameter vector ``(18,)`` of ``cam`` in the order of :data:`CAMERA_PARAMETERS` (rad, m, px; the
+    window's tilts are 0: they are relative to its current normal)."""
     off = cam.window.offset if cam.window is not None else 0.0
     d = cam.dist
     return np.array([*cam.rvec, *cam.tvec, cam.K[1, 1], cam.K[0, 2], cam.K[1, 2], d[0], d[1], off,
@@ -193,7 +201,7 @@ def _params(cam: Camera) -> np.ndarray:
 
 def _free_mask(seed: Camera, *, fix_focal, refine_k2, refine_k3, refine_tangential, refine_aspect, refine_window,
                refine_window_tilt) -> np.ndarray:
-    free = np.zeros(len(_NAMES), bool)
+    free = np.zeros(len(CAMERA_PARAMETERS), bool)
     free[[0, 1, 2, 3, 4, 5, 7, 8, 9]] = True
     has_window = seed.window is not None
     for i, on in ((6, not fix_focal), (10, refine_k2), (11, refine_window and has_window), (12, refine_k3),
@@ -204,15 +212,15 @@ def _free_mask(seed: Camera, *, fix_focal, refine_k2, refine_k3, refine_tangenti
 
 
 def _terms_mask(seed: Camera, terms) -> np.ndarray:
-    """Free-parameter mask of the pose plus ``terms`` (names of :data:`_NAMES`; ``window_tilt`` = both tilts)."""
+    """Free-parameter mask of the pose plus ``terms`` (names of :data:`CAMERA_PARAMETERS`; ``window_tilt`` = both tilts)."""
     names = {"window_tilt_a", "window_tilt_b"} if "window_tilt" in terms else set()
     names |= set(terms) - {"window_tilt", "pose"}
-    unknown = names - set(_NAMES)
+    unknown = names - set(CAMERA_PARAMETERS)
     if unknown:
-        raise ValueError(f"terms must be names of {_NAMES + ('window_tilt',)}; got unknown {sorted(unknown)}")
+        raise ValueError(f"terms must be names of {CAMERA_PARAMETERS + ('window_tilt',)}; got unknown {sorted(unknown)}")
     if seed.window is None:
         names -= {"window_tilt_a", "window_tilt_b", "window_offset"}
-    free = np.array([n in names for n in _NAMES])
+    free = np.array([n in names for n in CAMERA_PARAMETERS])
     free[:6] = True
     return free
 
@@ -279,15 +287,15 @@ def calibrate_from_body(
     if seen.sum() * 2 <= free.sum() + 2:
         raise ValueError(f"calibrate_from_body: {int(seen.sum())} matched points cannot fix {int(free.sum())} parameters")
     ok = seen
-    x0 = _params(seed)[free]
+    x0 = camera_parameters(seed)[free]
     if reject_sigma is not None:
         robust = _fit(pixels, body, seed, free, ok, x0, loss="soft_l1")
-        ok = _inliers(_residuals(_camera_from(robust.x, seed, free), body, pixels), seen, reject_sigma)
+        ok = _inliers(_residuals(camera_with_parameters(robust.x, seed, free), body, pixels), seen, reject_sigma)
         x0 = robust.x
         if ok.sum() * 2 <= free.sum() + 2:
-            ok, x0 = seen, _params(seed)[free]
+            ok, x0 = seen, camera_parameters(seed)[free]
     sol = _fit(pixels, body, seed, free, ok, x0)
-    cam = _camera_from(sol.x, seed, free)
+    cam = camera_with_parameters(sol.x, seed, free)
     res = _residuals(cam, body, pixels)
     rms = float(np.sqrt(np.nanmean(np.sum(res[ok] ** 2, axis=1))))
     return _assess(cam, sol, free, res, rms, ok, sigma_px, max_focal_rel_sigma)
@@ -295,7 +303,7 @@ def calibrate_from_body(
 
 def _fit(pixels, body, seed, free, ok, x0, loss="linear"):
     def residual(x):
-        r = _camera_from(x, seed, free).project(body[ok]) - pixels[ok]
+        r = camera_with_parameters(x, seed, free).project(body[ok]) - pixels[ok]
         return np.nan_to_num(r, nan=1e3).ravel()
 
     if loss == "linear":
@@ -329,7 +337,7 @@ def _assess(cam, sol, free, res, rms, ok, sigma_px, max_rel) -> BodyCalibration:
     except np.linalg.LinAlgError:
         cov = None
         sig = np.full(int(free.sum()), np.inf)
-    names = tuple(np.array(_NAMES)[free].tolist())
+    names = tuple(np.array(CAMERA_PARAMETERS)[free].tolist())
     sigma = dict(zip(names, sig.tolist()))
     f = cam.K[1, 1]
     rel = sigma.get("f", 0.0) / f
@@ -387,7 +395,7 @@ def projection_sigma_px(result: BodyCalibration, body: np.ndarray, points: np.nd
     The Jacobians at the dots and at ``points`` come from the same central differences, and the normal
     matrix is inverted through the SVD of the column-scaled Jacobian (the window tilt and the pose nearly
     trade off: a plain inverse of the normal matrix loses the cancellation)."""
-    free = np.array([n in result.free for n in _NAMES])
+    free = np.array([n in result.free for n in CAMERA_PARAMETERS])
     dots = np.asarray(body, float)[result.inliers]
     Jb = _projection_jacobian(result.camera, free, dots).reshape(-1, int(free.sum()))
     Jp = _projection_jacobian(result.camera, free, np.asarray(points, float))  # (n, 2, k)
@@ -403,10 +411,10 @@ def projection_sigma_px(result: BodyCalibration, body: np.ndarray, points: np.nd
 
 def _projection_jacobian(camera: Camera, free: np.ndarray, points: np.ndarray) -> np.ndarray:
     """d project(points) / d parameters ``(n, 2, k)`` around ``camera`` (central differences)."""
-    x0 = _params(camera)[free]
+    x0 = camera_parameters(camera)[free]
     steps = 1e-6 * np.maximum(np.abs(x0), 1e-2)
-    return np.stack([(_camera_from(x0 + h * e, camera, free).project(points)
-                      - _camera_from(x0 - h * e, camera, free).project(points)) / (2 * h)
+    return np.stack([(camera_with_parameters(x0 + h * e, camera, free).project(points)
+                      - camera_with_parameters(x0 - h * e, camera, free).project(points)) / (2 * h)
                      for h, e in zip(steps, np.eye(len(x0)))], axis=-1)
 
 

@@ -33,7 +33,7 @@ from scipy.spatial import cKDTree
 from reconstruction.cameras import Camera
 from reconstruction.triangulation import Triangulation, triangulate
 
-__all__ = ["CylinderPrior", "Correspondence", "match_views", "observed_pixels"]
+__all__ = ["CylinderPrior", "Correspondence", "match_views", "observed_pixels", "epipolar_curve_pairs"]
 
 log = logging.getLogger(__name__)
 
@@ -223,12 +223,17 @@ def _ray_box(origins, directions, lo, hi) -> tuple[np.ndarray, np.ndarray]:
     return np.maximum(t0, 1e-6), t1  # 1 um past the origin (a window surface: projects to NaN on it)
 
 
-def _sampled_curve_pairs(i, j, dets, cameras, rays, epipolar_px, bounds, spacing_px: float = 6.0,
+def epipolar_curve_pairs(i, j, dets, cameras, rays, epipolar_px, bounds, spacing_px: float = 6.0,
                          max_samples: int = 400):
-    """Pairs along the epipolar curves, searched in the box ``bounds``: each ray of camera i is sampled
+    """Detection pairs of cameras ``i`` and ``j`` along the epipolar curves through the windows, searched in the
+    box ``bounds`` ((3,), (3,) m): each ray of camera i is sampled
     across the box, the samples are projected into camera j in one batch, and the detections of j
     within ``epipolar_px`` + half the sample spacing of a sample (KD-trees) are the candidates; the
-    exact gate (:func:`_curve_gate`) follows."""
+    exact gate (:func:`_curve_gate`) follows.
+
+    ``dets``: per camera the detections ``(n_c, 2)`` px; ``rays``: per camera ``(origins, directions)`` of its
+    detections in water (``Camera.rays``). Returns the kept detection indices ``a`` (camera i) and ``b``
+    (camera j), each ``(m,)``, the pairs' mid-points ``(m, 3)`` m and an all-True mask ``(m,)``."""
     (oi, di) = rays[i]
     margin = 1e-3  # m: mid-points near a face of the box have closest-approach points just outside it
     t0, t1 = _ray_box(oi, di, np.asarray(bounds[0]) - margin, np.asarray(bounds[1]) + margin)
@@ -267,7 +272,7 @@ def _seed_candidates(dets, cameras, epipolar_px, prior, min_angle, max_angle, bo
             if min(ang, 180.0 - ang if max_angle > 90.0 else ang) < min_angle or ang > max_angle:
                 continue
             if refracted and bounds is not None:
-                a, b, X, ok = _sampled_curve_pairs(i, j, dets, cameras, rays, epipolar_px, bounds)
+                a, b, X, ok = epipolar_curve_pairs(i, j, dets, cameras, rays, epipolar_px, bounds)
             elif refracted:
                 a, b, X, ok = _refracted_pairs(i, j, dets, cameras, rays, epipolar_px)
             else:

@@ -19,7 +19,9 @@ uses the particles themselves:
    ``keep_px`` of its sub-volume's peak in every camera.
 4. **Bundle adjustment** (:func:`bundle_adjust`): the cameras (pose, optionally principal point, k1, k2, the
    window's position and tilt) and the candidates' 3-D points on their pixel residuals, jointly with the
-   calibration body's dots (known 3-D points: they fix the gauge and the scale), with a robust loss.
+   calibration body's dots (known 3-D points: they fix the gauge and the scale), with a robust loss;
+   optionally (``body_sides``) the body as the cameras on its far side see it is offset along its normal by
+   a refined distance (a body whose dots are seen from both faces, its file giving one: :func:`far_side`).
 
 :func:`self_calibrate` repeats 1-4 with shrinking tolerances. Pure functions over arrays (metres, pixels as
 OpenCV: ``docs/decisions/0002-frames-and-shapes.md``).
@@ -28,6 +30,7 @@ OpenCV: ``docs/decisions/0002-frames-and-shapes.md``).
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -36,18 +39,21 @@ from scipy.optimize import least_squares
 from scipy.sparse import lil_matrix
 from scipy.spatial import cKDTree
 
-from reconstruction.calibration_body import _camera_from, _params
+from reconstruction.calibration_body import camera_parameters, camera_with_parameters
 from reconstruction.cameras import Camera
-from reconstruction.correspondence import _sampled_curve_pairs, observed_pixels
+from reconstruction.correspondence import epipolar_curve_pairs, observed_pixels
 from reconstruction.triangulation import triangulate
 
 __all__ = ["DisparityMap", "SelfCalibration", "loose_candidates", "disparity_map", "consistent_candidates",
-           "bundle_adjust", "body_rms", "self_calibrate", "FREE_PARAMETERS"]
+           "bundle_adjust", "body_rms", "self_calibrate", "common_view_box", "body_normal", "far_side",
+           "FREE_PARAMETERS"]
 
 log = logging.getLogger(__name__)
 
 #: parameter groups :func:`bundle_adjust` can free, with their indices in the body-calibration parameter vector
-FREE_PARAMETERS = {"pose": (0, 1, 2, 3, 4, 5), "principal_point": (7, 8), "k1": (9,), "k2": (10,), "window_offset": (11,),
+#: (:data:`reconstruction.calibration_body.CAMERA_PARAMETERS`)
+FREE_PARAMETERS = {"pose": (0, 1, 2, 3, 4, 5), "focal_length": (6,), "principal_point": (7, 8), "k1": (9,),
+                   "k2": (10,), "window_offset": (11,), "k3": (12,), "tangential": (13, 14), "aspect": (15,),
                    "window_tilt": (16, 17)}
 #: shrinking tolerances of :func:`self_calibrate`: (epipolar_px, radius_px, keep_px) per pass
 SCHEDULE = ((4.0, 3.0, 1.5), (3.0, 2.0, 1.0), (2.0, 1.5, 0.7), (1.5, 1.0, 0.5))
@@ -115,6 +121,10 @@ class SelfCalibration:
     message : str
         How many passes ran; a pass with fewer than ``min_consistent`` candidates on the peaks stops the
         schedule there (the cameras of the passes before are returned).
+    body_offset_m : float
+        Offset of the body along its normal as the far-side cameras see it, m (0 when not refined).
+    far_side : ndarray of bool, shape (n_cameras,), or None
+        The cameras that see the body from its far side (None: one body for all).
     """
 
     cameras: list
@@ -125,6 +135,8 @@ class SelfCalibration:
     body_rms_px: np.ndarray
     check_map: DisparityMap
     message: str = ""
+    body_offset_m: float = 0.0
+    far_side: np.ndarray | None = None
 
 
 def _crossing_deg(a: Camera, b: Camera) -> float:
@@ -171,7 +183,7 @@ def loose_candidates(detections: list[np.ndarray], cameras: list[Camera], bounds
         for j in range(i + 1, n):
             if _crossing_deg(cameras[i], cameras[j]) < min_crossing_deg or not (len(dets[i]) and len(dets[j])):
                 continue
-            a, b, X, _ = _sampled_curve_pairs(i, j, dets, cameras, rays, epipolar_px, (lo, hi))
+            a, b, X, _ = epipolar_curve_pairs(i, j, dets, cameras, rays, epipolar_px, (lo, hi))
             inside = np.all(np.isfinite(X) & (X >= lo) & (X <= hi), axis=1)
             obs = np.full((int(inside.sum()), n), -1, np.int64)
             obs[:, i], obs[:, j] = a[inside], b[inside]
@@ -278,12 +290,13 @@ def _free_mask(free: tuple[str, ...]) -> np.ndarray:
     return mask
 
 
-def _sparsity(seen: np.ndarray, body_seen: np.ndarray, n_par: int) -> lil_matrix:
+def _sparsity(seen: np.ndarray, body_seen: np.ndarray, n_par: int, far: np.ndarray | None = None) -> lil_matrix:
     """Jacobian sparsity: rows per camera (particle residuals, then body residuals), columns (camera
-    parameters, then 3 per point)."""
+    parameters, then 3 per point, then the body offset of the far side when ``far`` (n_cameras,) bool is given)."""
     n_cams, n_pts = seen.shape
     n_rows = 2 * int(seen.sum() + body_seen.sum())
-    S = lil_matrix((n_rows, n_cams * n_par + 3 * n_pts), dtype=np.int8)
+    n_off = 0 if far is None else 1
+    S = lil_matrix((n_rows, n_cams * n_par + 3 * n_pts + n_off), dtype=np.int8)
     r = 0
     for c in range(n_cams):
         pts = np.flatnonzero(seen[c])
@@ -293,13 +306,16 @@ def _sparsity(seen: np.ndarray, body_seen: np.ndarray, n_par: int) -> lil_matrix
             cols = n_cams * n_par + 3 * pts + k
             S[r + 2 * np.arange(len(pts)), cols] = 1
             S[r + 2 * np.arange(len(pts)) + 1, cols] = 1
+        if n_off and far[c]:
+            S[r + 2 * len(pts):r + m, -1] = 1
         r += m
     return S
 
 
 def bundle_adjust(cameras: list[Camera], pixels: np.ndarray, points: np.ndarray, body: np.ndarray,
                   body_pixels: np.ndarray, *, free: tuple[str, ...] = ("pose",), f_scale_px: float = 0.5,
-                  body_weight: float = 1.0, max_nfev: int = 30) -> tuple[list[Camera], np.ndarray, float]:
+                  body_weight=1.0, max_nfev: int = 30, far: np.ndarray | None = None,
+                  body_offset_m: float = 0.0) -> tuple[list[Camera], np.ndarray, float, float]:
     """Refine the cameras and the particles' 3-D points on their pixel residuals, jointly with the
     calibration body (step 4 of the module docstring).
 
@@ -318,8 +334,14 @@ def bundle_adjust(cameras: list[Camera], pixels: np.ndarray, points: np.ndarray,
         Parameter groups refined per camera (keys of :data:`FREE_PARAMETERS`).
     f_scale_px : float
         Soft-L1 loss scale, px: residuals beyond it count linearly.
-    body_weight : float
-        Weight of a body residual relative to a particle residual.
+    body_weight : float or ndarray, shape (n_cameras,)
+        Weight of a body residual relative to a particle residual (one for all cameras, or per camera).
+    far : ndarray of bool, shape (n_cameras,), optional
+        Cameras that see the body from its far side (:func:`far_side`): for them the body's points lie
+        ``body_offset_m`` further along its normal (:func:`body_normal`), an offset refined here (a body
+        whose dots are seen from both faces, the file giving one face). None: one body for all.
+    body_offset_m : float
+        Initial offset, m.
 
     Returns
     -------
@@ -327,6 +349,8 @@ def bundle_adjust(cameras: list[Camera], pixels: np.ndarray, points: np.ndarray,
     points : ndarray, shape (n, 3)
     particle_rms_px : float
         RMS (norm) of the particle residuals after the fit, px.
+    body_offset_m : float
+        The refined offset (the initial one when ``far`` is None or selects no camera), m.
     """
     pixels, points = np.asarray(pixels, float), np.asarray(points, float)
     body, body_pixels = np.asarray(body, float), np.asarray(body_pixels, float)
@@ -338,31 +362,44 @@ def bundle_adjust(cameras: list[Camera], pixels: np.ndarray, points: np.ndarray,
                          f"got {body_pixels.shape}")
     mask = _free_mask(tuple(free))
     n_par = int(mask.sum())
+    weights = np.broadcast_to(np.asarray(body_weight, float), (n_cams,)) if np.ndim(body_weight) == 0 else \
+        np.asarray(body_weight, float)
+    if weights.shape != (n_cams,) or not np.all(np.isfinite(weights) & (weights >= 0)):
+        raise ValueError(f"body_weight must be one weight >= 0 or one per camera ({n_cams}); got {body_weight!r}")
     seen = np.all(np.isfinite(pixels), axis=-1)
     bseen = np.all(np.isfinite(body_pixels), axis=-1)
     if np.any(bseen.sum(axis=1) < 4):
         raise ValueError(f"every camera needs >= 4 body points to fix the gauge; got {bseen.sum(axis=1).tolist()}")
+    if far is not None and np.shape(far) != (n_cams,):
+        raise ValueError(f"far must be one bool per camera ({n_cams}); got shape {np.shape(far)}")
+    far = None if far is None or not np.any(far) else np.asarray(far, bool)
+    normal = body_normal(body)
+    n_x = n_cams * n_par + 3 * len(points)
 
     def unpack(x):
         par = x[:n_cams * n_par].reshape(n_cams, n_par)
-        return [_camera_from(par[c], cameras[c], mask) for c in range(n_cams)], x[n_cams * n_par:].reshape(-1, 3)
+        cams = [camera_with_parameters(par[c], cameras[c], mask) for c in range(n_cams)]
+        return cams, x[n_cams * n_par:n_x].reshape(-1, 3), (x[n_x] if far is not None else body_offset_m)
 
     def fun(x):
-        cams, X = unpack(x)
+        cams, X, off = unpack(x)
         parts = []
         for c, cam in enumerate(cams):
+            B = body[bseen[c]] + (off * normal if far is not None and far[c] else 0.0)
             parts.append((cam.project(X[seen[c]]) - pixels[c, seen[c]]).ravel())
-            parts.append(body_weight * (cam.project(body[bseen[c]]) - body_pixels[c, bseen[c]]).ravel())
+            parts.append(weights[c] * (cam.project(B) - body_pixels[c, bseen[c]]).ravel())
         return np.nan_to_num(np.concatenate(parts), nan=1e3)
 
-    x0 = np.concatenate([np.concatenate([_params(c)[mask] for c in cameras]), points.ravel()])
-    sol = least_squares(fun, x0, jac_sparsity=_sparsity(seen, bseen, n_par), loss="soft_l1", f_scale=f_scale_px,
+    x0 = np.concatenate([np.concatenate([camera_parameters(c)[mask] for c in cameras]), points.ravel(),
+                         [body_offset_m] if far is not None else []])
+    sol = least_squares(fun, x0, jac_sparsity=_sparsity(seen, bseen, n_par, far), loss="soft_l1", f_scale=f_scale_px,
                         x_scale="jac", method="trf", max_nfev=max_nfev)
-    cams, X = unpack(sol.x)
+    cams, X, off = unpack(sol.x)
     res = np.concatenate([cams[c].project(X[seen[c]]) - pixels[c, seen[c]] for c in range(n_cams)])
     rms = float(np.sqrt(np.nanmean(np.sum(res**2, axis=1)))) if len(res) else float("nan")
-    log.info("bundle adjustment: %d particles, %d evaluations, particle RMS %.3f px", len(points), sol.nfev, rms)
-    return cams, X, rms
+    log.info("bundle adjustment: %d particles, %d evaluations, particle RMS %.3f px, body offset %.3f mm",
+             len(points), sol.nfev, rms, 1e3 * off)
+    return cams, X, rms, float(off)
 
 
 def _candidates_all_frames(frames, cameras, bounds, epipolar_px, radius_px, min_views):
@@ -378,19 +415,49 @@ def _candidates_all_frames(frames, cameras, bounds, epipolar_px, radius_px, min_
     return pixels, tri.points, tri.residuals
 
 
-def body_rms(cameras: list[Camera], body: np.ndarray, body_pixels: np.ndarray) -> np.ndarray:
-    """Calibration-body reprojection RMS (norm) per camera ``(n_cameras,)``, px."""
+def body_rms(cameras: list[Camera], body: np.ndarray, body_pixels: np.ndarray, far: np.ndarray | None = None,
+             body_offset_m: float = 0.0) -> np.ndarray:
+    """Calibration-body reprojection RMS (norm) per camera ``(n_cameras,)``, px; the cameras ``far`` (bool
+    (n_cameras,)) see the body ``body_offset_m`` further along its normal (:func:`bundle_adjust`)."""
     out = []
+    shift = body_offset_m * body_normal(body) if far is not None else 0.0
     for c, cam in enumerate(cameras):
         ok = np.all(np.isfinite(body_pixels[c]), axis=1)
-        out.append(np.sqrt(np.mean(np.sum((cam.project(body[ok]) - body_pixels[c, ok]) ** 2, axis=1))))
+        B = body[ok] + (shift if far is not None and far[c] else 0.0)
+        out.append(np.sqrt(np.mean(np.sum((cam.project(B) - body_pixels[c, ok]) ** 2, axis=1))))
     return np.array(out)
+
+
+def body_normal(body: np.ndarray) -> np.ndarray:
+    """Unit normal ``(3,)`` of the body's points ``(n, 3)``: their direction of least extent (sign: +z first,
+    else +y, else +x)."""
+    P = np.asarray(body, float)
+    n = np.linalg.svd(P - P.mean(axis=0), full_matrices=False)[2][-1]
+    k = int(np.flatnonzero(np.abs(n) > 1e-9)[-1])
+    return n if n[k] > 0 else -n
+
+
+def far_side(cameras: list[Camera], body: np.ndarray, body_pixels: np.ndarray | None = None) -> np.ndarray:
+    """Cameras ``(n_cameras,)`` bool looking at the body from its far side (the sign of their optical axis
+    along :func:`body_normal`). The near side, whose view the body's coordinates describe, is the one whose
+    cameras see the most of its points in ``body_pixels`` ``(n_cameras, n_body, 2)`` (the face with every
+    dot; from behind some are hidden); without ``body_pixels``, or on a tie, the first camera's side."""
+    n = body_normal(body)
+    side = np.array([np.sign(c.R[2] @ n) for c in cameras])
+    near = side[0]
+    if body_pixels is not None:
+        seen = np.all(np.isfinite(np.asarray(body_pixels, float)), axis=-1).sum(axis=1)
+        count = {v: int(seen[side == v].sum()) for v in np.unique(side)}
+        best = max(count.values())
+        near = side[0] if count[side[0]] == best else next(v for v, k in count.items() if k == best)
+    return side != near
 
 
 def self_calibrate(frames: list[list[np.ndarray]], cameras: list[Camera], bounds, body: np.ndarray,
                    body_pixels: np.ndarray, *, schedule=SCHEDULE, grid=(2, 2, 2), free: tuple[str, ...] = ("pose",),
                    min_views: int = 3, bin_px: float = 0.2, f_scale_px: float = 0.5,
-                   body_weight: float = 1.0, min_consistent: int = 20) -> SelfCalibration:
+                   body_weight=1.0, min_consistent: int = 20, body_sides: bool = False,
+                   progress: Callable[[int, int, str], None] | None = None) -> SelfCalibration:
     """Volume self-calibration (module docstring): passes of loose candidates, disparity maps, consistent
     candidates and a bundle adjustment with the body, with the tolerances of ``schedule``.
 
@@ -413,14 +480,27 @@ def self_calibrate(frames: list[list[np.ndarray]], cameras: list[Camera], bounds
         Camera parameter groups refined (:data:`FREE_PARAMETERS`).
     min_views : int
         Views a candidate needs.
+    body_weight : float or ndarray, shape (n_cameras,)
+        Weight of a body residual relative to a particle residual (:func:`bundle_adjust`).
     min_consistent : int
         Fewer candidates on the disparity peaks stop the schedule (see ``SelfCalibration.message``).
+    body_sides : bool
+        When cameras look at the body from both sides (:func:`far_side`), the body as the far side sees it
+        is offset along its normal by a refined distance (``SelfCalibration.body_offset_m``; test_cavity:
+        see docs/reconstruction.md). False: one body for all cameras.
+    progress : callable (done, total, what) -> None, optional
+        Called after each step (a pass, the two closing disparity maps): ``total`` = len(schedule) + 2.
     """
     if not len(schedule):
         raise ValueError("schedule must hold at least one (epipolar_px, radius_px, keep_px) pass; got none")
     cams = list(cameras)
     maps, n_cand, n_used, rms = [], [], [], []
     message = f"{len(schedule)} passes"
+    total = len(schedule) + 2
+    far = far_side(cams, body, body_pixels) if body_sides else None
+    far = far if far is not None and np.any(far) else None
+    offset = 0.0
+    tick = progress if progress is not None else (lambda done, total, what: None)
     for epi, rad, keep in schedule:
         pixels, X, res = _candidates_all_frames(frames, cams, bounds, epi, rad, min_views)
         dmap = disparity_map(res, X, bounds, grid=grid, half_width_px=max(epi, rad) + 1.0, bin_px=bin_px)
@@ -436,14 +516,78 @@ def self_calibrate(frames: list[list[np.ndarray]], cameras: list[Camera], bounds
                        f"candidates agree with the disparity peaks at tolerances {(epi, rad, keep)} px")
             log.warning("self_calibrate: %s", message)
             break
-        cams, _, r = bundle_adjust(cams, pixels[:, ok], X[ok], body, body_pixels, free=free, f_scale_px=f_scale_px,
-                                   body_weight=body_weight)
+        cams, _, r, offset = bundle_adjust(cams, pixels[:, ok], X[ok], body, body_pixels, free=free,
+                                           f_scale_px=f_scale_px, body_weight=body_weight, far=far,
+                                           body_offset_m=offset)
         rms.append(r)
+        tick(len(rms), total, f"pass {len(rms)}: particle RMS {r:.2f} px")
     epi, rad, _ = schedule[len(rms) - 1] if rms else schedule[0]
     _, X, res = _candidates_all_frames(frames, cams, bounds, epi, rad, min_views)
     maps.append(disparity_map(res, X, bounds, grid=grid, half_width_px=max(epi, rad) + 1.0, bin_px=bin_px))
+    tick(total - 1, total, "disparity after the last pass")
     epi, rad, _ = schedule[0]
     _, X, res = _candidates_all_frames(frames, cams, bounds, epi, rad, min_views)
     check = disparity_map(res, X, bounds, grid=grid, half_width_px=max(epi, rad) + 1.0, bin_px=bin_px)
-    return SelfCalibration(cams, maps, n_cand, n_used, rms, body_rms(cams, body, body_pixels), check, message)
+    tick(total, total, "disparity check at the first pass's tolerances")
+    return SelfCalibration(cams, maps, n_cand, n_used, rms, body_rms(cams, body, body_pixels, far, offset), check,
+                           message, offset, far)
 
+
+
+def common_view_box(cameras: list[Camera], depth_range, *, min_views: int = 3, axis: int = 2,
+                    step: float = 2e-3) -> tuple[np.ndarray, np.ndarray]:
+    """World box of the points inside the images of at least ``min_views`` cameras between two planes.
+
+    The cameras' image borders are cast (through their windows) onto the planes ``axis = depth_range[0]``
+    and ``depth_range[1]``; a lattice of ``step`` over the box of those footprints is kept where
+    ``min_views`` cameras see it. A default measurement volume for :func:`self_calibrate` when only the
+    depth range is known (e.g. OpenPTV's ``criteria.par``).
+
+    Parameters
+    ----------
+    cameras : list of Camera
+    depth_range : (float, float)
+        Range along ``axis``, m.
+    min_views : int
+    axis : int
+        World axis of the depth (0, 1 or 2).
+    step : float
+        Lattice spacing, m.
+
+    Returns
+    -------
+    (ndarray (3,), ndarray (3,))
+        Lower and upper corners, m.
+    """
+    z0, z1 = sorted(float(v) for v in depth_range)
+    if not z1 > z0:
+        raise ValueError(f"depth_range must span a non-empty range, m; got {tuple(depth_range)}")
+    if not 1 <= min_views <= len(cameras):
+        raise ValueError(f"min_views must be in [1, {len(cameras)}]; got {min_views}")
+    feet = []
+    for cam in cameras:
+        W, H = cam.image_size
+        u = np.linspace(0.0, 1.0, 9)
+        border = np.concatenate([np.c_[u * (W - 1), np.zeros(9)], np.c_[u * (W - 1), np.full(9, H - 1.0)],
+                                 np.c_[np.zeros(9), u * (H - 1)], np.c_[np.full(9, W - 1.0), u * (H - 1)]])
+        o, d = cam.rays(border)
+        for z in (z0, z1):
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = (z - o[:, axis]) / d[:, axis]
+            feet.append((o + t[:, None] * d)[np.isfinite(t) & (t > 0)])
+    feet = np.concatenate(feet)
+    lo, hi = feet.min(axis=0), feet.max(axis=0)
+    lo[axis], hi[axis] = z0, z1
+    axes = [np.arange(lo[k], hi[k] + 0.5 * step, step) for k in range(3)]
+    X = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    views = np.zeros(len(X), np.int64)
+    for cam in cameras:
+        px = cam.project(X)
+        W, H = cam.image_size
+        with np.errstate(invalid="ignore"):
+            views += np.all(np.isfinite(px), axis=1) & (px[:, 0] >= 0) & (px[:, 0] <= W - 1) & (px[:, 1] >= 0) & \
+                (px[:, 1] <= H - 1)
+    seen = X[views >= min_views]
+    if not len(seen):
+        raise ValueError(f"no point between the planes {axis=} = {z0:.4g}..{z1:.4g} m is seen by {min_views} cameras")
+    return seen.min(axis=0), seen.max(axis=0)

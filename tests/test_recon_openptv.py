@@ -128,7 +128,7 @@ def test_sampled_epipolar_curves_find_every_pair(frame1):
     rays = [c.rays(d) for c, d in zip(cams, dets)]
     for i, j in ((0, 1), (0, 3)):
         a1, b1, X1, _ = corr._refracted_pairs(i, j, dets, cams, rays, 1.5)
-        a2, b2, X2, _ = corr._sampled_curve_pairs(i, j, dets, cams, rays, 1.5, bounds)
+        a2, b2, X2, _ = corr.epipolar_curve_pairs(i, j, dets, cams, rays, 1.5, bounds)
         inside = [np.all((X >= bounds[0]) & (X <= bounds[1]), axis=1) for X in (X1, X2)]
         every = set(zip(a1[inside[0]], b1[inside[0]]))
         assert len(every) > 500  # measured 887 (pair 1-2) and 1,538 (pair 1-4)
@@ -324,3 +324,113 @@ def test_refined_dot_centres_are_unbiased_on_a_sloped_background():
     got = refine_dot_centres(img, true + [[1.2, -0.8], [-1.0, 1.1]], radius_px=6)
     assert np.abs(got - true).max() < 0.03
     assert np.all(np.isnan(refine_dot_centres(img, [[np.nan, 3.0], [2.0, 2.0]])))  # unseen; disc leaves the image
+
+
+def _folder_like(tmp_path, media=None, blank_frame=None):
+    """An OpenPTV folder linking test_cavity's calibration; ``media`` replaces ptv.par's n1, n2, n3 and
+    ``blank_frame`` adds black particle images of that frame."""
+    import cv2
+
+    folder = tmp_path / "ptv"
+    (folder / "parameters").mkdir(parents=True)
+    for p in (DATA / "parameters").iterdir():
+        (folder / "parameters" / p.name).symlink_to(p)
+    (folder / "cal").symlink_to(DATA / "cal")
+    if media is not None:
+        lines = (DATA / "parameters" / "ptv.par").read_text().split()
+        lines[-4:-1] = [str(n) for n in media]
+        (folder / "parameters" / "ptv.par").unlink()
+        (folder / "parameters" / "ptv.par").write_text("\n".join(lines) + "\n")
+    if blank_frame is not None:
+        (folder / "img_1").mkdir()
+        for c in range(1, 5):
+            cv2.imwrite(str(folder / "img_1" / f"cam{c}.{blank_frame}.tif"), np.zeros((1024, 1280), np.uint8))
+    return folder
+
+
+def test_cli_self_calibration_stored_with_its_figures_and_bad_input_named(tmp_path, capsys, monkeypatch):
+    # vfmlab calibrate SESSION --import FOLDER --self-calibrate FRAMES: one real frame and one pass on one sub-volume
+    # to stay within the CI budget (the full schedule on frames 0-4: benchmarks/bench_real_data.py, ~2 min). Measured:
+    # disparity peak 0.49 -> 0.27 px RMS at the pass's tolerances, body 0.66-1.09 -> 0.76-0.83 px.
+    import json
+
+    from acquisition.session import CameraSpec, SessionWriter, SpecimenInfo, open_session
+    from vfmlab.cli import main
+    from vfmlab.pipeline import session_calibrated_cameras
+
+    monkeypatch.setattr(openptv, "SELFCAL_SETTINGS", {**openptv.SELFCAL_SETTINGS, "schedule": ((4.0, 3.0, 1.5),),
+                                                      "grid": (1, 1, 1)})
+    session = tmp_path / "s.h5"
+    specs = [CameraSpec(f"cam{i}", "imported", 1280, 1024, "uint8") for i in range(1, 5)]
+    with SessionWriter.create(session, SpecimenInfo("cavity", 5e-3, 50e-3, 0.5e-3, ""), cameras=specs, protocol_text="", rig={}):
+        pass
+    assert main(["calibrate", str(session), "--import", str(DATA), "--self-calibrate", "10001", "--json"]) == 0
+    captured = capsys.readouterr()
+    out = json.loads(captured.out)
+    sc = out["self_calibration"]
+    assert sc["frames"] == [10001] and sc["passes_run"] == 1 and sc["body_weight"] == 0.5
+    assert sc["refined"] == ["pose", "k1", "principal_point", "window_tilt"]
+    assert all(n >= 700 for n in sc["particles_per_frame"]["10001"])
+    assert sc["disparity_peak_rms_px_after"] < 0.8 * sc["disparity_peak_rms_px_before"], sc
+    assert sc["disparity_improved"] and "less consistent" not in captured.err
+    assert sc["body_sides"] and sc["body_far_side_cameras"] == ["cam1", "cam2"]  # offset refined (one frame: not
+    assert abs(sc["body_offset_m"]) < 5e-3  # determined; five frames, four passes: -1.8 to -2.0 mm)
+    before, after = sc["body_rms_px_before"], sc["body_rms_px_after"]
+    assert sorted(after) == ["cam1", "cam2", "cam3", "cam4"] and all(0 < r < 1.2 for r in after.values()), after
+    assert np.mean(list(after.values())) < np.mean(list(before.values())), (before, after)
+    lo, hi = np.array(sc["volume_min_m"]), np.array(sc["volume_max_m"])  # >= 3 views, criteria.par's depth +- 5 mm
+    assert np.allclose([lo[2], hi[2]], [-0.025, 0.025]) and np.all(hi - lo > 0.04)
+    with open_session(session) as s:
+        cams, _ = session_calibrated_cameras(s)
+        res = s.result(out["stored_as"])
+    imported = openptv.load_cameras(DATA)
+    assert all(c.window is not None for c in cams)
+    assert max(np.linalg.norm(c.center - i.center) for c, i in zip(cams, imported)) > 1e-5  # the cameras moved
+    assert res["attrs"]["self_calibration"]["body_rms_px_after"] == after
+    assert np.allclose(res["arrays"]["rms"], [after[c.name] for c in cams])  # the stored RMS: the body after
+    assert res["parameters"]["self_calibration"]["frames"] == [10001]
+
+    # bad input, named before any work is done
+    cases = [
+        (["--import", str(DATA), "--self-calibrate", "10009"], "not found"),
+        (["--import", str(DATA), "--self-calibrate", "ten"], "frame numbers"),
+        (["--import", str(DATA), "--self-calibrate", "10001", "--volume-mm", "1,2,3"], "--volume-mm"),
+        (["--self-calibrate", "10001"], "needs --import"),
+        (["--import", str(_folder_like(tmp_path / "a", media=(1, 1, 1))), "--self-calibrate", "10001"], "no window"),
+        (["--import", str(_folder_like(tmp_path / "b", blank_frame=10001)), "--self-calibrate", "10001",
+          "--particle-images", "img_1/cam{camera}.{frame}.tif"], "0 particles"),
+    ]
+    for args, words in cases:
+        assert main(["calibrate", *args]) == 2, args
+        err = capsys.readouterr().err
+        assert "--self-calibrate" in err or "--volume-mm" in err, err
+        assert words in err, (args, err)
+
+
+def test_cli_body_selected_keeps_the_terms_the_dots_determine(tmp_path, capsys, monkeypatch):
+    # vfmlab calibrate --import FOLDER --body selected: select_body_model per camera (here among two models, pose and
+    # pose + principal point, to stay within the CI budget; all 32: ~2.5 min of CPU, docs/calibration.md). Measured
+    # with all 32: pose + principal point (cameras 1-2), pose + window tilt (3-4), 0.22-0.70 px.
+    import json
+
+    from acquisition.session import CameraSpec, SessionWriter, SpecimenInfo, open_session
+    from reconstruction import calibration_body
+    from vfmlab.cli import main
+
+    monkeypatch.setattr(calibration_body, "body_models", lambda: {"pose": (), "pose+principal_point": ("cx", "cy")})
+    session = tmp_path / "s.h5"
+    specs = [CameraSpec(f"cam{i}", "imported", 1280, 1024, "uint8") for i in range(1, 5)]
+    with SessionWriter.create(session, SpecimenInfo("cavity", 5e-3, 50e-3, 0.5e-3, ""), cameras=specs, protocol_text="", rig={}):
+        pass
+    assert main(["calibrate", str(session), "--import", str(DATA), "--body", "selected", "--json"]) == 0
+    captured = capsys.readouterr()
+    out = json.loads(captured.out)
+    assert set(out["body_models"].values()) <= {"pose", "pose+principal_point"} and len(out["body_models"]) == 4
+    assert all(0 < r < 1.0 for r in out["body_rms_px"].values()), out["body_rms_px"]
+    assert "(as in ptv.par)" in out["media_assumed"] and "model pose" in captured.err
+    imported = openptv.load_cameras(DATA)
+    with open_session(session) as s:
+        res = s.result(out["stored_as"])
+    assert res["parameters"]["body_models"] == out["body_models"]
+    K = res["arrays"]["K"]
+    assert np.allclose(K[:, 0, 0], [c.K[0, 0] for c in imported])  # the focal length is never refined

@@ -16,7 +16,8 @@ import numpy as np
 from reconstruction.calibration_io import CalibrationFileError, camera_from_openptv, parse_ptv_par
 
 __all__ = ["is_openptv_folder", "load_cameras", "read_image", "read_rt_is", "read_target_file", "frame_path",
-           "physical_media", "describe_media", "calibrate_body_folder", "detect_frame"]
+           "physical_media", "describe_media", "calibrate_body_folder", "detect_frame", "observation_depth",
+           "body_dots", "self_calibrate_folder", "select_body_folder", "SELFCAL_SETTINGS", "SELFCAL_IMAGES"]
 
 
 def is_openptv_folder(path: str | Path) -> bool:
@@ -124,22 +125,138 @@ def calibrate_body_folder(folder: str | Path, seeds: list, *, dot_radius_px: flo
     refined on the image (:func:`~reconstruction.calibration_body.refine_dot_centres`, ``dot_radius_px``;
     None keeps the detector's threshold centroids). ``media``: refractive indices for the fine fit instead of the
     seeds' (keys ``indices`` (tuple, one per layer) and/or ``n_bath``): the seeds only give the matching."""
-    from reconstruction.calibration_body import calibrate_from_body, match_body_points, refine_dot_centres
-    from reconstruction.particles import detect_particles
+    from reconstruction.calibration_body import calibrate_from_body
 
     folder = Path(folder)
     _, body = read_target_file(folder / "cal" / "target_on_a_side.txt")
     out = []
     for i, seed in enumerate(seeds):
-        image = read_image(folder / "cal" / f"cam{i + 1}.tif")
-        dots = detect_particles(image, **BODY_DOT_SETTINGS).centres
-        # coarse: a wide gate (dots are ~50 px apart) and a fixed focal length, then the fine match
-        coarse = calibrate_from_body(match_body_points(dots, seed, body, gate_px=20.0), body, seed, fix_focal=True)
-        px = match_body_points(dots, coarse.camera, body, gate_px=4.0)
-        if dot_radius_px is not None:
-            px = refine_dot_centres(image, px, radius_px=dot_radius_px)
+        px, coarse = _matched_dots(folder, i, seed, body, dot_radius_px)
         fine_seed = coarse.camera
         if media and fine_seed.window is not None:
             fine_seed = replace(fine_seed, window=replace(fine_seed.window, **media))
         out.append(calibrate_from_body(px, body, fine_seed, **options))
     return out
+
+
+def _matched_dots(folder: Path, i: int, seed, body: np.ndarray, dot_radius_px: float | None):
+    """Dots of ``cal/cam{i+1}.tif`` matched to the body's points ``(n_body, 2)`` px (refined centres unless
+    ``dot_radius_px`` is None) and the coarse fit (fixed focal length, 20 px gate) that matched them."""
+    from reconstruction.calibration_body import calibrate_from_body, match_body_points, refine_dot_centres
+    from reconstruction.particles import detect_particles
+
+    image = read_image(folder / "cal" / f"cam{i + 1}.tif")
+    dots = detect_particles(image, **BODY_DOT_SETTINGS).centres
+    # coarse: a wide gate (dots are ~50 px apart) and a fixed focal length, then the fine match
+    coarse = calibrate_from_body(match_body_points(dots, seed, body, gate_px=20.0), body, seed, fix_focal=True)
+    px = match_body_points(dots, coarse.camera, body, gate_px=4.0)
+    if dot_radius_px is not None:
+        px = refine_dot_centres(image, px, radius_px=dot_radius_px)
+    return px, coarse
+
+
+def select_body_folder(folder: str | Path, seeds: list, *, dot_radius_px: float = 6.0, progress=None) -> list:
+    """Per camera, :func:`~reconstruction.calibration_body.select_body_model` on the refined dots of
+    ``cal/camN.tif``, seeded by ``seeds`` with their media (matched as :func:`calibrate_body_folder` does): only
+    the terms the body's dots determine over the whole image are refined, the others keep the seed's values
+    (``bench_real_data.py --selfcal-seed selected-ptvpar``: the seed the volume self-calibration matches best
+    from). ``progress(done, total, camera name)`` after each camera. Returns the ``BodyModelSelection`` per camera."""
+    from reconstruction.calibration_body import select_body_model
+
+    folder = Path(folder)
+    _, body = read_target_file(folder / "cal" / "target_on_a_side.txt")
+    out = []
+    for i, seed in enumerate(seeds):
+        px, _ = _matched_dots(folder, i, seed, body, dot_radius_px)
+        out.append(select_body_model(px, body, seed))
+        if progress is not None:
+            progress(i + 1, len(seeds), seed.name)
+    return out
+
+
+# ------------------------------------------------------------------------------- volume self-calibration of a folder
+
+#: :func:`reconstruction.volume_selfcal.self_calibrate` settings (those of ``benchmarks/bench_real_data.py``):
+#: 2 x 2 x 2 sub-volumes; pose, k1, principal point and window tilt refined per camera; soft-L1 scale 1 px; four
+#: passes of shrinking (epipolar, radius, keep) tolerances, px; the body as cameras 3-4 see it (from its other side)
+#: offset along its normal by a refined distance (``body_sides``; test_cavity: 1.8-2.0 mm, docs/reconstruction.md)
+SELFCAL_SETTINGS = {"grid": (2, 2, 2), "free": ("pose", "k1", "principal_point", "window_tilt"), "f_scale_px": 1.0,
+                    "schedule": ((4.0, 3.0, 1.5), (3.0, 2.0, 1.0), (2.0, 1.5, 0.7), (1.5, 1.0, 0.5)),
+                    "body_sides": True}
+#: particle images of a frame in an OpenPTV folder (test_cavity's names: img_1/cam1.10000 ... cam4.10004)
+SELFCAL_IMAGES = "img_1/cam{camera}.{frame}"
+#: a frame whose image holds fewer particles in a camera is refused (no disparity peak can be formed from it)
+MIN_PARTICLES = 50
+#: margin added on both sides of criteria.par's depth range: OpenPTV's own points reach 1-6 mm beyond it
+DEPTH_MARGIN_M = 5e-3
+
+
+def observation_depth(folder: str | Path) -> tuple[float, float]:
+    """OpenPTV's depth range of the observation volume (``parameters/criteria.par``: Zmin_lay, Zmax_lay), m."""
+    path = Path(folder) / "parameters" / "criteria.par"
+    try:
+        v = [float(x) for x in path.read_text().split()[:6]]
+    except (OSError, ValueError) as exc:
+        raise CalibrationFileError(f"{path}: cannot read the observation volume ({exc})") from None
+    if len(v) < 6:
+        raise CalibrationFileError(f"{path}: expected 6 numbers (X_lay, Zmin_lay, Zmax_lay of two layers); got {len(v)}")
+    return 1e-3 * min(v[1], v[4]), 1e-3 * max(v[2], v[5])
+
+
+def body_dots(folder: str | Path, cameras: list) -> tuple[np.ndarray, np.ndarray]:
+    """The calibration body's points ``(n_body, 3)`` m and their dots in ``cal/camN.tif`` per camera
+    ``(n_cameras, n_body, 2)`` px (threshold centroids matched with ``cameras``, NaN = not found)."""
+    from reconstruction.calibration_body import match_body_points
+    from reconstruction.particles import detect_particles
+
+    folder = Path(folder)
+    _, pts = read_target_file(folder / "cal" / "target_on_a_side.txt")
+    px = [match_body_points(detect_particles(read_image(folder / "cal" / f"cam{i + 1}.tif"), **BODY_DOT_SETTINGS).centres,
+                            cam, pts) for i, cam in enumerate(cameras)]
+    return pts, np.stack(px)
+
+
+def self_calibrate_folder(folder: str | Path, cameras: list, frames: list[int], *, images: str = SELFCAL_IMAGES,
+                          body_weight=1.0, bounds=None, progress=None, **settings):
+    """Volume self-calibration of ``cameras`` on the particles of ``frames`` of an OpenPTV folder.
+
+    Particles detected with :data:`PARTICLE_SETTINGS` in ``folder / images.format(camera=1.., frame=F)``;
+    the calibration body's dots (:func:`body_dots`, matched with the folder's own calibration: a seed refined on
+    the body matches one more, spurious, dot in test_cavity's camera 2) fix the gauge; ``bounds`` (m) defaults to the region
+    seen by >= 3 cameras within ``criteria.par``'s depth range +- :data:`DEPTH_MARGIN_M`
+    (:func:`~reconstruction.volume_selfcal.common_view_box`). ``progress(done, total, what)``: detection of
+    every image, then each step of the self-calibration. ``settings`` override :data:`SELFCAL_SETTINGS`.
+
+    Returns the :class:`~reconstruction.volume_selfcal.SelfCalibration`, the bounds ``(lo, hi)`` m, the body's
+    points ``(n_body, 3)`` m, their dots ``(n_cameras, n_body, 2)`` px and the detections per frame and camera.
+    Raises FileNotFoundError naming a missing image and ValueError for a frame with too few particles.
+    """
+    from reconstruction.particles import detect_particles
+    from reconstruction.volume_selfcal import common_view_box, self_calibrate
+
+    folder = Path(folder)
+    paths = [[folder / images.format(camera=c + 1, frame=f) for c in range(len(cameras))] for f in frames]
+    missing = [str(p) for row in paths for p in row if not p.is_file()]
+    if missing:
+        raise FileNotFoundError(f"{len(missing)} particle image(s) not found, e.g. {missing[0]}")
+    if bounds is None:
+        z0, z1 = observation_depth(folder)
+        bounds = common_view_box(cameras, (z0 - DEPTH_MARGIN_M, z1 + DEPTH_MARGIN_M))
+    opts = {**SELFCAL_SETTINGS, **settings}
+    total = len(frames) * len(cameras) + len(opts["schedule"]) + 2
+    tick = progress if progress is not None else (lambda done, total, what: None)
+    detections = []
+    for f, row in zip(frames, paths):
+        dets = []
+        for c, path in enumerate(row):
+            dets.append(detect_particles(read_image(path), **PARTICLE_SETTINGS).centres)
+            if len(dets[-1]) < MIN_PARTICLES:
+                raise ValueError(f"frame {f}, {cameras[c].name}: {len(dets[-1])} particles in {path} "
+                                 f"(need >= {MIN_PARTICLES})")
+            tick(len(detections) * len(cameras) + c + 1, total, f"particles of frame {f}, {cameras[c].name}")
+        detections.append(dets)
+    pts, px = body_dots(folder, load_cameras(folder))  # matched as the benchmark does, whatever the seed
+    done = len(frames) * len(cameras)
+    sc = self_calibrate(detections, cameras, bounds, pts, px, body_weight=body_weight,
+                        progress=lambda d, t, what: tick(done + d, total, what), **opts)
+    return sc, bounds, pts, px, detections

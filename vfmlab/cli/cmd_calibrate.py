@@ -79,6 +79,8 @@ def _refine_on_body(folder: Path, cams: list, focal: str) -> tuple[list, dict]:
     """Refine the imported cameras on the calibration body, through the window; refuse an ill-posed result."""
     from vfmlab import openptv
 
+    if focal == "selected":
+        return _select_on_body(folder, cams)
     media, note = _body_media(cams)
     err_console.print(f"media assumed: {note}")
     res = openptv.calibrate_body_folder(folder, cams, media=media, **{**openptv.BODY_FIT, "fix_focal": focal == "fixed"})
@@ -91,6 +93,26 @@ def _refine_on_body(folder: Path, cams: list, focal: str) -> tuple[list, dict]:
     return [r.camera for r in res], {"units": "m", "rms_px": [r.rms for r in res],
                                      "body_calibration": f"{folder}/cal (focal {focal})", "media_assumed": note,
                                      "body_rms_px": {r.camera.name: float(r.rms) for r in res}}
+
+
+def _select_on_body(folder: Path, cams: list) -> tuple[list, dict]:
+    """``--body selected``: per camera only the terms the body's dots determine over the whole image, media as
+    in ptv.par (as OpenPTV's calibration was made)."""
+    from vfmlab import openptv
+
+    window = next((c.window for c in cams if c.window is not None), None)
+    note = f"{openptv.describe_media(window)} (as in ptv.par)"
+    err_console.print(f"media assumed: {note}")
+    with Progress(console=err_console, transient=True) as progress:
+        task = progress.add_task("body model selection (32 models per camera)", total=len(cams))
+        sel = openptv.select_body_folder(folder, cams, progress=lambda d, t, name: progress.update(task, completed=d))
+    for s in sel:
+        err_console.print(f"{s.calibration.camera.name}: model {s.chosen}, RMS {s.calibration.rms:.3f} px "
+                          f"(cross-validated {s.table[s.chosen]['cv_rms_px']:.3f} px)")
+    return [s.calibration.camera for s in sel], {
+        "units": "m", "rms_px": [s.calibration.rms for s in sel], "body_calibration": f"{folder}/cal (selected models)",
+        "media_assumed": note, "body_rms_px": {s.calibration.camera.name: float(s.calibration.rms) for s in sel},
+        "body_models": {s.calibration.camera.name: s.chosen for s in sel}}
 
 
 def _body_media(cams: list) -> tuple[dict | None, str]:
@@ -106,11 +128,17 @@ def _body_media(cams: list) -> tuple[dict | None, str]:
                    f"{window.n_bath:.3f}: swapped to the physical order, glass denser than water)")
 
 
-def _import(path: Path, file_units: str, session, store: bool, out, units: str, as_json: bool, body: str | None = None) -> None:
-    """``--import``: read a calibration, check it against the session's cameras, store and/or convert it."""
+def _import(path: Path, file_units: str, session, store: bool, out, units: str, as_json: bool, body: str | None = None,
+            selfcal: dict | None = None) -> None:
+    """``--import``: read a calibration, check it against the session's cameras, optionally refine it on the
+    particles (``selfcal``: options of :func:`_self_calibrate`), store and/or convert it."""
     from reconstruction.calibration_io import cameras_to_arrays, cameras_to_toml, cameras_to_yaml
 
+    if selfcal is not None:
+        _check_selfcal_input(path, out)
     cams, meta = _read_calibration(path, file_units, body)
+    if selfcal is not None:
+        cams, meta = _self_calibrate(path, cams, meta, **selfcal)
     if out is not None and any(c.window is not None for c in cams):
         raise CliInputError(f"-o {out}: TOML/YAML files hold no window (refraction); store the calibration in a session instead")
     stored = None
@@ -133,15 +161,21 @@ def _import(path: Path, file_units: str, session, store: bool, out, units: str, 
         rms = np.asarray(rms, float) if isinstance(rms, list) and len(rms) == len(names) else None
         arrays = cameras_to_arrays(cams, None if rms is None else [rms[names.index(c.name)] for c in cams])
         try:
-            stored = write_result(session, "calibration", arrays,
-                                  {"source": str(path), "imported": True, "file_units": meta.get("units", file_units)},
-                                  {"converged": True, "n_observations": 0, "n_outliers": 0},
+            params = {"source": str(path), "imported": True, "file_units": meta.get("units", file_units)}
+            attrs = {"converged": True, "n_observations": 0, "n_outliers": 0}
+            for key in ("body_calibration", "body_models", "media_assumed"):
+                if key in meta:
+                    params[key] = meta[key]
+            if "self_calibration" in meta:
+                params["self_calibration"] = meta["self_calibration_settings"]
+                attrs["self_calibration"] = meta["self_calibration"]
+            stored = write_result(session, "calibration", arrays, params, attrs,
                                   units={"K": "px", "tvec": "m", "rvec": "rad", "rms": "px", "image_size": "px",
                                          "window_offset": "m", "window_thickness": "m", "window_normal": "1", "window_index": "1"})
         except SessionError as exc:
             raise CliError(str(exc)) from None
     if out is not None:
-        meta = {k: v for k, v in meta.items() if k != "units"}
+        meta = {k: v for k, v in meta.items() if k not in ("units", "self_calibration", "self_calibration_settings")}
         meta["imported_from"] = str(path)
         writer = cameras_to_toml if out.suffix.lower() == ".toml" else cameras_to_yaml
         out.write_text(writer(cams, units=units, metadata=meta))
@@ -150,6 +184,10 @@ def _import(path: Path, file_units: str, session, store: bool, out, units: str, 
     if "body_rms_px" in meta:
         summary["body_rms_px"] = meta["body_rms_px"]
         summary["media_assumed"] = meta["media_assumed"]
+    if "body_models" in meta:
+        summary["body_models"] = meta["body_models"]
+    if "self_calibration" in meta:
+        summary["self_calibration"] = {**meta["self_calibration_settings"], **meta["self_calibration"]}
     if as_json:
         print_json(summary)
         return
@@ -157,10 +195,127 @@ def _import(path: Path, file_units: str, session, store: bool, out, units: str, 
     if "body_rms_px" in meta:
         console.print("calibration body RMS: " + ", ".join(f"{esc(n)} {r:.3f} px" for n, r in meta["body_rms_px"].items())
                       + f"; media assumed: {esc(meta['media_assumed'])}")
+    if "self_calibration" in meta:
+        _print_selfcal(meta["self_calibration"])
     if stored:
         console.print(f"stored as {stored} in {esc(session)}")
     if out is not None:
         console.print(f"wrote {esc(out)}")
+
+
+# ------------------------------------------------------------------------------------- --self-calibrate
+
+def _parse_frames(text: str) -> list[int]:
+    """``10000-10004`` or ``10000,10002`` (or both mixed) -> frame numbers."""
+    frames: list[int] = []
+    try:
+        for part in text.split(","):
+            lo, _, hi = part.strip().partition("-")
+            frames += list(range(int(lo), int(hi) + 1)) if hi else [int(lo)]
+    except ValueError:
+        raise CliInputError(f"--self-calibrate must list frame numbers like 10000-10004 or 10000,10002; got {text!r}") from None
+    if not frames:
+        raise CliInputError(f"--self-calibrate must name at least one frame; got {text!r}")
+    return sorted(set(frames))
+
+
+def _parse_volume(text: str | None):
+    """``XMIN,XMAX,YMIN,YMAX,ZMIN,ZMAX`` in mm -> ``(lo, hi)`` in m, or None."""
+    if text is None:
+        return None
+    try:
+        v = np.array([float(x) for x in text.split(",")]) * 1e-3
+    except ValueError:
+        v = np.zeros(0)
+    if v.shape != (6,) or not np.all(np.isfinite(v)) or np.any(v[1::2] <= v[0::2]):
+        raise CliInputError(f"--volume-mm must be XMIN,XMAX,YMIN,YMAX,ZMIN,ZMAX in mm with each min < max; got {text!r}")
+    return v[0::2], v[1::2]
+
+
+def _check_selfcal_input(path: Path, out) -> None:
+    from vfmlab import openptv
+
+    if not openptv.is_openptv_folder(path):
+        raise CliInputError(f"--self-calibrate needs an OpenPTV folder for --import (its particle images, cal/camN.tif "
+                            f"and cal/target_on_a_side.txt); got {path}")
+    if out is not None:
+        raise CliInputError(f"-o {out}: TOML/YAML files hold no window (refraction); store the self-calibration in a session")
+
+
+def _self_calibrate(folder: Path, cams: list, meta: dict, *, frames: str, images: str, body_weight: float,
+                    volume: str | None, body_sides: bool) -> tuple[list, dict]:
+    """Refine ``cams`` on the particles of ``frames`` (volume self-calibration) with progress; the cameras and
+    ``meta`` with ``self_calibration`` (figures, SI/px keys) and ``self_calibration_settings``."""
+    from vfmlab import openptv
+
+    numbers, bounds = _parse_frames(frames), _parse_volume(volume)
+    if not body_weight > 0:
+        raise CliInputError(f"--body-weight must be > 0 (the body's dots fix the gauge); got {body_weight}")
+    no_window = [c.name for c in cams if c.window is None]
+    if no_window:
+        raise CliInputError(f"--self-calibrate: cameras {no_window} of --import {folder} have no window (ptv.par's media "
+                            "are all air?); the self-calibration refines the window's tilt through glass and water")
+    with Progress(console=err_console, transient=True) as progress:
+        task = progress.add_task("self-calibration", total=None)
+
+        def tick(done, total, what):
+            progress.update(task, completed=done, total=total, description=f"self-calibration: {esc(what)}")
+
+        try:
+            sc, bounds, pts, px, dets = openptv.self_calibrate_folder(folder, cams, numbers, images=images,
+                                                                      body_weight=body_weight, bounds=bounds, progress=tick,
+                                                                      body_sides=body_sides)
+        except FileNotFoundError as exc:
+            raise CliInputError(f"--self-calibrate {frames} (--particle-images {images}): {exc}") from None
+        except ValueError as exc:
+            raise CliInputError(f"--self-calibrate {frames}: {exc}") from None
+    if not sc.particle_rms_px:
+        raise CliError(f"--self-calibrate: {sc.message}; nothing stored (more frames, or a calibration closer to "
+                       "consistent, e.g. --body)")
+    out = _selfcal_meta(sc, cams, numbers, images, body_weight, bounds, pts, px, dets, body_sides)
+    if not out["self_calibration"]["disparity_improved"]:
+        err_console.print("warning: --self-calibrate made the cameras less consistent (disparity peaks "
+                          f"{sc.maps[0].rms_peak_offset_px:.3f} -> {sc.check_map.rms_peak_offset_px:.3f} px RMS at the first "
+                          "pass's tolerances); a calibration whose distortion extrapolates (e.g. --body fixed) is a poor seed")
+    return sc.cameras, {**meta, **out}
+
+
+def _selfcal_meta(sc, before: list, frames, images, body_weight, bounds, pts, px, dets, body_sides: bool) -> dict:
+    """What the session and --json keep of a self-calibration (SI and px, the unit in every key)."""
+    from reconstruction.volume_selfcal import body_rms
+    from vfmlab import openptv
+
+    names = [c.name for c in before]
+    settings = {"frames": frames, "particle_images": images, "body_weight": body_weight,
+                "refined": list(openptv.SELFCAL_SETTINGS["free"]),
+                "schedule_px": [list(t) for t in openptv.SELFCAL_SETTINGS["schedule"]], "body_sides": body_sides,
+                "volume_min_m": [float(v) for v in bounds[0]], "volume_max_m": [float(v) for v in bounds[1]]}
+    figures = {"message": sc.message, "passes_run": len(sc.particle_rms_px),
+               "particles_per_frame": {str(f): [len(d) for d in row] for f, row in zip(frames, dets)},
+               "candidates": sc.n_candidates, "consistent": sc.n_used,
+               "particle_rms_px": [float(r) for r in sc.particle_rms_px],
+               "disparity_peak_rms_px_before": sc.maps[0].rms_peak_offset_px,
+               "disparity_peak_rms_px_after": sc.check_map.rms_peak_offset_px,
+               "disparity_peak_max_px_before": sc.maps[0].max_peak_offset_px,
+               "disparity_peak_max_px_after": sc.check_map.max_peak_offset_px,
+               "disparity_improved": bool(sc.check_map.rms_peak_offset_px < sc.maps[0].rms_peak_offset_px),
+               "body_offset_m": sc.body_offset_m,
+               "body_far_side_cameras": [] if sc.far_side is None else [n for n, f in zip(names, sc.far_side) if f],
+               "body_rms_px_before": dict(zip(names, body_rms(before, pts, px).tolist())),
+               "body_rms_px_after": dict(zip(names, sc.body_rms_px.tolist()))}
+    return {"self_calibration": figures, "self_calibration_settings": settings, "rms_px": sc.body_rms_px.tolist()}
+
+
+def _print_selfcal(f: dict) -> None:
+    console.print(f"self-calibration: {esc(f['message'])}; particle RMS after the last pass {f['particle_rms_px'][-1]:.3f} px")
+    console.print(f"disparity peaks at the first pass's tolerances: {f['disparity_peak_rms_px_before']:.3f} px RMS "
+                  f"(max {f['disparity_peak_max_px_before']:.3f} px) before, {f['disparity_peak_rms_px_after']:.3f} px RMS "
+                  f"(max {f['disparity_peak_max_px_after']:.3f} px) after")
+    if f["body_far_side_cameras"]:
+        console.print(f"body as {esc(', '.join(f['body_far_side_cameras']))} see it (its other side): offset "
+                      f"{1e3 * f['body_offset_m']:+.3f} mm along its normal")
+    console.print("calibration body RMS before -> after: " + ", ".join(
+        f"{esc(n)} {f['body_rms_px_before'][n]:.3f} -> {r:.3f} px" for n, r in f["body_rms_px_after"].items()))
 
 
 EPILOG = """
@@ -171,6 +326,7 @@ Examples:
   vfmlab calibrate a1.h5 --import calibration.toml --import-units mm
   vfmlab calibrate a1.h5 --refine-window                  # through the rig file's [window], its plane refined
   vfmlab calibrate a1.h5 --import openptv-project/ --body fixed   # OpenPTV cameras + window, refined on its body
+  vfmlab calibrate a1.h5 --import openptv-project/ --self-calibrate 10000-10004   # then on the particles
 """
 
 
@@ -204,10 +360,30 @@ Examples:
               help="Take the calibration from a file instead of board images: aniposelib calibration.toml, "
                    "OpenCV FileStorage .yaml/.yml/.xml/.json, or an OpenPTV working folder (parameters/ptv.par, "
                    "cal/*.ori + .addpar: cameras with their glass/water window). Store it in SESSION and/or convert it with -o.")
-@click.option("--body", type=click.Choice(["fixed", "free"]), default=None,
+@click.option("--body", type=click.Choice(["fixed", "free", "selected"]), default=None,
               help="With an OpenPTV folder: refine every camera on its image of the 3-D calibration body "
                    "(cal/camN.tif, cal/target_on_a_side.txt) through the window; 'fixed' keeps the imported focal "
-                   "length, 'free' refines it too and refuses the result if one view cannot determine it.")
+                   "length, 'free' refines it too and refuses the result if one view cannot determine it; 'selected' "
+                   "refines per camera only the terms the dots determine over the whole image (the better seed for "
+                   "--self-calibrate; a few minutes).")
+@click.option("--self-calibrate", "selfcal_frames", metavar="FRAMES", default=None,
+              help="With an OpenPTV folder for --import: refine the cameras (imported, or refined on the body with "
+                   "--body) on the particles of these frames, e.g. 10000-10004 or 10000,10002 (volume "
+                   "self-calibration: pose, k1, principal point and window tilt per camera, jointly with the "
+                   "calibration body's dots; about 2 min for 5 frames). The figures before/after are stored with "
+                   "the calibration.")
+@click.option("--particle-images", default="img_1/cam{camera}.{frame}", show_default=True,
+              help="With --self-calibrate: the particle images inside the --import folder; {camera} = 1, 2, ..., "
+                   "{frame} = the frame number.")
+@click.option("--body-weight", type=float, default=0.5, show_default=True,
+              help="With --self-calibrate: weight of a calibration-body dot's residual against a particle's.")
+@click.option("--body-sides/--one-body", default=True, show_default=True,
+              help="With --self-calibrate: cameras looking at the calibration body from its other side see it offset "
+                   "along its normal by a distance refined with the cameras (a body whose dots are seen from both "
+                   "faces, the target file giving one; test_cavity: 1.8-2.0 mm), or one body for all cameras.")
+@click.option("--volume-mm", metavar="XMIN,XMAX,YMIN,YMAX,ZMIN,ZMAX", default=None,
+              help="With --self-calibrate: the measurement volume, mm (world frame of the calibration). Default: "
+                   "the region seen by >= 3 cameras within criteria.par's depth range (Zmin/Zmax) +- 5 mm.")
 @click.option("--import-units", type=click.Choice(["m", "cm", "mm", "um"]), default="mm", show_default=True,
               help="Length unit of an imported file's translations when the file does not say (aniposelib does not).")
 @click.option("--refine-window", is_flag=True,
@@ -216,7 +392,8 @@ Examples:
                    "recorded window is used as it is; a session without one calibrates with straight rays.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
 def command(session, images_dir, board, squares, square_size_mm, marker_size_mm, dictionary, subpix_window, reference,
-            world_view, fix_k3, out, force, units, store, import_file, import_units, body, refine_window, as_json):
+            world_view, fix_k3, out, force, units, store, import_file, selfcal_frames, particle_images, body_weight,
+            body_sides, volume_mm, import_units, body, refine_window, as_json):
     """Calibrate the cameras jointly from calibration-board images.
 
     Each camera is initialised alone (OpenCV), camera poses are chained through shared board
@@ -233,8 +410,13 @@ def command(session, images_dir, board, squares, square_size_mm, marker_size_mm,
     if import_file is not None:
         if images_dir is not None:
             raise CliInputError("--import and --images exclude each other: calibrate from images or import a calibration")
-        _import(import_file, import_units, session, store, out, units, as_json, body)
+        selfcal = None if selfcal_frames is None else dict(frames=selfcal_frames, images=particle_images,
+                                                           body_weight=body_weight, volume=volume_mm,
+                                                           body_sides=body_sides)
+        _import(import_file, import_units, session, store, out, units, as_json, body, selfcal)
         return
+    if selfcal_frames is not None:
+        raise CliInputError("--self-calibrate needs --import FOLDER (an OpenPTV folder with its particle images)")
     if session is None and images_dir is None:
         raise CliInputError("give a SESSION (its calibration images) or --images DIR")
     spec = _board_spec(board, squares, square_size_mm, marker_size_mm, dictionary, subpix_window)
