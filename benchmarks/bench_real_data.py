@@ -61,9 +61,10 @@ DETECTION = {"threshold": 6.0, "min_sum": 100.0, "pixels_range": (3, 500), "spli
 DECOY_SHIFT_PX = (20.0, 13.0)
 #: volume self-calibration of the imported calibration: OpenPTV's particle settings (fewer, brighter particles than
 #: DETECTION: fewer chance candidates), frames 0-4, the box of OpenPTV's points (1st-99th percentile, 5 mm margin),
-#: 2 x 2 x 2 sub-volumes; pose, k1, principal point and window tilt refined per camera with the body's dots
+#: 2 x 2 x 2 sub-volumes; pose, k1, principal point and window tilt refined per camera with the body's dots; the
+#: body as the cameras on its far side see it offset along its normal (body_sides, as `vfmlab calibrate` does)
 SELFCAL_FRAMES = (0, 1, 2, 3, 4)
-SELFCAL = {"grid": (2, 2, 2), "free": ("pose", "k1", "principal_point", "window_tilt"), "f_scale_px": 1.0,
+SELFCAL = {"grid": (2, 2, 2), "body_sides": True, "free": ("pose", "k1", "principal_point", "window_tilt"), "f_scale_px": 1.0,
            "schedule": ((4.0, 3.0, 1.5), (3.0, 2.0, 1.0), (2.0, 1.5, 0.7), (1.5, 1.0, 0.5))}
 #: matching after the self-calibration: the same particles, gates tighter than GATES (at DETECTION's density and
 #: GATES, chance coincidences dominate whatever the calibration); the imported calibration is matched the same way

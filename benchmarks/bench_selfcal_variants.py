@@ -131,7 +131,7 @@ def run() -> dict:
                 clean_dots[c] -= move
         dots = clean_dots if use_clean else all_dots
         t = time.perf_counter()
-        sc = V.self_calibrate(frames, seed, bounds, body, dots, **{**B.SELFCAL, **opts})
+        sc = V.self_calibrate(frames, seed, bounds, body, dots, **{**B.SELFCAL, "body_sides": False, **opts})
         base = base or sc
         res["variants"][name] = {
             "s": time.perf_counter() - t, "message": sc.message,
