@@ -1,12 +1,10 @@
 """Multi-camera matching over time (reconstruction/temporal_matching.py): moving particles rendered through
 glass and water into 4 cameras, dense enough that one frame cannot tell true matches from chance ones."""
 
-import cv2
 import numpy as np
 import pytest
 
-from reconstruction.cameras import Camera
-from reconstruction.refraction import Window
+from _window_rig import window_rig
 from reconstruction.temporal_matching import (apply_pixel_correction, fit_pixel_correction, frame_candidates,
                                               temporal_match)
 
@@ -14,23 +12,6 @@ BOUNDS = (np.array([-0.03, -0.03, -0.02]), np.array([0.03, 0.03, 0.02]))
 DECOY_SHIFT_PX = (20.0, 13.0)
 GATES = {"epipolar_px": 2.0, "radius_px": 1.5, "max_residual_px": 1.5}
 MOTION = {"max_step_m": 1e-3, "max_accel_m": 0.4e-3, "max_residual_change_px": 0.5, "min_motion_m": 0.2e-3}
-
-
-def _camera(name, centre, side):
-    """A camera 0.58 m from the origin looking at it through 6 mm of glass into water (as OpenPTV's test_cavity)."""
-    z = -np.asarray(centre, float) / np.linalg.norm(centre)
-    x = np.cross([0.0, 1.0, 0.0], z)
-    x /= np.linalg.norm(x)
-    R = np.stack([x, np.cross(z, x), z])
-    rvec = cv2.Rodrigues(R)[0].ravel()
-    K = np.array([[5800.0, 0, 640], [0, 5800.0, 512], [0, 0, 1]])
-    win = Window(np.array([0.0, 0.0, side]), -0.12, (0.006,), (1.46,), 1.33)
-    return Camera(name, K, np.zeros(5), rvec, -R @ np.asarray(centre, float), (1280, 1024), window=win)
-
-
-def _rig():
-    return [_camera("cam1", [0.09, 0.0, -0.57], 1.0), _camera("cam2", [-0.12, 0.02, -0.57], 1.0),
-            _camera("cam3", [-0.11, 0.07, 0.58], -1.0), _camera("cam4", [0.12, 0.07, 0.57], -1.0)]
 
 
 def _scene(cams, rng, n=2000, n_frames=5, noise=0.1, seen=0.8):
@@ -70,7 +51,7 @@ def _with_cam1(obs):
 
 def test_temporal_matching_keeps_true_matches_and_few_chance_ones():
     rng = np.random.default_rng(3)
-    cams = _rig()
+    cams = window_rig()
     frames, ids, truth = _scene(cams, rng)
     decoy = [[f[0] + np.asarray(DECOY_SHIFT_PX), *f[1:]] for f in frames]
     # one frame alone is ambiguous: camera 1 moved by 20 px still takes part in many candidates (measured 21 %)
@@ -112,7 +93,7 @@ def test_pixel_correction_recovers_a_smooth_residual_map():
 
 
 def test_empty_frames_keep_their_shapes_and_two_frames_are_refused():
-    cams = _rig()
+    cams = window_rig()
     empty = [[np.zeros((0, 2)) for _ in cams] for _ in range(3)]
     tm = temporal_match(empty, cams, BOUNDS, **GATES, **MOTION)
     assert [o.shape for o in tm.observations] == [(0, 4)] * 3 and [p.shape for p in tm.points] == [(0, 3)] * 3

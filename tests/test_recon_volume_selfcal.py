@@ -2,32 +2,13 @@
 
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 
-from reconstruction.cameras import Camera
-from reconstruction.refraction import Window
+from _window_rig import window_rig
 from reconstruction.volume_selfcal import bundle_adjust, disparity_map, loose_candidates, self_calibrate
 
 BOUNDS = (np.array([-0.03, -0.03, -0.02]), np.array([0.03, 0.03, 0.02]))
-
-
-def _camera(name, centre, side):
-    """A camera 0.58 m from the origin looking at it through 6 mm of glass into water (as OpenPTV's test_cavity)."""
-    z = -np.asarray(centre, float) / np.linalg.norm(centre)
-    x = np.cross([0.0, 1.0, 0.0], z)
-    x /= np.linalg.norm(x)
-    R = np.stack([x, np.cross(z, x), z])
-    rvec = cv2.Rodrigues(R)[0].ravel()
-    K = np.array([[5800.0, 0, 640], [0, 5800.0, 512], [0, 0, 1]])
-    win = Window(np.array([0.0, 0.0, side]), -0.12, (0.006,), (1.46,), 1.33)
-    return Camera(name, K, np.zeros(5), rvec, -R @ np.asarray(centre, float), (1280, 1024), window=win)
-
-
-def _rig():
-    return [_camera("cam1", [0.09, 0.0, -0.57], 1.0), _camera("cam2", [-0.12, 0.02, -0.57], 1.0),
-            _camera("cam3", [-0.11, 0.07, 0.58], -1.0), _camera("cam4", [0.12, 0.07, 0.57], -1.0)]
 
 
 def _perturbed(cams, rng, rot=3e-4, shift=100e-6):
@@ -58,7 +39,7 @@ def _volume_error(cams, truth, rng):
 
 def test_self_calibration_recovers_perturbed_cameras():
     rng = np.random.default_rng(7)
-    truth = _rig()
+    truth = window_rig()
     cams = _perturbed(truth, rng)
     _, dets, body, body_px = _scene(truth, rng)
     before = _volume_error(cams, truth, rng)
@@ -77,7 +58,7 @@ def test_body_seen_from_its_other_side_offset_recovered():
     from reconstruction.volume_selfcal import body_normal, far_side
 
     rng = np.random.default_rng(11)
-    truth = _rig()
+    truth = window_rig()
     cams = _perturbed(truth, rng)
     _, dets, body, _ = _scene(truth, rng)
     far = far_side(truth, body)
@@ -110,7 +91,7 @@ def test_disparity_map_finds_the_peak_among_ghosts():
 
 
 def test_bad_arguments_are_named():
-    cams = _rig()
+    cams = window_rig()
     with pytest.raises(ValueError, match="min_views"):
         loose_candidates([np.zeros((0, 2))] * 4, cams, BOUNDS, min_views=5)
     with pytest.raises(ValueError, match="free"):
