@@ -16,6 +16,16 @@ def _volume(n=3000, seed=0):
     """Points over the measurement volume of OpenPTV's own results (mm box around them)."""
     return np.random.default_rng(seed).uniform([-45, -45, -25], [45, 60, 25], (n, 3)) * 1e-3
 
+def _empty_cavity_session(tmp_path):
+    """A session with test_cavity's 4 cameras (1280 x 1024 px) and nothing recorded: what `calibrate` writes into."""
+    from acquisition.session import CameraSpec, SessionWriter, SpecimenInfo
+
+    session = tmp_path / "s.h5"
+    specs = [CameraSpec(f"cam{i}", "imported", 1280, 1024, "uint8") for i in range(1, 5)]
+    with SessionWriter.create(session, SpecimenInfo("cavity", 5e-3, 50e-3, 0.5e-3, ""), cameras=specs, protocol_text="", rig={}):
+        pass
+    return session
+
 
 def test_projection_agrees_with_openptv():
     optv = pytest.importorskip("optv")  # noqa: F841  (test extra)
@@ -173,15 +183,12 @@ def test_calibration_body_refines_and_flags_ill_posed():
 def test_cli_imports_openptv_folder_and_refuses_ill_posed_body(tmp_path, capsys):
     import json
 
-    from acquisition.session import CameraSpec, SessionWriter, SpecimenInfo, open_session
+    from acquisition.session import open_session
     from vfmlab.cli import main
 
     assert main(["calibrate", "--import", str(DATA), "--body", "free"]) != 0  # ill-posed: refused, not stored
     assert "ill-posed" in capsys.readouterr().err
-    session = tmp_path / "s.h5"
-    specs = [CameraSpec(f"cam{i}", "imported", 1280, 1024, "uint8") for i in range(1, 5)]
-    with SessionWriter.create(session, SpecimenInfo("cavity", 5e-3, 50e-3, 0.5e-3, ""), cameras=specs, protocol_text="", rig={}):
-        pass
+    session = _empty_cavity_session(tmp_path)
     assert main(["calibrate", str(session), "--import", str(DATA), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["stored_as"]
     from vfmlab.pipeline import session_calibrated_cameras
@@ -208,14 +215,11 @@ def test_cli_body_calibration_within_half_a_pixel_in_every_camera(tmp_path, caps
     # ptv.par cameras 3-4 give 0.556, 0.457 px)
     import json
 
-    from acquisition.session import CameraSpec, SessionWriter, SpecimenInfo, open_session
+    from acquisition.session import open_session
     from vfmlab.cli import main
     from vfmlab.pipeline import session_calibrated_cameras
 
-    session = tmp_path / "s.h5"
-    specs = [CameraSpec(f"cam{i}", "imported", 1280, 1024, "uint8") for i in range(1, 5)]
-    with SessionWriter.create(session, SpecimenInfo("cavity", 5e-3, 50e-3, 0.5e-3, ""), cameras=specs, protocol_text="", rig={}):
-        pass
+    session = _empty_cavity_session(tmp_path)
     assert main(["calibrate", str(session), "--import", str(DATA), "--body", "fixed", "--json"]) == 0
     captured = capsys.readouterr()
     out = json.loads(captured.out)
@@ -354,16 +358,13 @@ def test_cli_self_calibration_stored_with_its_figures_and_bad_input_named(tmp_pa
     # disparity peak 0.49 -> 0.27 px RMS at the pass's tolerances, body 0.66-1.09 -> 0.76-0.83 px.
     import json
 
-    from acquisition.session import CameraSpec, SessionWriter, SpecimenInfo, open_session
+    from acquisition.session import open_session
     from vfmlab.cli import main
     from vfmlab.pipeline import session_calibrated_cameras
 
     monkeypatch.setattr(openptv, "SELFCAL_SETTINGS", {**openptv.SELFCAL_SETTINGS, "schedule": ((4.0, 3.0, 1.5),),
                                                       "grid": (1, 1, 1)})
-    session = tmp_path / "s.h5"
-    specs = [CameraSpec(f"cam{i}", "imported", 1280, 1024, "uint8") for i in range(1, 5)]
-    with SessionWriter.create(session, SpecimenInfo("cavity", 5e-3, 50e-3, 0.5e-3, ""), cameras=specs, protocol_text="", rig={}):
-        pass
+    session = _empty_cavity_session(tmp_path)
     assert main(["calibrate", str(session), "--import", str(DATA), "--self-calibrate", "10001", "--json"]) == 0
     captured = capsys.readouterr()
     out = json.loads(captured.out)
@@ -413,15 +414,12 @@ def test_cli_body_selected_keeps_the_terms_the_dots_determine(tmp_path, capsys, 
     # with all 32: pose + principal point (cameras 1-2), pose + window tilt (3-4), 0.22-0.70 px.
     import json
 
-    from acquisition.session import CameraSpec, SessionWriter, SpecimenInfo, open_session
+    from acquisition.session import open_session
     from reconstruction import calibration_body
     from vfmlab.cli import main
 
     monkeypatch.setattr(calibration_body, "body_models", lambda: {"pose": (), "pose+principal_point": ("cx", "cy")})
-    session = tmp_path / "s.h5"
-    specs = [CameraSpec(f"cam{i}", "imported", 1280, 1024, "uint8") for i in range(1, 5)]
-    with SessionWriter.create(session, SpecimenInfo("cavity", 5e-3, 50e-3, 0.5e-3, ""), cameras=specs, protocol_text="", rig={}):
-        pass
+    session = _empty_cavity_session(tmp_path)
     assert main(["calibrate", str(session), "--import", str(DATA), "--body", "selected", "--json"]) == 0
     captured = capsys.readouterr()
     out = json.loads(captured.out)
