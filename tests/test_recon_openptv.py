@@ -188,6 +188,8 @@ def test_cli_imports_openptv_folder_and_refuses_ill_posed_body(tmp_path, capsys)
 
     assert main(["calibrate", "--import", str(DATA), "--body", "free"]) != 0  # ill-posed: refused, not stored
     assert "ill-posed" in capsys.readouterr().err
+    assert main(["calibrate", "--import", str(DATA)]) == 0  # a check of the folder: says that it kept nothing
+    assert "nothing stored: give a SESSION" in " ".join(capsys.readouterr().out.split())
     session = _empty_cavity_session(tmp_path)
     assert main(["calibrate", str(session), "--import", str(DATA), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["stored_as"]

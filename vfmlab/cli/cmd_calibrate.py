@@ -201,6 +201,8 @@ def _import(path: Path, file_units: str, session, store: bool, out, units: str, 
         console.print(f"stored as {stored} in {esc(session)}")
     if out is not None:
         console.print(f"wrote {esc(out)}")
+    if not stored and out is None:
+        console.print("nothing stored: give a SESSION (or -o for a calibration without a window) to keep these cameras")
 
 
 # ------------------------------------------------------------------------------------- --self-calibrate
