@@ -36,8 +36,8 @@ from pathlib import Path
 
 import h5py
 
-__all__ = ["JournalError", "LockTimeout", "WriteFailed", "journal_path", "journaled_h5", "recover", "wait_lock",
-           "LOCK_TIMEOUT_S"]
+__all__ = ["JournalError", "LockTimeout", "WriteFailed", "journal_path", "journaled_h5", "lock_timeout", "recover",
+           "wait_lock", "LOCK_TIMEOUT_S"]
 
 log = logging.getLogger(__name__)
 
@@ -71,7 +71,8 @@ def journal_path(path: str | os.PathLike) -> Path:
     return path.with_name(path.name + ".journal")
 
 
-def _lock_timeout() -> float:
+def lock_timeout() -> float:
+    """How long (s) a job waits for another that holds the file: ``VFMLAB_LOCK_TIMEOUT_S`` or LOCK_TIMEOUT_S."""
     try:
         return float(os.environ.get("VFMLAB_LOCK_TIMEOUT_S", LOCK_TIMEOUT_S))
     except ValueError:
@@ -85,7 +86,7 @@ def wait_lock(fd: int, path: str | os.PathLike, *, exclusive: bool, timeout: flo
     Logs one warning when it has to wait; raises :class:`LockTimeout` naming the file and the
     time waited when the other job does not let go.
     """
-    timeout = _lock_timeout() if timeout is None else timeout
+    timeout = lock_timeout() if timeout is None else timeout
     mode = (fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH) | fcntl.LOCK_NB
     start = time.monotonic()
     warned = False

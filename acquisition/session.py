@@ -52,7 +52,7 @@ import h5py
 import numpy as np
 
 from acquisition.errors import DamagedFileError, InputError, OperationError
-from acquisition.h5journal import JournalError, LockTimeout, journaled_h5, recover, wait_lock
+from acquisition.h5journal import JournalError, LockTimeout, journaled_h5, lock_timeout, recover, wait_lock
 from acquisition.h5recover import clear_consistency_flags
 
 __all__ = [
@@ -960,16 +960,22 @@ def _check_result_arrays(kind: str, arrays: Mapping[str, Any]) -> None:
 
 
 def _h5_open_read(path: Path) -> h5py.File:
-    try:
-        return _h5_open_read_once(path)
-    except OSError as exc:
-        if "unable to lock file" not in str(exc):
-            raise
-    # Another job is appending a result (an exclusive lock for a moment): wait for it, bounded.
-    with open(path, "rb") as fh:
-        wait_lock(fh.fileno(), path, exclusive=False, what="read")
-        fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
-    return _h5_open_read_once(path)
+    """``h5py.File(path, "r")``, waiting (bounded: the lock timeout in all) while other jobs append results.
+
+    Raises :class:`LockTimeout` when they hold the file longer than that.
+    """
+    deadline = time.monotonic() + lock_timeout()
+    while True:
+        try:
+            return _h5_open_read_once(path)
+        except OSError as exc:
+            if "unable to lock file" not in str(exc):
+                raise
+        # Another job is appending a result (an exclusive lock for a moment): wait for it, then open
+        # again; a third job may take the lock in between (1 open in ~30 with 6 concurrent writers), so loop.
+        with open(path, "rb") as fh:
+            wait_lock(fh.fileno(), path, exclusive=False, what="read", timeout=max(0.0, deadline - time.monotonic()))
+            fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
 
 
 def _h5_open_read_once(path: Path) -> h5py.File:
@@ -1168,6 +1174,8 @@ def _open_possibly_growing(path: Path) -> h5py.File:
         size = path.stat().st_size
         try:
             return _h5_open_read(path)
+        except LockTimeout as exc:
+            raise SessionError(str(exc)) from None
         except OSError as exc:
             reason = str(exc)
         if not ("truncated" in reason or "eof" in reason.lower()):
