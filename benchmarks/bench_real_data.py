@@ -61,11 +61,11 @@ DETECTION = {"threshold": 6.0, "min_sum": 100.0, "pixels_range": (3, 500), "spli
 DECOY_SHIFT_PX = (20.0, 13.0)
 #: volume self-calibration of the imported calibration: OpenPTV's particle settings (fewer, brighter particles than
 #: DETECTION: fewer chance candidates), frames 0-4, the box of OpenPTV's points (1st-99th percentile, 5 mm margin),
-#: 2 x 2 x 2 sub-volumes; pose, k1, principal point and window tilt refined per camera with the body's dots; the
-#: body as the cameras on its far side see it offset along its normal (body_sides, as `vfmlab calibrate` does)
+#: and the settings of `vfmlab calibrate --self-calibrate` (openptv.SELFCAL_SETTINGS: 2 x 2 x 2 sub-volumes; pose, k1,
+#: principal point and window tilt refined per camera with the body's dots; the body as the cameras on its far side
+#: see it offset along its normal)
 SELFCAL_FRAMES = (0, 1, 2, 3, 4)
-SELFCAL = {"grid": (2, 2, 2), "body_sides": True, "free": ("pose", "k1", "principal_point", "window_tilt"), "f_scale_px": 1.0,
-           "schedule": ((4.0, 3.0, 1.5), (3.0, 2.0, 1.0), (2.0, 1.5, 0.7), (1.5, 1.0, 0.5))}
+SELFCAL = openptv.SELFCAL_SETTINGS
 #: matching after the self-calibration: the same particles, gates tighter than GATES (at DETECTION's density and
 #: GATES, chance coincidences dominate whatever the calibration); the imported calibration is matched the same way
 SELFCAL_GATES = {"epipolar_px": 1.5, "max_reprojection_px": 1.0, "max_pair_angle_deg": 180.0}
@@ -142,25 +142,11 @@ def selected_body_calibration(imported: list, physical_media: bool = True) -> tu
     PHYSICAL_MEDIA (``physical_media``; else ptv.par's as written): only the terms the body's dots determine
     over the whole image are refined, the others keep the imported values. Returns the cameras and per camera
     the chosen model, its body RMS (px), the candidates' figures and the change of the projection at the image corners vs ``imported`` (px)."""
-    from dataclasses import replace
-
-    from reconstruction.calibration_body import (calibrate_from_body, match_body_points, refine_dot_centres,
-                                                 select_body_model)
-    from reconstruction.particles import detect_particles
-
-    _, pts = openptv.read_target_file(DATA / "cal" / "target_on_a_side.txt")
-    cams, info = [], {}
-    for i, seed in enumerate(imported):
-        image = openptv.read_image(DATA / "cal" / f"cam{i + 1}.tif")
-        dots = detect_particles(image, **openptv.BODY_DOT_SETTINGS).centres
-        coarse = calibrate_from_body(match_body_points(dots, seed, pts, gate_px=20.0), pts, seed, fix_focal=True)
-        px = refine_dot_centres(image, match_body_points(dots, coarse.camera, pts, gate_px=4.0), radius_px=6.0)
-        fine = replace(seed, window=replace(seed.window, **openptv.PHYSICAL_MEDIA)) if physical_media else seed
-        sel = select_body_model(px, pts, fine)
-        cams.append(sel.calibration.camera)
-        info[seed.name] = {"model": sel.chosen, "rms_px": sel.calibration.rms,
-                           "corner_distortion_change_px": corner_distortion_change(sel.calibration.camera, seed),
-                           "candidates": sel.table}
+    sel = openptv.select_body_folder(DATA, imported, media=openptv.PHYSICAL_MEDIA if physical_media else None)
+    cams = [s.calibration.camera for s in sel]
+    info = {seed.name: {"model": s.chosen, "rms_px": s.calibration.rms,
+                        "corner_distortion_change_px": corner_distortion_change(s.calibration.camera, seed),
+                        "candidates": s.table} for seed, s in zip(imported, sel)}
     return cams, info
 
 
@@ -190,13 +176,7 @@ def run(frames: list[int], selfcal_seed: str = "imported", dense: bool = True, b
            "calibration_body_rms_px": {b.camera.name: b.rms for b in body},
            "calibration_body_well_posed": {b.camera.name: b.well_posed for b in body},
            "calibration_body_rms_px_imported": {}, "detections_per_camera": {}}
-    from reconstruction.calibration_body import match_body_points
-    from reconstruction.particles import detect_particles
-
-    _, pts = openptv.read_target_file(DATA / "cal" / "target_on_a_side.txt")
-    body_px = np.stack([match_body_points(detect_particles(openptv.read_image(DATA / "cal" / f"cam{i + 1}.tif"),
-                                                           **openptv.BODY_DOT_SETTINGS).centres, cam, pts)
-                        for i, cam in enumerate(imported)])
+    pts, body_px = openptv.body_dots(DATA, imported)
     for cam, px in zip(imported, body_px):
         out["calibration_body_rms_px_imported"][cam.name] = float(np.sqrt(np.nanmean(np.sum((cam.project(pts) - px) ** 2, 1))))
     out["calibration_body_corner_distortion_change_px"] = {
@@ -238,8 +218,7 @@ TEMPORAL_VARIANTS = {"second difference <= 0.4 mm": {"max_accel_m": 0.4e-3},
                      "residual change <= 0.4 px": {"max_residual_change_px": 0.4},
                      "residual change <= 0.7 px": {"max_residual_change_px": 0.7},
                      "no residual test": {"max_residual_change_px": float("inf")},
-                     "static chains allowed": {"min_motion_m": 0.0},
-                     "extend_pairs on": {"extend": True}}
+                     "static chains allowed": {"min_motion_m": 0.0}}
 
 
 def temporal_variants(frames: list[int], cams: list) -> dict:

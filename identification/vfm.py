@@ -275,7 +275,8 @@ def prepare(
     return VFMData(c=c, work_density=work_density, evw=evw, pressure_work=pressure_work, end_work=end_work,
                    end_force=n_end, scale=scale, field_names=tuple(fields.names), wall=wall, ends=ends, mesh=mesh,
                    n_valid_triangles=n_valid, n_outliers=st.outliers.sum(axis=1),
-                   marker_noise=float(np.nanmedian(st.noise)) if np.isfinite(st.noise).any() else float("nan"), smoothing=st.smoothing, pressure=p, axial_force=f,
+                   marker_noise=float(np.nanmedian(st.noise)) if np.isfinite(st.noise).any() else float("nan"),
+                   smoothing=st.smoothing, pressure=p, axial_force=f,
                    thickness=e0, strip_force=strip_force)
 
 

@@ -33,8 +33,7 @@ from reconstruction.cameras import Camera
 from reconstruction.refraction import Window
 
 __all__ = ["BodyCalibration", "BodyModelSelection", "BODY_TERM_GROUPS", "body_models", "match_body_points",
-           "refine_dot_centres",
-           "calibrate_from_body", "select_body_model", "coverage_points", "projection_sigma_px",
+           "refine_dot_centres", "calibrate_from_body", "select_body_model", "coverage_points", "projection_sigma_px",
            "CAMERA_PARAMETERS", "camera_parameters", "camera_with_parameters"]
 
 log = logging.getLogger(__name__)
@@ -43,7 +42,7 @@ log = logging.getLogger(__name__)
 #: :func:`camera_parameters` (pose rvec (rad) and tvec (m), focal length fy (px), principal point (px), distortion,
 #: window offset (m), aspect fx/fy, the window normal's two tilts (rad) relative to its current direction)
 CAMERA_PARAMETERS = ("rx", "ry", "rz", "tx", "ty", "tz", "f", "cx", "cy", "k1", "k2", "window_offset",
-          "k3", "p1", "p2", "aspect", "window_tilt_a", "window_tilt_b")
+                     "k3", "p1", "p2", "aspect", "window_tilt_a", "window_tilt_b")
 
 
 @dataclass(frozen=True)

@@ -23,8 +23,7 @@ A chance match of particles that do not move persists unchanged: static chains p
    middle candidate 3).
 4. **Selection** (:func:`select_per_frame`): per frame, supported candidates in order of score, then
    views, then reprojection RMS; each detection is used once.
-5. **Recovery** (:func:`recover_from_tracks`; optionally first :func:`extend_pairs`, which completes
-   consistent two-frame links by a third frame the same way): the selected points are chained over the
+5. **Recovery** (:func:`recover_from_tracks`): the selected points are chained over the
    frames; where a chain has no point in a neighbouring frame, its position there is predicted (constant
    velocity), projected into every camera and the nearest unused detection within ``recover_radius_px``
    taken; >= ``min_views`` views within ``max_residual_px`` of their triangulation and within ``max_accel_m``
@@ -51,7 +50,7 @@ from reconstruction.triangulation import triangulate
 from reconstruction.volume_selfcal import loose_candidates
 
 __all__ = ["FrameCandidates", "TemporalMatch", "frame_candidates", "link_frames", "smooth_triplets",
-           "select_per_frame", "recover_from_tracks", "extend_pairs", "temporal_match", "fit_pixel_correction",
+           "select_per_frame", "recover_from_tracks", "temporal_match", "fit_pixel_correction",
            "apply_pixel_correction", "match_over_time"]
 
 log = logging.getLogger(__name__)
@@ -342,85 +341,10 @@ def recover_from_tracks(frames: list[list[np.ndarray]], cameras: list[Camera], o
     return obs, pts, n_rec
 
 
-def _consistent_pairs(cands: list[FrameCandidates], links: list[np.ndarray], keep: list[np.ndarray],
-                      max_residual_change_px: float, min_motion_m: float) -> list[np.ndarray]:
-    """Links ``(l_t, 2)`` between candidates of frames t and t + 1 that were not kept, whose residual changes by at
-    most ``max_residual_change_px`` in every common camera and whose step is at least ``min_motion_m / 2``."""
-    out = []
-    for t, L in enumerate(links):
-        a, b = L[:, 0], L[:, 1]
-        with np.errstate(invalid="ignore"):
-            change = np.linalg.norm(cands[t + 1].residuals[:, b] - cands[t].residuals[:, a], axis=-1)
-        ok = ~np.any(change > max_residual_change_px, axis=0)
-        ok &= np.linalg.norm(cands[t + 1].points[b] - cands[t].points[a], axis=1) >= 0.5 * min_motion_m
-        ok &= ~np.isin(a, keep[t]) & ~np.isin(b, keep[t + 1])
-        out.append(L[ok])
-    return out
-
-
-def _free(row: np.ndarray, used: np.ndarray) -> bool:
-    return not np.any((row >= 0) & np.array([r in u for r, u in zip(row, used)]))
-
-
-def extend_pairs(frames: list[list[np.ndarray]], cameras: list[Camera], cands: list[FrameCandidates],
-                 pairs: list[np.ndarray], observations: list[np.ndarray], points: list[np.ndarray], *,
-                 max_accel_m: float, radius_px: float, max_residual_px: float,
-                 max_residual_change_px: float = np.inf, min_views: int = 3) -> tuple[list, list, list[int]]:
-    """Linked candidate pairs (frames t, t + 1) that no smooth triplet holds, completed by a third frame: their
-    constant-velocity prediction into t + 2 (or t - 1) is projected into every camera and the nearest free
-    detection within ``radius_px`` taken; >= ``min_views`` views within ``max_residual_px`` of their
-    triangulation, within ``max_accel_m`` of the prediction and with residuals within ``max_residual_change_px`` of
-    the nearer candidate's in every camera make a triplet, whose three matches are added
-    when their detections are still free. ``pairs``: per t, ``(l_t, 2)`` candidate indices in t and t + 1.
-    Returns the observations and points per frame with the additions, and the number added per frame."""
-    obs, pts, pairs = list(observations), list(points), list(pairs)
-    added = [0] * len(frames)
-    for t, L in enumerate(pairs):
-        if len(L) == 0:
-            continue
-        for s, sign in ((t + 2, 1.0), (t - 1, -1.0)):
-            if not 0 <= s < len(frames) or len(L) == 0:
-                continue
-            Xa, Xb = cands[t].points[L[:, 0]], cands[t + 1].points[L[:, 1]]
-            P = 0.5 * (Xa + Xb) + sign * 1.5 * (Xb - Xa)
-            new = _claim(P, frames[s], obs[s], cameras, radius_px)
-            ok = np.flatnonzero((new >= 0).sum(axis=1) >= min_views)
-            if ok.size == 0:
-                continue
-            tri = triangulate(observed_pixels(frames[s], new[ok]), cameras, covariance=False)
-            worst = np.nanmax(np.linalg.norm(tri.residuals, axis=-1), axis=0)
-            good = (worst <= max_residual_px) & (np.linalg.norm(tri.points - P[ok], axis=1) <= max_accel_m)
-            near = cands[t + 1].residuals[:, L[ok, 1]] if sign > 0 else cands[t].residuals[:, L[ok, 0]]
-            with np.errstate(invalid="ignore"):
-                change = np.linalg.norm(tri.residuals - near, axis=-1)
-            good &= ~np.any(change > max_residual_change_px, axis=0)
-            used = {u: [set(o[:, c][o[:, c] >= 0].tolist()) for c in range(o.shape[1])]
-                    for u, o in ((t, obs[t]), (t + 1, obs[t + 1]), (s, obs[s]))}
-            taken = set()
-            for k, i in enumerate(ok[good]):
-                rows = ((t, cands[t].observations[L[i, 0]], cands[t].points[L[i, 0]]),
-                        (t + 1, cands[t + 1].observations[L[i, 1]], cands[t + 1].points[L[i, 1]]),
-                        (s, new[i], tri.points[good][k]))
-                if i in taken or not all(_free(r, used[u]) for u, r, _ in rows):
-                    continue
-                taken.add(i)
-                for u, r, X in rows:
-                    for c, d in enumerate(r):
-                        if d >= 0:
-                            used[u][c].add(int(d))
-                    obs[u] = np.concatenate([obs[u], r[None]])
-                    pts[u] = np.concatenate([pts[u], X[None]])
-                    added[u] += 1
-            L = np.delete(L, list(taken), axis=0)
-            pairs[t] = L
-    return obs, pts, added
-
-
 def temporal_match(frames: list[list[np.ndarray]], cameras: list[Camera], bounds, *, max_step_m: float,
                    max_accel_m: float, epipolar_px: float = 2.0, radius_px: float = 1.5,
                    max_residual_px: float = 1.5, min_views: int = 3, min_support: int = 1,
-                   max_residual_change_px: float = np.inf, min_motion_m: float = 0.0,
-                   extend: bool = False, recover: bool = True,
+                   max_residual_change_px: float = np.inf, min_motion_m: float = 0.0, recover: bool = True,
                    recover_radius_px: float | None = None) -> TemporalMatch:
     """Matches seen by >= ``min_views`` cameras that persist over consecutive frames (module docstring).
 
@@ -449,9 +373,6 @@ def temporal_match(frames: list[list[np.ndarray]], cameras: list[Camera], bounds
         :func:`smooth_triplets`).
     min_motion_m : float
         Smallest displacement over a triplet, m: static chains prove nothing.
-    extend : bool
-        Also complete consistent pairs of candidates by a third frame (:func:`extend_pairs`). Off by default:
-        on OpenPTV's test_cavity it adds about as many chance matches as true ones.
     recover : bool
         Run :func:`recover_from_tracks` (search radius ``recover_radius_px``, default ``radius_px``).
     """
@@ -468,16 +389,10 @@ def temporal_match(frames: list[list[np.ndarray]], cameras: list[Camera], bounds
     obs = [c.observations[k] for c, k in zip(cands, keep)]
     pts = [c.points[k] for c, k in zip(cands, keep)]
     n_rec = [0] * len(frames)
-    if extend:
-        pairs = _consistent_pairs(cands, links, keep, max_residual_change_px, min_motion_m)
-        obs, pts, n_rec = extend_pairs(frames, cameras, cands, pairs, obs, pts, max_accel_m=max_accel_m,
-                                       radius_px=recover_radius_px or radius_px, max_residual_px=max_residual_px,
-                                       max_residual_change_px=max_residual_change_px, min_views=min_views)
     if recover:
-        obs, pts, rec = recover_from_tracks(frames, cameras, obs, pts, max_step_m=max_step_m,
-                                            max_accel_m=max_accel_m, max_residual_px=max_residual_px,
-                                            recover_radius_px=recover_radius_px or radius_px, min_views=min_views)
-        n_rec = [a + b for a, b in zip(n_rec, rec)]
+        obs, pts, n_rec = recover_from_tracks(frames, cameras, obs, pts, max_step_m=max_step_m,
+                                              max_accel_m=max_accel_m, max_residual_px=max_residual_px,
+                                              recover_radius_px=recover_radius_px or radius_px, min_views=min_views)
     tris = [triangulate(observed_pixels(d, o), cameras, covariance=False) for d, o in zip(frames, obs)]
     support = [np.concatenate([s[k], np.zeros(len(o) - len(k), np.int64)]) for s, k, o in zip(sup, keep, obs)]
     log.info("temporal matching: candidates %s, supported %s, kept %s, recovered %s",

@@ -39,7 +39,7 @@ from scipy.optimize import least_squares
 from scipy.sparse import lil_matrix
 from scipy.spatial import cKDTree
 
-from reconstruction.calibration_body import camera_parameters, camera_with_parameters
+from reconstruction.calibration_body import CAMERA_PARAMETERS, camera_parameters, camera_with_parameters
 from reconstruction.cameras import Camera
 from reconstruction.correspondence import epipolar_curve_pairs, observed_pixels
 from reconstruction.triangulation import triangulate
@@ -50,11 +50,10 @@ __all__ = ["DisparityMap", "SelfCalibration", "loose_candidates", "disparity_map
 
 log = logging.getLogger(__name__)
 
-#: parameter groups :func:`bundle_adjust` can free, with their indices in the body-calibration parameter vector
-#: (:data:`reconstruction.calibration_body.CAMERA_PARAMETERS`)
-FREE_PARAMETERS = {"pose": (0, 1, 2, 3, 4, 5), "focal_length": (6,), "principal_point": (7, 8), "k1": (9,),
-                   "k2": (10,), "window_offset": (11,), "k3": (12,), "tangential": (13, 14), "aspect": (15,),
-                   "window_tilt": (16, 17)}
+#: parameter groups :func:`bundle_adjust` can free: names of :data:`reconstruction.calibration_body.CAMERA_PARAMETERS`
+FREE_PARAMETERS = {"pose": ("rx", "ry", "rz", "tx", "ty", "tz"), "focal_length": ("f",), "principal_point": ("cx", "cy"),
+                   "k1": ("k1",), "k2": ("k2",), "window_offset": ("window_offset",), "k3": ("k3",),
+                   "tangential": ("p1", "p2"), "aspect": ("aspect",), "window_tilt": ("window_tilt_a", "window_tilt_b")}
 #: shrinking tolerances of :func:`self_calibrate`: (epipolar_px, radius_px, keep_px) per pass
 SCHEDULE = ((4.0, 3.0, 1.5), (3.0, 2.0, 1.0), (2.0, 1.5, 0.7), (1.5, 1.0, 0.5))
 
@@ -284,10 +283,8 @@ def _free_mask(free: tuple[str, ...]) -> np.ndarray:
     unknown = set(free) - set(FREE_PARAMETERS)
     if unknown:
         raise ValueError(f"free must name groups among {sorted(FREE_PARAMETERS)}; got {sorted(unknown)}")
-    mask = np.zeros(18, bool)
-    for g in free:
-        mask[list(FREE_PARAMETERS[g])] = True
-    return mask
+    names = {n for g in free for n in FREE_PARAMETERS[g]}
+    return np.array([n in names for n in CAMERA_PARAMETERS])
 
 
 def _sparsity(seen: np.ndarray, body_seen: np.ndarray, n_par: int, far: np.ndarray | None = None) -> lil_matrix:
@@ -362,8 +359,8 @@ def bundle_adjust(cameras: list[Camera], pixels: np.ndarray, points: np.ndarray,
                          f"got {body_pixels.shape}")
     mask = _free_mask(tuple(free))
     n_par = int(mask.sum())
-    weights = np.broadcast_to(np.asarray(body_weight, float), (n_cams,)) if np.ndim(body_weight) == 0 else \
-        np.asarray(body_weight, float)
+    weights = np.asarray(body_weight, float)
+    weights = np.full(n_cams, float(weights)) if weights.ndim == 0 else weights
     if weights.shape != (n_cams,) or not np.all(np.isfinite(weights) & (weights >= 0)):
         raise ValueError(f"body_weight must be one weight >= 0 or one per camera ({n_cams}); got {body_weight!r}")
     seen = np.all(np.isfinite(pixels), axis=-1)
@@ -373,7 +370,6 @@ def bundle_adjust(cameras: list[Camera], pixels: np.ndarray, points: np.ndarray,
     if far is not None and np.shape(far) != (n_cams,):
         raise ValueError(f"far must be one bool per camera ({n_cams}); got shape {np.shape(far)}")
     far = None if far is None or not np.any(far) else np.asarray(far, bool)
-    normal = body_normal(body)
     n_x = n_cams * n_par + 3 * len(points)
 
     def unpack(x):
@@ -383,11 +379,11 @@ def bundle_adjust(cameras: list[Camera], pixels: np.ndarray, points: np.ndarray,
 
     def fun(x):
         cams, X, off = unpack(x)
+        bodies = _body_as_seen(body, n_cams, far, off)
         parts = []
         for c, cam in enumerate(cams):
-            B = body[bseen[c]] + (off * normal if far is not None and far[c] else 0.0)
             parts.append((cam.project(X[seen[c]]) - pixels[c, seen[c]]).ravel())
-            parts.append(weights[c] * (cam.project(B) - body_pixels[c, bseen[c]]).ravel())
+            parts.append(weights[c] * (cam.project(bodies[c][bseen[c]]) - body_pixels[c, bseen[c]]).ravel())
         return np.nan_to_num(np.concatenate(parts), nan=1e3)
 
     x0 = np.concatenate([np.concatenate([camera_parameters(c)[mask] for c in cameras]), points.ravel(),
@@ -420,12 +416,20 @@ def body_rms(cameras: list[Camera], body: np.ndarray, body_pixels: np.ndarray, f
     """Calibration-body reprojection RMS (norm) per camera ``(n_cameras,)``, px; the cameras ``far`` (bool
     (n_cameras,)) see the body ``body_offset_m`` further along its normal (:func:`bundle_adjust`)."""
     out = []
-    shift = body_offset_m * body_normal(body) if far is not None else 0.0
+    bodies = _body_as_seen(body, len(cameras), far, body_offset_m)
     for c, cam in enumerate(cameras):
         ok = np.all(np.isfinite(body_pixels[c]), axis=1)
-        B = body[ok] + (shift if far is not None and far[c] else 0.0)
-        out.append(np.sqrt(np.mean(np.sum((cam.project(B) - body_pixels[c, ok]) ** 2, axis=1))))
+        out.append(np.sqrt(np.mean(np.sum((cam.project(bodies[c][ok]) - body_pixels[c, ok]) ** 2, axis=1))))
     return np.array(out)
+
+
+def _body_as_seen(body: np.ndarray, n_cameras: int, far: np.ndarray | None, offset_m: float) -> np.ndarray:
+    """The body's points ``(n_body, 3)`` as each camera sees them, ``(n_cameras, n_body, 3)``: the cameras ``far``
+    (bool (n_cameras,), None = none) see them ``offset_m`` further along :func:`body_normal`."""
+    out = np.repeat(np.asarray(body, float)[None], n_cameras, axis=0)
+    if far is not None:
+        out[np.asarray(far, bool)] += offset_m * body_normal(body)
+    return out
 
 
 def body_normal(body: np.ndarray) -> np.ndarray:
@@ -531,7 +535,6 @@ def self_calibrate(frames: list[list[np.ndarray]], cameras: list[Camera], bounds
     tick(total, total, "disparity check at the first pass's tolerances")
     return SelfCalibration(cams, maps, n_cand, n_used, rms, body_rms(cams, body, body_pixels, far, offset), check,
                            message, offset, far)
-
 
 
 def common_view_box(cameras: list[Camera], depth_range, *, min_views: int = 3, axis: int = 2,

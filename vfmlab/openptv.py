@@ -132,11 +132,15 @@ def calibrate_body_folder(folder: str | Path, seeds: list, *, dot_radius_px: flo
     out = []
     for i, seed in enumerate(seeds):
         px, coarse = _matched_dots(folder, i, seed, body, dot_radius_px)
-        fine_seed = coarse.camera
-        if media and fine_seed.window is not None:
-            fine_seed = replace(fine_seed, window=replace(fine_seed.window, **media))
-        out.append(calibrate_from_body(px, body, fine_seed, **options))
+        out.append(calibrate_from_body(px, body, _with_media(coarse.camera, media), **options))
     return out
+
+
+def _with_media(camera, media: dict | None):
+    """``camera`` with its window's refractive indices replaced by ``media`` (keys ``indices``, ``n_bath``)."""
+    if not media or camera.window is None:
+        return camera
+    return replace(camera, window=replace(camera.window, **media))
 
 
 def _matched_dots(folder: Path, i: int, seed, body: np.ndarray, dot_radius_px: float | None):
@@ -155,12 +159,14 @@ def _matched_dots(folder: Path, i: int, seed, body: np.ndarray, dot_radius_px: f
     return px, coarse
 
 
-def select_body_folder(folder: str | Path, seeds: list, *, dot_radius_px: float = 6.0, progress=None) -> list:
+def select_body_folder(folder: str | Path, seeds: list, *, dot_radius_px: float = 6.0, media: dict | None = None,
+                       progress=None) -> list:
     """Per camera, :func:`~reconstruction.calibration_body.select_body_model` on the refined dots of
-    ``cal/camN.tif``, seeded by ``seeds`` with their media (matched as :func:`calibrate_body_folder` does): only
-    the terms the body's dots determine over the whole image are refined, the others keep the seed's values
-    (``bench_real_data.py --selfcal-seed selected-ptvpar``: the seed the volume self-calibration matches best
-    from). ``progress(done, total, camera name)`` after each camera. Returns the ``BodyModelSelection`` per camera."""
+    ``cal/camN.tif``, seeded by ``seeds`` (with ``media`` instead of theirs if given, as
+    :func:`calibrate_body_folder`; the seeds' own media match the dots): only the terms the body's dots determine
+    over the whole image are refined, the others keep the seed's values (``bench_real_data.py --selfcal-seed
+    selected-ptvpar``: the seed the volume self-calibration matches best from). ``progress(done, total, camera
+    name)`` after each camera. Returns the ``BodyModelSelection`` per camera."""
     from reconstruction.calibration_body import select_body_model
 
     folder = Path(folder)
@@ -168,7 +174,7 @@ def select_body_folder(folder: str | Path, seeds: list, *, dot_radius_px: float 
     out = []
     for i, seed in enumerate(seeds):
         px, _ = _matched_dots(folder, i, seed, body, dot_radius_px)
-        out.append(select_body_model(px, body, seed))
+        out.append(select_body_model(px, body, _with_media(seed, media)))
         if progress is not None:
             progress(i + 1, len(seeds), seed.name)
     return out
