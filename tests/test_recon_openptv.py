@@ -434,3 +434,25 @@ def test_cli_body_selected_keeps_the_terms_the_dots_determine(tmp_path, capsys, 
     assert res["parameters"]["body_models"] == out["body_models"]
     K = res["arrays"]["K"]
     assert np.allclose(K[:, 0, 0], [c.K[0, 0] for c in imported])  # the focal length is never refined
+
+
+def test_same_yardstick_reproduces_openptv_and_measures_its_chance_share():
+    """benchmarks/bench_same_yardstick.py runs OpenPTV's own correspondences (optv) and finds every row of its
+    rt_is again; with camera 1's targets moved by 20, 13 px OpenPTV still matches most of its >= 3-view points
+    with camera 1: what its count is made of. The estimate is the one our matchings are scored with."""
+    pytest.importorskip("optv")
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    from bench_same_yardstick import OpenPTV, per_camera, true_estimate
+
+    peer = OpenPTV()
+    real, n = peer.match(1)
+    _, tgt = openptv.read_rt_is(DATA / "res" / "rt_is.10001")
+    assert sorted(map(tuple, real.tolist())) == sorted(map(tuple, tgt.astype(int).tolist()))  # 1,118 rows
+    decoy, _ = peer.match(1, moved_camera=0)
+    cam1 = per_camera(real, [decoy, real, real, real], n)["cameras"]["cam1"]
+    assert (cam1["real"], cam1["decoy"]) == (402, 249)  # measured, deterministic
+    assert 0.5 < cam1["chance_share"] < 0.75  # 62 %
+    assert cam1["true_estimate"] == pytest.approx(true_estimate(402, 249, n[0])) and 150 < cam1["true_estimate"] < 250
+    assert true_estimate(100, 0, 1000) == 100 and true_estimate(100, 50, 1000) == pytest.approx(50 / 0.95)
