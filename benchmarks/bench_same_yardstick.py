@@ -14,7 +14,8 @@ of how many of the points are real particles. This benchmark measures both tools
 Ours: the one-frame matching (``match_views``) with the volume-self-calibrated cameras (as ``bench_real_data.py``:
 seed ``--selfcal-seed``, ``--body-weight``; about 2 min) at two operating points, OPERATING_POINTS: ``precise`` (the
 benchmark's ``self_calibrated`` rows: OpenPTV's particle settings, gates 1.5 / 1.0 px) and ``dense`` (touching
-particles split, 7 grey levels: about OpenPTV's chance share).
+particles split, 7 grey levels: about OpenPTV's chance share); and the matching over time (``over_time``:
+``bench_real_data.temporal``'s, the decoy camera moved in every frame).
 
     python benchmarks/bench_same_yardstick.py [--json] [--frames 1 2 3 4]   # needs optv; 4-6 min
 """
@@ -69,11 +70,30 @@ def _moved(dets: list[np.ndarray], k: int) -> list[np.ndarray]:
 def ours(frame: int, cams: list, detection: dict, gates: dict) -> dict:
     """Our one-frame matching of ``frame`` with ``cams``, real and with each camera moved in turn."""
     dets = openptv.detect_frame(B.DATA, frame, **{**openptv.PARTICLE_SETTINGS, **detection})
-    P, _ = B.openptv_result(frame)
+    P, tgt = B.openptv_result(frame)
     bounds = (P.min(0) - 5e-3, P.max(0) + 5e-3)
-    real = match_views(dets, cams, bounds=bounds, **gates).observations
+    cor = match_views(dets, cams, bounds=bounds, **gates)
     decoys = [match_views(_moved(dets, k), cams, bounds=bounds, **gates).observations for k in range(len(dets))]
-    return per_camera(real, decoys, [len(d) for d in dets])
+    out = per_camera(cor.observations, decoys, [len(d) for d in dets])
+    fig = B._figures(cor.observations, cor.triangulation, P, tgt, dets, cams)
+    out.update({k: fig[k] for k in ("reprojection_rms_px_ours", "agree_within_0p3mm")})
+    return out
+
+
+def over_time(frames: list[int], cams: list) -> dict:
+    """The matching over time (``bench_real_data.TEMPORAL`` on its DETECTION's particles of frames 0-4), real
+    and with each camera's detections moved in every frame in turn (the whole pipeline, correction included)."""
+    from reconstruction.temporal_matching import match_over_time
+
+    bounds = B.selfcal_bounds()
+    dets = [openptv.detect_frame(B.DATA, f, **B.DETECTION) for f in B.TEMPORAL_FRAMES]
+    real = match_over_time(dets, cams, bounds, **B.TEMPORAL)[0]
+    decoys = [match_over_time([_moved(d, k) for d in dets], cams, bounds, **B.TEMPORAL)[0] for k in range(len(cams))]
+    out = {}
+    for f in frames:
+        t = B.TEMPORAL_FRAMES.index(f)
+        out[str(f)] = per_camera(real.observations[t], [m.observations[t] for m in decoys], [len(d) for d in dets[t]])
+    return out
 
 
 class OpenPTV:
@@ -149,13 +169,14 @@ def run(frames: list[int], cams: list) -> dict:
         out["openptv"][str(f)] = optv.yardstick(f)
         for name, (detection, gates) in OPERATING_POINTS.items():
             out[name][str(f)] = ours(f, cams, detection, gates)
+    out["over_time"] = over_time(frames, cams)
     return out
 
 
 def table(res: dict) -> str:
     rows = ["| matching | frame | points seen by >= 3 cameras | per camera 1-4: real vs decoy -> estimated real "
             "(chance share) |", "|---|---|---|---|"]
-    for name in ("openptv", *OPERATING_POINTS):
+    for name in ("openptv", *OPERATING_POINTS, "over_time"):
         for f, r in res[name].items():
             cells = [f"{c['real']} vs {c['decoy']} -> {c['true_estimate']:.0f} ({100 * (c['chance_share'] or 0):.0f} %)"
                      for c in r["cameras"].values()]
