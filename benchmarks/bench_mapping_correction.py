@@ -8,11 +8,12 @@
 2. The matching with no correction, with the 2-D pixel correction (temporal_matching.fit_pixel_correction, degree 3,
    as match_over_time), with the 3-D correction (fit_mapping_correction, degree chosen by the same held-out frames;
    the cameras wrapped in CorrectedCamera) and with both (the 3-D one fitted on what the 2-D one leaves), all fitted
-   on the first pass's matches; the decoy (camera 1's detections
-   moved by DECOY_SHIFT_PX in every frame) runs through the same pipeline, its corrections fitted on its own matches:
-   matching over time (TEMPORAL's final gates), one-frame matching (OpenPTV's particle settings, SELFCAL_GATES and
-   TIGHT_GATES, each frame's box as bench_real_data's self_calibrated rows), frames 1-4: points seen by >= 3 cameras, >= 3-view points with camera 1 real vs decoy, reprojection
-   RMS (key ``matching``); the disparity check at the self-calibration's first tolerances (key ``check``).
+   on the first pass's matches; the decoy (camera 1's detections moved by DECOY_SHIFT_PX in every frame) runs through
+   the same pipeline, its corrections fitted on its own matches: matching over time (TEMPORAL's final gates),
+   one-frame matching (OpenPTV's particle settings, SELFCAL_GATES and TIGHT_GATES, each frame's box as
+   bench_real_data's self_calibrated rows), frames 1-4: points seen by >= 3 cameras, >= 3-view points with camera 1
+   real vs decoy, reprojection RMS (key ``matching``); the disparity check at the self-calibration's first
+   tolerances (key ``check``).
 
 The corrections are fitted on the matches of frames 0-4 and scored on the matching of frames 1-4 (the same
 particles: as the self-calibration and match_over_time's 2-D correction, the decoy is what checks it).
@@ -120,7 +121,8 @@ def corrections(fp: dict, cams: list, bounds) -> dict:
     def size(cs, X):
         return [float(np.sqrt(np.nanmean(np.sum(c(X) ** 2, 1)))) for c in cs]
 
-    return {"models": {"none": (None, cams), "pixel_2d": (coef, cams), "mapping_3d": (None, corrected_cameras(cams, corr)),
+    return {"models": {"none": (None, cams), "pixel_2d": (coef, cams),
+                       "mapping_3d": (None, corrected_cameras(cams, corr)),
                        "pixel_2d+mapping_3d": (coef, corrected_cameras(cams, corr2))},
             "degrees_3d": [c.degree for c in corr], "size_3d_px": size(corr, fp["points"]),
             "degrees_3d_after_2d": [c.degree for c in corr2], "size_3d_after_2d_px": size(corr2, tri.points)}
@@ -168,7 +170,8 @@ def check(bright: list, model, bounds) -> dict:
         px.append(observed_pixels(d, loose_candidates(d, cams, bounds, epipolar_px=epi, radius_px=rad)))
     tri = triangulate(np.concatenate(px, axis=1), cams, covariance=False)
     m = disparity_map(tri.residuals, tri.points, bounds, grid=B.SELFCAL["grid"], half_width_px=max(epi, rad) + 1.0)
-    return {"peak_rms_px": m.rms_peak_offset_px, "peak_max_px": m.max_peak_offset_px, "candidates": int(tri.points.shape[0])}
+    return {"peak_rms_px": m.rms_peak_offset_px, "peak_max_px": m.max_peak_offset_px,
+            "candidates": int(tri.points.shape[0])}
 
 
 def run(pickle_path: str | None = None) -> dict:
@@ -198,13 +201,15 @@ def run(pickle_path: str | None = None) -> dict:
 
 def table(res: dict) -> str:
     lines = ["Depth dependence (held-out RMS left, px; matches of the first pass, frames 0-4):",
-             "| camera | matches | residual RMS | (u,v) deg 1 / 2 / 3 / 4 | (x,y,z) deg 1 / 2 / 3 |", "|---|---|---|---|---|"]
+             "| camera | matches | residual RMS | (u,v) deg 1 / 2 / 3 / 4 | (x,y,z) deg 1 / 2 / 3 |",
+             "|---|---|---|---|---|"]
     for cam, r in res["depth_dependence"].items():
         uv = " / ".join(f"{r[f'uv_degree{d}_px']:.3f}" for d in (1, 2, 3, 4))
         xyz = " / ".join(f"{r[f'xyz_degree{d}_px']:.3f}" for d in (1, 2, 3))
         lines.append(f"| {cam} | {r['matches']} | {r['residual_rms_px']:.3f} | {uv} | {xyz} |")
     lines += ["", "corrections: " + json.dumps(res["corrections"]), "",
-              "| model | matching | frame | points seen by >= 3 cameras | with camera 1, real vs decoy | real - decoy | RMS (px) |",
+              "| model | matching | frame | points seen by >= 3 cameras | with camera 1, real vs decoy | real - decoy "
+              "| RMS (px) |",
               "|---|---|---|---|---|---|---|"]
     for model, runs in res["matching"].items():
         for kind in ("temporal", "one_frame", "one_frame_tight"):

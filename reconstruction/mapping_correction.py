@@ -170,7 +170,8 @@ def fit_mapping_correction(points: np.ndarray, residuals: np.ndarray, bounds, *,
     points = np.asarray(points, float)
     residuals = np.asarray(residuals, float)
     if points.ndim != 2 or points.shape[1] != 3 or residuals.ndim != 3 or residuals.shape[1:] != (len(points), 2):
-        raise ValueError(f"points must be (n, 3) and residuals (n_cameras, n, 2); got {points.shape}, {residuals.shape}")
+        raise ValueError(f"points must be (n, 3) and residuals (n_cameras, n, 2); "
+                         f"got {points.shape}, {residuals.shape}")
     if degree is None and groups is None:
         raise ValueError("fit_mapping_correction: give a degree or the cross-validation groups; got neither")
     lo, hi = (np.asarray(b, float).reshape(3) for b in bounds)
@@ -181,15 +182,18 @@ def fit_mapping_correction(points: np.ndarray, residuals: np.ndarray, bounds, *,
         ok = np.all(np.isfinite(residuals[c]), axis=1) & np.all(np.isfinite(points), axis=1)
         d = degree
         if d is None:
-            d, scores = cross_validated_degree(points[ok], residuals[c, ok], (lo, hi), np.asarray(groups)[ok],
-                                               ridge=ridge, clip_sigma=clip_sigma) if ok.sum() >= min_points else (0, {})
+            d, scores = (0, {})
+            if ok.sum() >= min_points:
+                d, scores = cross_validated_degree(points[ok], residuals[c, ok], (lo, hi), np.asarray(groups)[ok],
+                                                   ridge=ridge, clip_sigma=clip_sigma)
             log.info("mapping correction, camera %d: degree %d (held-out RMS %s px)", c, d, scores)
         A = polynomial_basis(_normalised(points[ok], (lo, hi)), d)
         coef = np.zeros((A.shape[1], 2))
         if ok.sum() >= max(min_points, 2 * A.shape[1]):
             coef = _robust_fit(A, residuals[c, ok], ridge, clip_sigma)
         else:
-            log.warning("fit_mapping_correction: camera %d sees %d matches (< %d): no correction", c, ok.sum(), min_points)
+            log.warning("fit_mapping_correction: camera %d sees %d matches (< %d): no correction",
+                        c, ok.sum(), min_points)
         out.append(MappingCorrection(coef, lo, hi, int(d)))
     return out
 

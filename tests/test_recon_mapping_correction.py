@@ -61,7 +61,8 @@ def test_corrected_rays_project_back_onto_their_pixels():
     n = polynomial_basis(np.zeros((1, 3)), 1).shape[1]
     coef = np.zeros((n, 2))
     coef[3] = [1.0, -0.6]  # linear in the normalised depth: the points that project to a pixel are nearly a line
-    cc = corrected_cameras(cams, [MappingCorrection(coef, *BOUNDS, 1)] + [MappingCorrection(np.zeros((n, 2)), *BOUNDS, 1)] * 3)
+    zero = MappingCorrection(np.zeros((n, 2)), *BOUNDS, 1)
+    cc = corrected_cameras(cams, [MappingCorrection(coef, *BOUNDS, 1), zero, zero, zero])
     X = np.random.default_rng(1).uniform(*BOUNDS, (300, 3)) * 0.9
     px = cc[0].project(X)
     assert np.max(np.abs(px - cams[0].project(X))) > 0.5  # the correction moves the projection
