@@ -3,17 +3,18 @@
 1. Is the cameras' remaining inconsistency depth-dependent? The self-calibrated cameras (as bench_real_data's
    ``--selfcal-seed selected-ptvpar --body-weight 0.5``), the matching over time's first pass (TEMPORAL's loose
    gates, DETECTION's particles, frames 0-4: verified matches); per camera the residual (projected - detected) fitted
-   as a polynomial of the pixel (u, v) or of the world point (x, y, z), each frame held out in turn: held-out RMS of
-   what is left (px) per degree (key ``depth_dependence``).
+   as a polynomial of the pixel (u, v), of the world point (x, y, z), or as the pixel map of degree 3 plus a depth
+   slope (mapping_correction's model), each frame held out in turn: held-out RMS of what is left (px) per degree (key
+   ``depth_dependence``).
 2. The matching with no correction, with the 2-D pixel correction (temporal_matching.fit_pixel_correction, degree 3,
-   as match_over_time), with the 3-D correction (fit_mapping_correction, degree chosen by the same held-out frames;
-   the cameras wrapped in CorrectedCamera) and with both (the 3-D one fitted on what the 2-D one leaves), all fitted
-   on the first pass's matches; the decoy (camera 1's detections moved by DECOY_SHIFT_PX in every frame) runs through
-   the same pipeline, its corrections fitted on its own matches: matching over time (TEMPORAL's final gates),
-   one-frame matching (OpenPTV's particle settings, SELFCAL_GATES and TIGHT_GATES, each frame's box as
-   bench_real_data's self_calibrated rows), frames 1-4: points seen by >= 3 cameras, >= 3-view points with camera 1
-   real vs decoy, reprojection RMS (key ``matching``); the disparity check at the self-calibration's first
-   tolerances (key ``check``).
+   as match_over_time), with the 3-D correction (fit_mapping_correction: a pixel map plus a depth slope, degrees
+   chosen by the same held-out frames; the cameras wrapped in CorrectedCamera) and with both (the 3-D one fitted on
+   what the 2-D one leaves), all fitted on the first pass's matches; the decoy (camera 1's detections moved by
+   DECOY_SHIFT_PX in every frame) runs through the same pipeline, its corrections fitted on its own matches: matching
+   over time (TEMPORAL's final gates), one-frame matching (OpenPTV's particle settings, SELFCAL_GATES and
+   TIGHT_GATES, each frame's box as bench_real_data's self_calibrated rows), frames 1-4: points seen by >= 3
+   cameras, >= 3-view points with camera 1 real vs decoy, reprojection RMS (key ``matching``); the disparity check
+   at the self-calibration's first tolerances (key ``check``).
 
 The corrections are fitted on the matches of frames 0-4 and scored on the matching of frames 1-4 (the same
 particles: as the self-calibration and match_over_time's 2-D correction, the decoy is what checks it).
@@ -39,8 +40,8 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import bench_real_data as B  # noqa: E402
 from reconstruction.correspondence import match_views, observed_pixels  # noqa: E402
-from reconstruction.mapping_correction import (corrected_cameras, fit_mapping_correction,  # noqa: E402
-                                               polynomial_basis)
+from reconstruction.mapping_correction import (correction_at, correction_basis, corrected_cameras,  # noqa: E402
+                                               fit_mapping_correction, held_out_rms, polynomial_basis)
 from reconstruction.temporal_matching import (apply_pixel_correction, fit_pixel_correction,  # noqa: E402
                                               temporal_match)
 from reconstruction.triangulation import triangulate  # noqa: E402
@@ -84,8 +85,9 @@ def _held_out_rms(Z: np.ndarray, r: np.ndarray, groups: np.ndarray, degree: int)
 
 
 def depth_dependence(fp: dict, cams: list, bounds) -> dict:
-    """Per camera: matches, residual RMS, and the held-out RMS left by polynomials of (u, v) (degrees 1-4) and of
-    (x, y, z) (degrees 1-3), each frame held out in turn; residuals over 3 robust sigmas left out."""
+    """Per camera: matches, residual RMS, and the held-out RMS left by polynomials of (u, v) (degrees 1-4), of
+    (x, y, z) (degrees 1-3) and by mapping_correction's model (pixel map of degree 3 + depth slope of degree 0-3; no
+    ridge, no robust refit, as the others), each frame held out in turn; residuals over 3 robust sigmas left out."""
     lo, hi = bounds
     out = {}
     for c, cam in enumerate(cams):
@@ -101,6 +103,10 @@ def depth_dependence(fp: dict, cams: list, bounds) -> dict:
             row[f"uv_degree{d}_px"] = _held_out_rms(uv, r[ok], fp["frame"][ok], d)
         for d in (1, 2, 3):
             row[f"xyz_degree{d}_px"] = _held_out_rms(xyz, r[ok], fp["frame"][ok], d)
+        axis = int(np.argmax(np.abs(cam.R[2])))
+        for e in (0, 1, 2, 3):  # the model of mapping_correction: pixel map of degree 3 + depth slope of degree e
+            A = correction_basis(cam.project(X[ok]), X[ok], cam.image_size, axis, (lo[axis], hi[axis]), 3, e)
+            row[f"uv3_depth_slope_degree{e}_px"] = held_out_rms(A, r[ok], fp["frame"][ok], ridge=0.0, clip_sigma=np.inf)
         out[cam.name] = row
     return out
 
@@ -112,20 +118,21 @@ def corrections(fp: dict, cams: list, bounds) -> dict:
     it, re-triangulated). Also the 3-D degrees and sizes (RMS over the matches, px)."""
     sizes = [c.image_size for c in cams]
     coef = fit_pixel_correction(fp["pixels"], fp["residuals"], sizes, degree=B.TEMPORAL["degree"])
-    corr = fit_mapping_correction(fp["points"], fp["residuals"], bounds, groups=fp["frame"])
+    corr = fit_mapping_correction(cams, fp["points"], fp["residuals"], bounds, groups=fp["frame"])
     moved = np.stack(apply_pixel_correction(list(fp["pixels"]), coef, sizes))
     moved = np.where(np.isfinite(fp["pixels"]), moved, np.nan)
     tri = triangulate(moved, cams, covariance=False)
-    corr2 = fit_mapping_correction(tri.points, tri.residuals, bounds, groups=fp["frame"])
+    corr2 = fit_mapping_correction(cams, tri.points, tri.residuals, bounds, groups=fp["frame"])
+    c3, c23 = corrected_cameras(cams, corr, bounds), corrected_cameras(cams, corr2, bounds)
 
     def size(cs, X):
-        return [float(np.sqrt(np.nanmean(np.sum(c(X) ** 2, 1)))) for c in cs]
+        return np.sqrt(np.nanmean(np.sum(correction_at(cs, X) ** 2, axis=-1), axis=1)).tolist()
 
-    return {"models": {"none": (None, cams), "pixel_2d": (coef, cams),
-                       "mapping_3d": (None, corrected_cameras(cams, corr)),
-                       "pixel_2d+mapping_3d": (coef, corrected_cameras(cams, corr2))},
-            "degrees_3d": [c.degree for c in corr], "size_3d_px": size(corr, fp["points"]),
-            "degrees_3d_after_2d": [c.degree for c in corr2], "size_3d_after_2d_px": size(corr2, tri.points)}
+    return {"models": {"none": (None, cams), "pixel_2d": (coef, cams), "mapping_3d": (None, c3),
+                       "pixel_2d+mapping_3d": (coef, c23)},
+            "models_3d": [[c.degree, c.depth_degree] for c in corr], "size_3d_px": size(c3, fp["points"]),
+            "models_3d_after_2d": [[c.degree, c.depth_degree] for c in corr2],
+            "size_3d_after_2d_px": size(c23, tri.points)}
 
 
 def _moved(dets: list, coef, cams: list) -> list:
@@ -201,12 +208,13 @@ def run(pickle_path: str | None = None) -> dict:
 
 def table(res: dict) -> str:
     lines = ["Depth dependence (held-out RMS left, px; matches of the first pass, frames 0-4):",
-             "| camera | matches | residual RMS | (u,v) deg 1 / 2 / 3 / 4 | (x,y,z) deg 1 / 2 / 3 |",
-             "|---|---|---|---|---|"]
+             "| camera | matches | residual RMS | (u,v) deg 1 / 2 / 3 / 4 | (x,y,z) deg 1 / 2 / 3 "
+             "| (u,v) deg 3 + depth x (u,v) deg 0 / 1 / 2 / 3 |", "|---|---|---|---|---|---|"]
     for cam, r in res["depth_dependence"].items():
         uv = " / ".join(f"{r[f'uv_degree{d}_px']:.3f}" for d in (1, 2, 3, 4))
         xyz = " / ".join(f"{r[f'xyz_degree{d}_px']:.3f}" for d in (1, 2, 3))
-        lines.append(f"| {cam} | {r['matches']} | {r['residual_rms_px']:.3f} | {uv} | {xyz} |")
+        sl = " / ".join(f"{r[f'uv3_depth_slope_degree{e}_px']:.3f}" for e in (0, 1, 2, 3))
+        lines.append(f"| {cam} | {r['matches']} | {r['residual_rms_px']:.3f} | {uv} | {xyz} | {sl} |")
     lines += ["", "corrections: " + json.dumps(res["corrections"]), "",
               "| model | matching | frame | points seen by >= 3 cameras | with camera 1, real vs decoy | real - decoy "
               "| RMS (px) |",

@@ -5,20 +5,18 @@ varies over the measurement volume (``docs/reconstruction.md``, "Mapping correct
 detections as a function of the pixel (``temporal_matching.fit_pixel_correction``) cannot represent an error that
 changes with the depth along a camera's line of sight; Wieneke's volume self-calibration (2008) corrects the
 mapping per sub-volume in 3-D. Here, per camera, the reprojection residual of verified matches (projected minus
-detected, px) is fitted as a smooth function of the world point: a polynomial of total degree ``degree`` in the
-world coordinates normalised to [-1, 1] over the measurement box (held constant beyond it), ridge-regularised,
-with a robust second fit; the degree is chosen by cross-validation over held-out groups (e.g. frames).
+detected, px) is fitted as a map over the image plus a map of its slope along the depth (:class:`MappingCorrection`:
+polynomials of the pixel, the second times the normalised depth), ridge-regularised, with a robust second fit;
+the degrees are chosen by cross-validation over held-out groups (e.g. frames). (A polynomial of the world point,
+curved along the lines of sight, fitted the real residuals no better and made the back-projected rays err by up
+to 1.2 px: a correction linear in depth along a line of sight keeps the points that project to a pixel a line.)
 
 :class:`CorrectedCamera` is a :class:`~reconstruction.cameras.Camera` whose projection is
 ``project(X) - correction(X)`` (the corrected model puts the particle where it was detected) and whose rays
-undo it: for each pixel two points along its line of sight through the box (at the middle of the span +- half
-of it / sqrt(2)) are found by a fixed-point iteration (the correction is small and smooth) and the ray joins
-them. A correction curved along the line of sight makes the set of points that project to a pixel a curve, not
-a line: the straight ray errs there by about half the correction's curvature over the box (a quadratic term of
-``a`` px in the normalised depth: ``a / 2`` px), which only the seeding of candidate pairs sees; gates and
-triangulation use the projection, which is exact. Triangulation, the epipolar
-curves and the matching go through it unchanged (``reconstruction/triangulation.py`` projects with the correction
-when a camera has one).
+undo it: for each pixel two points along its line of sight through the measurement box (at the middle of the
+span +- half of it / sqrt(2)) are found by a fixed-point iteration (the correction is small and smooth) and the ray
+joins them. Triangulation, the epipolar curves and the matching go through it unchanged
+(``reconstruction/triangulation.py`` projects with the correction when a camera has one).
 
 Pure functions over arrays; metres and pixels as OpenCV (``docs/decisions/0002-frames-and-shapes.md``).
 """
@@ -33,51 +31,70 @@ import numpy as np
 
 from reconstruction.cameras import Camera
 
-__all__ = ["MappingCorrection", "CorrectedCamera", "polynomial_basis", "fit_mapping_correction",
-           "cross_validated_degree", "corrected_cameras", "correction_at"]
+__all__ = ["MappingCorrection", "CorrectedCamera", "MODELS", "polynomial_basis", "correction_basis", "held_out_rms",
+           "fit_mapping_correction", "corrected_cameras", "correction_at"]
 
 log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
 class MappingCorrection:
-    """One camera's correction: the predicted residual (projected minus detected, px) at world points.
+    """One camera's correction: the predicted residual (projected minus detected, px) as a map over the image plus
+    a map of its slope along the depth,
+
+        c(X) = P_d(u, v) + z P_e(u, v)
+
+    with ``(u, v)`` the camera's (uncorrected) projection of X normalised to [-1, 1] over the image, ``z`` the world
+    coordinate along ``depth_axis`` normalised to [-1, 1] over ``depth_range`` (not clipped: linear beyond it),
+    ``P_d`` a polynomial of total degree ``degree``, ``P_e`` one of degree ``depth_degree`` (-1: none, a map of the
+    pixel alone). Linear in depth along a line of sight, the points that project to a pixel stay (nearly) a line.
 
     Attributes
     ----------
     coefficients : ndarray, shape (n_terms, 2)
-        Polynomial coefficients (u, v), px.
-    lower, upper : ndarray, shape (3,)
-        The box the world coordinates are normalised over (m); beyond it the correction is held constant.
-    degree : int
-        Total degree.
+        Polynomial coefficients (u, v), px; the pixel map's terms first.
+    image_size : tuple (W, H)
+        Pixels.
+    depth_axis : int
+        World axis (0, 1, 2) taken as the depth.
+    depth_range : tuple of float
+        (lower, upper) of the depth coordinate mapped to [-1, 1], m.
+    degree, depth_degree : int
     """
 
     coefficients: np.ndarray
-    lower: np.ndarray
-    upper: np.ndarray
+    image_size: tuple
+    depth_axis: int
+    depth_range: tuple
     degree: int
+    depth_degree: int
 
-    def __call__(self, points: np.ndarray) -> np.ndarray:
-        """Predicted residual ``(..., 2)`` px at world points ``(..., 3)`` m (NaN points give NaN)."""
-        X = np.asarray(points, float)
-        flat = X.reshape(-1, 3)
-        z = np.clip(2.0 * (flat - self.lower) / (self.upper - self.lower) - 1.0, -1.0, 1.0)
-        return (polynomial_basis(z, self.degree) @ self.coefficients).reshape(X.shape[:-1] + (2,))
+    def __call__(self, pixels: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """Predicted residual ``(..., 2)`` px at world points ``(..., 3)`` m whose uncorrected projections are
+        ``pixels`` ``(..., 2)`` (NaN gives NaN)."""
+        px = np.asarray(pixels, float)
+        A = correction_basis(px.reshape(-1, 2), np.asarray(points, float).reshape(-1, 3), self.image_size,
+                             self.depth_axis, self.depth_range, self.degree, self.depth_degree)
+        return (A @ self.coefficients).reshape(px.shape)
 
 
 def polynomial_basis(z: np.ndarray, degree: int) -> np.ndarray:
     """Monomials of total degree <= ``degree`` of ``z`` ``(n, k)`` (normalised coordinates): ``(n, n_terms)``,
-    ``n_terms = C(k + degree, degree)``; the constant first."""
+    ``n_terms = C(k + degree, degree)``; the constant first; ``degree`` -1 gives ``(n, 0)``."""
     z = np.asarray(z, float)
     cols = [np.prod(z[:, list(c)], axis=1) if c else np.ones(len(z))
             for d in range(degree + 1) for c in itertools.combinations_with_replacement(range(z.shape[1]), d)]
-    return np.stack(cols, axis=1)
+    return np.stack(cols, axis=1) if cols else np.zeros((len(z), 0))
 
 
-def _normalised(points: np.ndarray, bounds) -> np.ndarray:
-    lo, hi = (np.asarray(b, float) for b in bounds)
-    return np.clip(2.0 * (points - lo) / (hi - lo) - 1.0, -1.0, 1.0)
+def correction_basis(pixels: np.ndarray, points: np.ndarray, image_size, depth_axis: int, depth_range,
+                     degree: int, depth_degree: int) -> np.ndarray:
+    """Terms of :class:`MappingCorrection` at pixels ``(n, 2)`` and points ``(n, 3)``: ``(n, n_terms)``."""
+    W, H = image_size
+    uv = 2.0 * pixels / [max(W - 1, 1), max(H - 1, 1)] - 1.0
+    lo, hi = depth_range
+    z = 2.0 * (points[:, depth_axis:depth_axis + 1] - lo) / (hi - lo) - 1.0
+    return np.concatenate([polynomial_basis(uv, degree), z * polynomial_basis(uv, depth_degree)], axis=1)
 
 
 def _solve(A: np.ndarray, r: np.ndarray, ridge: float) -> np.ndarray:
@@ -95,67 +112,50 @@ def _robust_fit(A: np.ndarray, r: np.ndarray, ridge: float, clip_sigma: float) -
     return _solve(A[keep], r[keep], ridge)
 
 
-def cross_validated_degree(points: np.ndarray, residuals: np.ndarray, bounds, groups: np.ndarray, *,
-                           degrees=(0, 1, 2, 3), ridge: float = 1e-4, clip_sigma: float = 3.0) -> tuple[int, dict]:
-    """The degree whose fit predicts held-out residuals best, for one camera.
+#: (degree, depth_degree) pairs the cross-validation chooses from: pixel maps of degree 0-3 with no depth term or a
+#: depth slope of degree 0 up to the pixel map's
+MODELS = tuple((d, e) for d in range(4) for e in range(-1, d + 1))
 
-    Parameters
-    ----------
-    points : ndarray, shape (n, 3)
-        World points of the matches this camera sees, m.
-    residuals : ndarray, shape (n, 2)
-        Their residuals in this camera (projected - detected), px.
-    bounds : (ndarray (3,), ndarray (3,))
-        The normalisation box, m.
-    groups : ndarray of int, shape (n,)
-        Each group held out in turn (e.g. the frame: a particle moves little between frames, so frames are not
-        independent of each other, but a smooth low-order map cannot fit single particles).
-    degrees : sequence of int
-    ridge, clip_sigma : float
-        As :func:`fit_mapping_correction`.
 
-    Returns
-    -------
-    degree : int
-    rms_px : dict
-        Held-out RMS of the residual left (px) per degree; robust: residuals over 3 robust sigmas of the
-        degree-0 prediction are left out of the score.
-    """
-    z = _normalised(points, bounds)
-    scores = {}
+def held_out_rms(A: np.ndarray, residuals: np.ndarray, groups: np.ndarray, *, ridge: float = 1e-4,
+                 clip_sigma: float = 3.0) -> float:
+    """RMS (px) of ``residuals`` ``(n, 2)`` minus the fit of the terms ``A`` ``(n, n_terms)``, each group of
+    ``groups`` ``(n,)`` predicted by the fit on the others; residuals over 3 robust sigmas of their median are
+    left out of the score (not of the fits)."""
     base = np.linalg.norm(residuals - np.median(residuals, axis=0), axis=1)
     inlier = base <= 3.0 * 1.4826 * np.median(base) + 1e-12
-    for d in degrees:
-        A = polynomial_basis(z, d)
-        pred = np.full_like(residuals, np.nan)
-        for g in np.unique(groups):
-            tr = groups != g
-            if tr.sum() < 2 * A.shape[1]:
-                break
-            pred[~tr] = A[~tr] @ _robust_fit(A[tr], residuals[tr], ridge, clip_sigma)
-        e = np.sum((residuals - pred)[inlier] ** 2, axis=1)
-        scores[d] = float(np.sqrt(np.mean(e))) if np.all(np.isfinite(e)) else np.inf
-    best = min(scores, key=lambda d: (round(scores[d], 4), d))
-    return best, scores
+    pred = np.full_like(residuals, np.nan)
+    for g in np.unique(groups):
+        tr = groups != g
+        if tr.sum() < 2 * A.shape[1]:
+            return np.inf
+        pred[~tr] = A[~tr] @ _robust_fit(A[tr], residuals[tr], ridge, clip_sigma)
+    return float(np.sqrt(np.mean(np.sum((residuals - pred)[inlier] ** 2, axis=1))))
 
 
-def fit_mapping_correction(points: np.ndarray, residuals: np.ndarray, bounds, *, degree: int | None = None,
-                           groups: np.ndarray | None = None, ridge: float = 1e-4, clip_sigma: float = 3.0,
+def fit_mapping_correction(cameras: list[Camera], points: np.ndarray, residuals: np.ndarray, bounds, *,
+                           model: tuple[int, int] | None = None, groups: np.ndarray | None = None,
+                           ridge: float = 1e-4, clip_sigma: float = 3.0,
                            min_points: int = 60) -> list[MappingCorrection]:
-    """Per camera, the residual of verified matches as a smooth function of the world point.
+    """Per camera, the residual of verified matches as a pixel map plus a depth slope (:class:`MappingCorrection`).
 
     Parameters
     ----------
+    cameras : list of Camera
+        The cameras the residuals were computed with (a :class:`CorrectedCamera`'s correction is ignored: fit its
+        residuals with the base camera's).
     points : ndarray, shape (n, 3)
         Triangulated points of verified matches, m.
     residuals : ndarray, shape (n_cameras, n, 2)
         Their reprojection residuals (projected - detected), px; NaN where a camera does not see a match.
     bounds : (ndarray (3,), ndarray (3,))
-        The measurement box, m: coordinates are normalised to [-1, 1] over it (held constant beyond).
-    degree : int, optional
-        Total degree; None = chosen per camera by :func:`cross_validated_degree` over ``groups`` (0-3).
+        The measurement box, m: its extent along each camera's depth axis (the world axis closest to the camera's
+        optical axis) is mapped to [-1, 1].
+    model : (int, int), optional
+        (degree, depth_degree) of :class:`MappingCorrection`; None = chosen per camera among :data:`MODELS` by the
+        held-out RMS over ``groups`` (:func:`held_out_rms`; a simpler model within 0.001 px preferred).
     groups : ndarray of int, shape (n,), optional
-        Cross-validation groups (e.g. the frame of each match); required when ``degree`` is None.
+        Cross-validation groups (e.g. the frame of each match); required when ``model`` is None.
     ridge : float
         Ridge weight per match on the non-constant coefficients (normalised coordinates, px^2).
     clip_sigma : float
@@ -172,53 +172,82 @@ def fit_mapping_correction(points: np.ndarray, residuals: np.ndarray, bounds, *,
     if points.ndim != 2 or points.shape[1] != 3 or residuals.ndim != 3 or residuals.shape[1:] != (len(points), 2):
         raise ValueError(f"points must be (n, 3) and residuals (n_cameras, n, 2); "
                          f"got {points.shape}, {residuals.shape}")
-    if degree is None and groups is None:
-        raise ValueError("fit_mapping_correction: give a degree or the cross-validation groups; got neither")
+    if len(cameras) != residuals.shape[0]:
+        raise ValueError(f"residuals must have one row per camera ({len(cameras)}); got {residuals.shape[0]}")
+    if model is None and groups is None:
+        raise ValueError("fit_mapping_correction: give a model or the cross-validation groups; got neither")
     lo, hi = (np.asarray(b, float).reshape(3) for b in bounds)
     if not np.all(hi > lo):
         raise ValueError(f"bounds must be (lower, upper) with upper > lower (m); got {lo}, {hi}")
+    return [_fit_one(cam, points, residuals[c], (lo, hi), model, groups, ridge, clip_sigma, min_points)
+            for c, cam in enumerate(cameras)]
+
+
+def _fit_one(cam, points, residuals, bounds, model, groups, ridge, clip_sigma, min_points) -> MappingCorrection:
+    """:func:`fit_mapping_correction` for one camera (``residuals`` ``(n, 2)``)."""
+    base = cam.base_camera() if isinstance(cam, CorrectedCamera) else cam
+    axis = int(np.argmax(np.abs(base.R[2])))
+    depth = (float(bounds[0][axis]), float(bounds[1][axis]))
+    ok = np.all(np.isfinite(residuals), axis=1) & np.all(np.isfinite(points), axis=1)
+    px = base.project(points[ok])
+    ok[ok] = np.all(np.isfinite(px), axis=1)
+    px = base.project(points[ok])
+
+    def terms(m):
+        return correction_basis(px, points[ok], base.image_size, axis, depth, *m)
+
+    chosen = model or (0, -1)
+    if model is None and ok.sum() >= min_points:
+        scores = {m: held_out_rms(terms(m), residuals[ok], np.asarray(groups)[ok], ridge=ridge, clip_sigma=clip_sigma)
+                  for m in MODELS}
+        best = min(scores.values())
+        chosen = min((m for m in MODELS if scores[m] <= best + 1e-3), key=lambda m: terms(m).shape[1])
+        log.info("mapping correction, %s: model %s (held-out RMS %.3f px; pixel map alone, degree 3: %.3f px)",
+                 base.name, chosen, scores[chosen], scores[(3, -1)])
+    A = terms(chosen)
+    coef = np.zeros((A.shape[1], 2))
+    if ok.sum() >= max(min_points, 2 * A.shape[1]):
+        coef = _robust_fit(A, residuals[ok], ridge, clip_sigma)
+    else:
+        log.warning("fit_mapping_correction: %s sees %d matches (< %d): no correction", base.name, ok.sum(), min_points)
+    return MappingCorrection(coef, base.image_size, axis, depth, int(chosen[0]), int(chosen[1]))
+
+
+def correction_at(cameras: list, points: np.ndarray) -> np.ndarray:
+    """Corrections ``(n_cameras, n, 2)`` px of :class:`CorrectedCamera` s at world points ``(n, 3)`` m (zeros for a
+    camera without one)."""
     out = []
-    for c in range(residuals.shape[0]):
-        ok = np.all(np.isfinite(residuals[c]), axis=1) & np.all(np.isfinite(points), axis=1)
-        d = degree
-        if d is None:
-            d, scores = (0, {})
-            if ok.sum() >= min_points:
-                d, scores = cross_validated_degree(points[ok], residuals[c, ok], (lo, hi), np.asarray(groups)[ok],
-                                                   ridge=ridge, clip_sigma=clip_sigma)
-            log.info("mapping correction, camera %d: degree %d (held-out RMS %s px)", c, d, scores)
-        A = polynomial_basis(_normalised(points[ok], (lo, hi)), d)
-        coef = np.zeros((A.shape[1], 2))
-        if ok.sum() >= max(min_points, 2 * A.shape[1]):
-            coef = _robust_fit(A, residuals[c, ok], ridge, clip_sigma)
-        else:
-            log.warning("fit_mapping_correction: camera %d sees %d matches (< %d): no correction",
-                        c, ok.sum(), min_points)
-        out.append(MappingCorrection(coef, lo, hi, int(d)))
-    return out
-
-
-def correction_at(corrections: list[MappingCorrection], points: np.ndarray) -> np.ndarray:
-    """Predicted residuals ``(n_cameras, n, 2)`` px at world points ``(n, 3)`` m."""
-    return np.stack([c(points) for c in corrections])
+    for cam in cameras:
+        corr = getattr(cam, "correction", None)
+        out.append(np.zeros((len(points), 2)) if corr is None else corr(Camera.project(cam, points), points))
+    return np.stack(out)
 
 
 @dataclass(frozen=True)
 class CorrectedCamera(Camera):
     """A camera whose projection subtracts a :class:`MappingCorrection` (see the module docstring).
 
-    ``project(X) = Camera.project(X) - correction(X)``; ``rays(u)`` are the lines through two points along the
-    line of sight through the correction's box that project to ``u``.
+    ``project(X) = Camera.project(X) - correction(Camera.project(X), X)``; ``rays(u)`` are the lines through two
+    points along the line of sight through ``box`` (the measurement box: (lower (3,), upper (3,)), m; required with a
+    correction) that project to ``u``.
     """
 
     correction: MappingCorrection | None = field(default=None, compare=False)
+    #: the measurement box (lower, upper), m: where the rays are made to pass through the corrected points
+    box: tuple | None = field(default=None, compare=False)
     iterations: int = 4
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.correction is not None and self.box is None:
+            raise ValueError(f"CorrectedCamera {self.name!r}: a correction needs the measurement box (box=(lower, "
+                             f"upper), m) its rays are fitted over; got box=None")
 
     def project(self, points: np.ndarray) -> np.ndarray:
         base = Camera.project(self, points)
         if self.correction is None:
             return base
-        return base - self.correction(points)
+        return base - self.correction(base, points)
 
     def base_camera(self) -> Camera:
         """The camera without the correction."""
@@ -230,9 +259,9 @@ class CorrectedCamera(Camera):
         o, d = Camera.rays(self, pixels)
         if self.correction is None or len(pixels) == 0:
             return o, d
-        t0, t1 = _box_span(o, d, self.correction.lower, self.correction.upper)
-        # nodes at the middle of the span +- half of it / sqrt(2): the chord of a correction curved along the line
-        # of sight (e.g. quadratic in depth) then errs by half as much as through the span's ends
+        t0, t1 = _box_span(o, d, *self.box)
+        # nodes at the middle of the span +- half of it / sqrt(2): were the correction curved along the line of sight
+        # (it is linear in depth, up to its own small effect on the pixel), the chord would err least
         mid, half = 0.5 * (t0 + t1), 0.5 * (t1 - t0) / np.sqrt(2.0)
         t_near = np.maximum(mid - half, 1e-6)
         ends = [self._point_at(pixels, t) for t in (t_near, mid + half)]
@@ -250,7 +279,7 @@ class CorrectedCamera(Camera):
         for _ in range(self.iterations):
             o, d = Camera.rays(self, target)
             X = o + t[:, None] * d
-            target = pixels + self.correction(X)
+            target = pixels + self.correction(target, X)
         o, d = Camera.rays(self, target)
         return o + t[:, None] * d
 
@@ -270,13 +299,16 @@ def _box_span(origins: np.ndarray, directions: np.ndarray, lo: np.ndarray, hi: n
     return np.maximum(t0, 1e-6), np.maximum(t1, 2e-6)
 
 
-def corrected_cameras(cameras: list[Camera], corrections: list[MappingCorrection]) -> list[CorrectedCamera]:
-    """The cameras with their corrections (a :class:`CorrectedCamera` already corrected is replaced, not stacked)."""
+def corrected_cameras(cameras: list[Camera], corrections: list[MappingCorrection], bounds) -> list[CorrectedCamera]:
+    """The cameras with their corrections (a :class:`CorrectedCamera` already corrected is replaced, not stacked);
+    ``bounds`` (lower (3,), upper (3,), m): the measurement box the rays are fitted over."""
     if len(cameras) != len(corrections):
         raise ValueError(f"corrections must have one entry per camera ({len(cameras)}); got {len(corrections)}")
     out = []
     for cam, corr in zip(cameras, corrections):
         base = cam.base_camera() if isinstance(cam, CorrectedCamera) else cam
         out.append(CorrectedCamera(base.name, base.K, base.dist, base.rvec, base.tvec, base.image_size, base.meta,
-                                   base.window, correction=corr))
+                                   base.window, correction=corr,
+                                   box=None if bounds is None else tuple(np.asarray(b, float).reshape(3)
+                                                                         for b in bounds)))
     return out

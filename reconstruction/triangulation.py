@@ -158,7 +158,7 @@ def _project_one(c: _Cam, points: np.ndarray) -> np.ndarray:
     else:
         d, beyond = refracted_directions(c.window, c.R, c.center, points)
         px = np.where(beyond[..., None], project_points(c.K, c.dist, d), np.nan)
-    return px if c.correction is None else px - c.correction(points)
+    return px if c.correction is None else px - c.correction(px, points)
 
 
 def _project_all(points: np.ndarray, cams: list[_Cam], seen: np.ndarray | None = None) -> np.ndarray:
