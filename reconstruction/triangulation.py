@@ -142,19 +142,23 @@ def _initial_points(pixels: np.ndarray, cameras: list[Camera]) -> np.ndarray:
 class _Cam:
     """Camera arrays with the rotation matrix computed once (``Camera.R`` recomputes it)."""
 
-    __slots__ = ("R", "tvec", "K", "dist", "window", "center")
+    __slots__ = ("R", "tvec", "K", "dist", "window", "center", "correction")
 
     def __init__(self, cam: Camera):
         self.R, self.tvec, self.K, self.dist = cam.R, cam.tvec, cam.K, cam.dist
         self.window = cam.window
         self.center = -self.R.T @ self.tvec
+        # a mapping correction of the projection (reconstruction.mapping_correction.CorrectedCamera)
+        self.correction = getattr(cam, "correction", None)
 
 
 def _project_one(c: _Cam, points: np.ndarray) -> np.ndarray:
     if c.window is None:
-        return project_points(c.K, c.dist, points @ c.R.T + c.tvec)
-    d, beyond = refracted_directions(c.window, c.R, c.center, points)
-    return np.where(beyond[..., None], project_points(c.K, c.dist, d), np.nan)
+        px = project_points(c.K, c.dist, points @ c.R.T + c.tvec)
+    else:
+        d, beyond = refracted_directions(c.window, c.R, c.center, points)
+        px = np.where(beyond[..., None], project_points(c.K, c.dist, d), np.nan)
+    return px if c.correction is None else px - c.correction(px, points)
 
 
 def _project_all(points: np.ndarray, cams: list[_Cam], seen: np.ndarray | None = None) -> np.ndarray:
@@ -306,7 +310,7 @@ def _refracted_jacobian(cam: _Cam, points: np.ndarray, base: np.ndarray | None =
 
 
 def _camera_jacobian(cam: _Cam, points: np.ndarray, base: np.ndarray | None = None) -> np.ndarray:
-    if cam.window is not None:
+    if cam.window is not None or cam.correction is not None:
         return _refracted_jacobian(cam, points, base)
     R = cam.R
     Xc = points @ R.T + cam.tvec
