@@ -14,6 +14,8 @@ Estimators, each from the background-removed image ``top`` and the blob labels o
   ``(2r+1)^2`` window around the brightest pixel; pixels of other blobs masked in a first fit, then each
   particle refitted on the image minus its neighbours' fitted Gaussians (touching particles fitted
   jointly by alternation). Falls back to ``gauss3`` where a fit does not converge.
+- ``"hybrid"``: the centroid for particles alone in their blob, HYBRID_SPLIT for those split from a blob
+  with others (where the split biases the centroid).
 
 Pure functions over arrays; pixels as OpenCV (origin at the centre of the top-left pixel).
 """
@@ -24,7 +26,9 @@ import numpy as np
 
 __all__ = ["CENTRE_ESTIMATORS", "peak_pixels", "gauss3_centres", "gauss2d_centres"]
 
-CENTRE_ESTIMATORS = ("centroid", "gauss3", "gauss3_smoothed", "gauss2d")
+CENTRE_ESTIMATORS = ("centroid", "gauss3", "gauss3_smoothed", "gauss2d", "hybrid")
+#: ``hybrid``: the estimator of the particles split from a blob with others (the others keep the centroid)
+HYBRID_SPLIT = "gauss2d"
 #: Gaussian sigma (px) of the matched filter of ``gauss3_smoothed``
 MATCHED_FILTER_PX = 1.0
 #: half-width of the 2-D Gaussian fit window, px (5 x 5 window)

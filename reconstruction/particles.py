@@ -12,8 +12,8 @@ import cv2
 import numpy as np
 
 from reconstruction.detection import Detections, _records, _concat, _empty
-from reconstruction.particle_centres import (CENTRE_ESTIMATORS, MATCHED_FILTER_PX, gauss2d_centres, gauss3_centres,
-                                             peak_pixels)
+from reconstruction.particle_centres import (CENTRE_ESTIMATORS, HYBRID_SPLIT, MATCHED_FILTER_PX, gauss2d_centres,
+                                             gauss3_centres, peak_pixels)
 
 __all__ = ["detect_particles"]
 
@@ -69,11 +69,12 @@ def detect_particles(
         Split blobs with several intensity peaks into one particle per peak (every pixel goes to the
         peak its steepest ascent reaches), as OpenPTV's ``targ_rec`` does; for dense seeding, where
         particle images touch. Off for large dots, whose noisy tops would be split.
-    centre : {"centroid", "gauss3", "gauss3_smoothed", "gauss2d"}
+    centre : {"centroid", "gauss3", "gauss3_smoothed", "gauss2d", "hybrid"}
         Sub-pixel centre estimator (:mod:`reconstruction.particle_centres`): grey-weighted centroid of the
         blob (default), three-point Gaussian per axis through the brightest pixel (of the image, or of the
-        image smoothed by a matched Gaussian filter), or a least-squares 2-D Gaussian on the 5 x 5 window
-        around it with touching neighbours fitted jointly. On test_cavity's real images the centroid
+        image smoothed by a matched Gaussian filter), a least-squares 2-D Gaussian on the 5 x 5 window
+        around it with touching neighbours fitted jointly, or ``hybrid`` (the 2-D fit for particles split
+        from a blob with others, the centroid for the others). On test_cavity's real images the centroid
         gives the most real matches (``docs/reconstruction.md``, "Particle centres").
 
     Returns
@@ -104,7 +105,8 @@ def detect_particles(
         return _empty(noise)
     refine = None
     if centre != "centroid":
-        refine = {"centre": centre, "valid": _unsaturated(image) if centre == "gauss2d" else None}
+        refine = {"centre": centre, "valid": _unsaturated(image) if centre in ("gauss2d", "hybrid") else None,
+                  "blobs": cv2.connectedComponents(mask, connectivity=8)[1] if split_touching else labels}
     return _blob_detections(top, labels, stats[1:], thr, noise, img, (lo, hi), min_sum, edge_margin, refine)
 
 
@@ -195,7 +197,7 @@ def _blob_detections(top, labels, stats, thr, noise, img, area_range, min_sum, e
     ok = reason == ""
     xy = np.stack([cx, cy], axis=1)
     if refine is not None:
-        xy[ok] = _refined_centres(top, labels, n, ok, **refine)
+        xy[ok] = _refined_centres(top, labels, xy, ok, **refine)
     rejects = _concat([_records(xy[reason == r], diam[reason == r], contrast[reason == r], r)
                        for r in ("too_small", "too_large", "edge", "low_contrast")])
     precision = noise * np.sqrt(np.maximum(tr, 0.25)) / np.maximum(sw, 1e-12) * np.sqrt(area)
@@ -209,9 +211,20 @@ def _unsaturated(image: np.ndarray) -> np.ndarray | None:
     return image < np.iinfo(image.dtype).max
 
 
-def _refined_centres(top, labels, n, ok, centre, valid) -> np.ndarray:
+def _refined_centres(top, labels, xy, ok, centre, valid, blobs) -> np.ndarray:
     """Centres ``(ok.sum(), 2)`` of the accepted blobs ``ok`` ``(n,)`` by the ``centre`` estimator (every blob
-    labelled takes part in the joint 2-D fit as a neighbour); ``valid``: pixels the 2-D fit may use."""
+    labelled takes part in the joint 2-D fit as a neighbour); ``xy`` ``(n, 2)``: the centroids; ``valid``:
+    pixels the 2-D fit may use; ``blobs`` ``(H, W)``: the connected blobs before splitting."""
+    n = len(xy)
+    if centre == "hybrid":
+        owner = blobs[labels > 0]
+        first = np.zeros(n, np.int64)
+        first[labels[labels > 0] - 1] = owner
+        split = np.bincount(first, minlength=int(blobs.max()) + 1)[first] > 1
+        out = xy.copy()
+        if split.any():
+            out[split] = _refined_centres(top, labels, xy, split, HYBRID_SPLIT, valid, blobs)
+        return out[ok]
     peaks = peak_pixels(top, labels, n)
     if centre == "gauss3":
         return gauss3_centres(top, peaks[ok])

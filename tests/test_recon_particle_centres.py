@@ -62,3 +62,14 @@ def test_cli_offers_every_estimator():
 
     option = next(p for p in command.params if p.name == "centre")
     assert tuple(option.type.choices) == CENTRE_ESTIMATORS
+
+
+def test_hybrid_fits_only_the_particles_split_from_a_blob():
+    img, _ = particle_image((256, 256), 100, seed=3)
+    get = {c: detect_particles(img, centre=c, **DENSE).centres for c in ("centroid", "gauss2d", "hybrid")}
+    same_as_centroid = np.all(get["hybrid"] == get["centroid"], axis=1)
+    same_as_fit = np.all(get["hybrid"] == get["gauss2d"], axis=1)
+    assert np.all(same_as_centroid | same_as_fit) and same_as_centroid.sum() > 40 and same_as_fit.sum() > 8
+    unsplit = {**DENSE, "split_touching": False}
+    assert np.array_equal(detect_particles(img, centre="hybrid", **unsplit).centres,
+                          detect_particles(img, **unsplit).centres)

@@ -66,12 +66,14 @@ def _write_csv(out: Path, rows: list) -> None:
               help="Split touching particles at their intensity peaks, as OpenPTV's targ_rec (dense seeding; on "
                    "OpenPTV's test_cavity 78-82 % of its detections get one of ours within 1 px, 57-69 % without). "
                    "Leave off for large dots, whose noisy tops would be split.")
-@click.option("--centre", type=click.Choice(["centroid", "gauss3", "gauss3_smoothed", "gauss2d"]), default="centroid",
-              show_default=True,
+@click.option("--centre", type=click.Choice(["centroid", "gauss3", "gauss3_smoothed", "gauss2d", "hybrid"]),
+              default="centroid", show_default=True,
               help="Sub-pixel centre: grey-weighted centroid of the blob, 3-point Gaussian per axis through the "
-                   "brightest pixel (of the image or of the image smoothed by a 1 px Gaussian), or a 2-D Gaussian "
-                   "fit on 5 x 5 px with touching neighbours fitted jointly. On test_cavity the centroid gives the "
-                   "most real matches (docs/reconstruction.md, 'Particle centres').")
+                   "brightest pixel (of the image or of the image smoothed by a 1 px Gaussian), a 2-D Gaussian "
+                   "fit on 5 x 5 px with touching neighbours fitted jointly, or hybrid (the 2-D fit for particles "
+                   "split from a blob, the centroid for the others). More precise on synthetic particles; on "
+                   "test_cavity's real images the centroid gives the most real matches (docs/reconstruction.md, "
+                   "'Particle centres').")
 @click.option("-o", "--out", "out", type=click.Path(dir_okay=False, path_type=Path),
               help="Write the particles as CSV: image,u_px,v_px,diameter_px,contrast (OpenCV pixels).")
 @click.option("--force", is_flag=True, help="Overwrite --out if it exists.")
