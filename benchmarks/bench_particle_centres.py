@@ -4,10 +4,11 @@
    levels, 1.5 grey levels of noise, 8-bit, 40 % of the particles with a partner 2.5-5 px away) with known
    centres: error per estimator, isolated and touching particles (same blobs for every estimator).
 2. ``residuals``: real images (OpenPTV test_cavity), the self-calibrated cameras: the matches over time of the
-   benchmark's dense detections (bench_real_data.DETECTION, TEMPORAL without the residual test, so that the
-   selection does not favour the centroid) re-triangulated with each estimator's centres of the same blobs:
-   reprojection residual per camera (raw, and after each estimator's own degree-3 pixel correction) and the
-   change of a camera's residual from frame to frame along the same track.
+   benchmark's dense detections (bench_real_data.DETECTION, TEMPORAL without the residual test and without the
+   pixel correction) found with every estimator's centres (the same particles; the selection favours none),
+   re-triangulated with each estimator's own centres: reprojection residual per camera (raw, and after each
+   estimator's own degree-3 pixel correction), the change of a camera's residual from frame to frame along the
+   same track, and the residual of touching and isolated detections.
 3. ``matching``: the matching itself with each estimator's centres, real vs decoy (camera 1's detections moved
    by bench_real_data.DECOY_SHIFT_PX): over time (TEMPORAL, frames 0-4) and one frame at a time with OpenPTV's
    particle settings (SELFCAL_GATES and TIGHT_GATES). The cameras are self-calibrated on the centroids.
@@ -209,9 +210,9 @@ def report(res: dict) -> str:
                 lines.append(f"  {c:9s} {kind:9s} " + "  ".join(
                     f"{k} {v['residual_rms_px']:.3f}/{v['residual_median_px']:.3f} {v['change_median_px']:.3f}/"
                     f"{v['change_within_0p5px']:.2f}" for k, v in r[c][kind].items()))
-            b = r[c]["by_neighbour"]
-            lines.append(f"  {c:9s} corrected, all cameras: touching {b['touching']['residual_rms_px']:.3f} "
-                         f"({b['touching']['n']}), isolated {b['isolated']['residual_rms_px']:.3f} ({b['isolated']['n']})")
+            t, i = r[c]["by_neighbour"]["touching"], r[c]["by_neighbour"]["isolated"]
+            lines.append(f"  {c:9s} corrected, all cameras: touching {t['residual_rms_px']:.3f} ({t['n']}), "
+                         f"isolated {i['residual_rms_px']:.3f} ({i['n']})")
     if "matching" in res:
         lines += ["matching, per frame: points seen by >= 3 cameras, with camera 1 real vs decoy, RMS px"]
         for c, row in res["matching"].items():
