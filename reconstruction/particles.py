@@ -12,11 +12,15 @@ import cv2
 import numpy as np
 
 from reconstruction.detection import Detections, _records, _concat, _empty
+from reconstruction.particle_centres import (CENTRE_ESTIMATORS, HYBRID_SPLIT, MATCHED_FILTER_PX, gauss2d_centres,
+                                             gauss3_centres, peak_pixels)
 
 __all__ = ["detect_particles"]
 
 #: Gaussian sigma (px) of the smoothing before peaks are split (noise peaks of a single particle merge)
 SPLIT_SMOOTHING_PX = 1.0
+#: the centroid's weights are the grey levels above this fraction of the threshold
+CENTROID_WEIGHT_OFFSET = 0.5
 
 
 def _background_removed(img: np.ndarray, polarity: str, background_px: int) -> np.ndarray:
@@ -40,6 +44,7 @@ def detect_particles(
     edge_margin: int = 1,
     background_px: int = 9,
     split_touching: bool = False,
+    centre: str = "centroid",
 ) -> Detections:
     """Detect small particles with grey-weighted sub-pixel centres.
 
@@ -64,6 +69,13 @@ def detect_particles(
         Split blobs with several intensity peaks into one particle per peak (every pixel goes to the
         peak its steepest ascent reaches), as OpenPTV's ``targ_rec`` does; for dense seeding, where
         particle images touch. Off for large dots, whose noisy tops would be split.
+    centre : {"centroid", "gauss3", "gauss3_smoothed", "gauss2d", "hybrid"}
+        Sub-pixel centre estimator (:mod:`reconstruction.particle_centres`): grey-weighted centroid of the
+        blob (default), three-point Gaussian per axis through the brightest pixel (of the image, or of the
+        image smoothed by a matched Gaussian filter), a least-squares 2-D Gaussian on the 5 x 5 window
+        around it with touching neighbours fitted jointly, or ``hybrid`` (the 2-D fit for particles split
+        from a blob with others, the centroid for the others). On test_cavity's real images the centroid
+        gives the most real matches (``docs/reconstruction.md``, "Particle centres").
 
     Returns
     -------
@@ -75,6 +87,8 @@ def detect_particles(
     image = np.asarray(image)
     if image.ndim != 2:
         raise ValueError(f"image must be a 2-D grey-level array (H, W); got shape {image.shape}")
+    if centre not in CENTRE_ESTIMATORS:
+        raise ValueError(f"centre must be one of {CENTRE_ESTIMATORS}; got {centre!r}")
     lo, hi = (int(v) for v in pixels_range)
     if not 1 <= lo <= hi:
         raise ValueError(f"pixels_range must be (min, max) with 1 <= min <= max px; got {pixels_range}")
@@ -89,7 +103,11 @@ def detect_particles(
         n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
     if n <= 1:
         return _empty(noise)
-    return _blob_detections(top, labels, stats[1:], thr, noise, img, (lo, hi), min_sum, edge_margin)
+    refine = None
+    if centre != "centroid":
+        refine = {"centre": centre, "valid": _unsaturated(image) if centre in ("gauss2d", "hybrid") else None,
+                  "blobs": cv2.connectedComponents(mask, connectivity=8)[1] if split_touching else labels}
+    return _blob_detections(top, labels, stats[1:], thr, noise, img, (lo, hi), min_sum, edge_margin, refine)
 
 
 def _peak_regions(top: np.ndarray, mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
@@ -142,14 +160,16 @@ def _peak_regions(top: np.ndarray, mask: np.ndarray) -> tuple[int, np.ndarray, n
     return n + 1, labels.reshape(H, W), stats
 
 
-def _blob_detections(top, labels, stats, thr, noise, img, area_range, min_sum, edge_margin) -> Detections:
-    """Weighted centroids and shape of every labelled blob, then the reject gates."""
+def _blob_detections(top, labels, stats, thr, noise, img, area_range, min_sum, edge_margin,
+                     refine: dict | None = None) -> Detections:
+    """Centres and shape of every labelled blob, then the reject gates; ``refine``: keywords of
+    :func:`_refined_centres` (other estimator than the centroid)."""
     n = stats.shape[0]
     H, W = top.shape
     lab = labels.ravel()
     fg = lab > 0
     idx = lab[fg] - 1
-    w = (top.ravel()[fg] - thr * 0.5).clip(min=0.0)
+    w = (top.ravel()[fg] - thr * CENTROID_WEIGHT_OFFSET).clip(min=0.0)
     yy, xx = np.divmod(np.flatnonzero(fg), W)
     sw = np.bincount(idx, w, n)
     safe = np.where(sw > 0, sw, 1.0)
@@ -176,7 +196,39 @@ def _blob_detections(top, labels, stats, thr, noise, img, area_range, min_sum, e
     reason[(x0 < edge_margin) | (y0 < edge_margin) | (x1 > W - edge_margin) | (y1 > H - edge_margin)] = "edge"
     ok = reason == ""
     xy = np.stack([cx, cy], axis=1)
+    if refine is not None:
+        xy[ok] = _refined_centres(top, labels, xy, ok, **refine)
     rejects = _concat([_records(xy[reason == r], diam[reason == r], contrast[reason == r], r)
                        for r in ("too_small", "too_large", "edge", "low_contrast")])
     precision = noise * np.sqrt(np.maximum(tr, 0.25)) / np.maximum(sw, 1e-12) * np.sqrt(area)
     return Detections(xy[ok], diam[ok], contrast[ok], quality[ok], precision[ok], rejects, noise)
+
+
+def _unsaturated(image: np.ndarray) -> np.ndarray | None:
+    """Pixels below the integer type's largest value (a clipped top is no Gaussian); None for float images."""
+    if not np.issubdtype(image.dtype, np.integer):
+        return None
+    return image < np.iinfo(image.dtype).max
+
+
+def _refined_centres(top, labels, xy, ok, centre, valid, blobs) -> np.ndarray:
+    """Centres ``(ok.sum(), 2)`` of the accepted blobs ``ok`` ``(n,)`` by the ``centre`` estimator (every blob
+    labelled takes part in the joint 2-D fit as a neighbour); ``xy`` ``(n, 2)``: the centroids; ``valid``:
+    pixels the 2-D fit may use; ``blobs`` ``(H, W)``: the connected blobs before splitting."""
+    n = len(xy)
+    if centre == "hybrid":
+        owner = blobs[labels > 0]
+        first = np.zeros(n, np.int64)
+        first[labels[labels > 0] - 1] = owner
+        split = np.bincount(first, minlength=int(blobs.max()) + 1)[first] > 1
+        out = xy.copy()
+        if split.any():
+            out[split] = _refined_centres(top, labels, xy, split, HYBRID_SPLIT, valid, blobs)
+        return out[ok]
+    peaks = peak_pixels(top, labels, n)
+    if centre == "gauss3":
+        return gauss3_centres(top, peaks[ok])
+    if centre == "gauss3_smoothed":
+        smooth = cv2.GaussianBlur(top, (0, 0), MATCHED_FILTER_PX)
+        return gauss3_centres(smooth, peak_pixels(smooth, labels, n)[ok])
+    return gauss2d_centres(top, labels, peaks, valid=valid)[0][ok]

@@ -252,9 +252,10 @@ def test_cli_detect_particles_passes_its_options_to_the_detector(tmp_path, capsy
     assert len(out.read_text().splitlines()) == split["particles"] + 1
     seen = []
     monkeypatch.setattr(particles, "detect_particles", lambda img, **kw: seen.append(kw) or particles._empty(1.0))
-    assert main(["detect-particles", image, "--polarity", "dark", "--split-touching", "--background-px", "15"]) == 0
+    assert main(["detect-particles", image, "--polarity", "dark", "--split-touching", "--background-px", "15",
+                 "--centre", "gauss2d"]) == 0
     assert seen == [{"polarity": "dark", "threshold": None, "pixels_range": (2, 200), "min_sum": 0.0,
-                     "background_px": 15, "split_touching": True}]
+                     "background_px": 15, "split_touching": True, "centre": "gauss2d"}]
     assert main(["detect-particles", image, "--min-pixels", "9", "--max-pixels", "4"]) == 2
     assert "--min-pixels" in capsys.readouterr().err
 

@@ -29,7 +29,8 @@ def _read(path: Path) -> np.ndarray:
         raise CliInputError(f"IMAGES: cannot read {path} as a grey image") from None
 
 
-def _settings(polarity, threshold, min_pixels, max_pixels, min_sum, background_px, split_touching) -> dict:
+def _settings(polarity, threshold, min_pixels, max_pixels, min_sum, background_px, split_touching,
+              centre="centroid") -> dict:
     """Keyword arguments of :func:`reconstruction.particles.detect_particles`; checked here to name the option."""
     if not 1 <= min_pixels <= max_pixels:
         raise CliInputError(f"--min-pixels/--max-pixels must satisfy 1 <= min <= max; got {min_pixels}, {max_pixels}")
@@ -38,7 +39,7 @@ def _settings(polarity, threshold, min_pixels, max_pixels, min_sum, background_p
     if not background_px >= 3:
         raise CliInputError(f"--background-px must be >= 3 px (larger than a particle); got {background_px}")
     return {"polarity": polarity, "threshold": threshold, "pixels_range": (min_pixels, max_pixels),
-            "min_sum": min_sum, "background_px": background_px, "split_touching": split_touching}
+            "min_sum": min_sum, "background_px": background_px, "split_touching": split_touching, "centre": centre}
 
 
 def _write_csv(out: Path, rows: list) -> None:
@@ -65,17 +66,25 @@ def _write_csv(out: Path, rows: list) -> None:
               help="Split touching particles at their intensity peaks, as OpenPTV's targ_rec (dense seeding; on "
                    "OpenPTV's test_cavity 78-82 % of its detections get one of ours within 1 px, 57-69 % without). "
                    "Leave off for large dots, whose noisy tops would be split.")
+@click.option("--centre", type=click.Choice(["centroid", "gauss3", "gauss3_smoothed", "gauss2d", "hybrid"]),
+              default="centroid", show_default=True,
+              help="Sub-pixel centre: grey-weighted centroid of the blob, 3-point Gaussian per axis through the "
+                   "brightest pixel (of the image or of the image smoothed by a 1 px Gaussian), a 2-D Gaussian "
+                   "fit on 5 x 5 px with touching neighbours fitted jointly, or hybrid (the 2-D fit for particles "
+                   "split from a blob, the centroid for the others). More precise on synthetic particles; on "
+                   "test_cavity's real images the centroid gives the most real matches (docs/reconstruction.md, "
+                   "'Particle centres').")
 @click.option("-o", "--out", "out", type=click.Path(dir_okay=False, path_type=Path),
               help="Write the particles as CSV: image,u_px,v_px,diameter_px,contrast (OpenCV pixels).")
 @click.option("--force", is_flag=True, help="Overwrite --out if it exists.")
 @click.option("--json", "as_json", is_flag=True, help="Print the counts per image as JSON.")
-def command(images, polarity, threshold, min_pixels, max_pixels, min_sum, background_px, split_touching, out, force,
-            as_json):
+def command(images, polarity, threshold, min_pixels, max_pixels, min_sum, background_px, split_touching, centre, out,
+            force, as_json):
     """Detect small particles in IMAGES (grey images; OpenPTV's extension-less TIFFs too): threshold over the
-    local background, grey-weighted centres; prints how many were found and rejected, and why."""
+    local background, sub-pixel centres (--centre); prints how many were found and rejected, and why."""
     from reconstruction.particles import detect_particles
 
-    settings = _settings(polarity, threshold, min_pixels, max_pixels, min_sum, background_px, split_touching)
+    settings = _settings(polarity, threshold, min_pixels, max_pixels, min_sum, background_px, split_touching, centre)
     if out is not None:
         check_output_path(out, force=force, inputs=list(images))
     rows = [(path, detect_particles(_read(path), **settings)) for path in images]
