@@ -1,0 +1,173 @@
+"""Matching by likelihood ratio on OpenPTV test_cavity (issue 14; reconstruction.likelihood_matching).
+
+Cameras: the benchmark's volume self-calibration (``bench_real_data.py --selfcal-seed selected-ptvpar --body-weight
+0.5``: seed = the body calibration with the terms its dots determine, frames 0-4, body sides), or a cached copy
+(``--cameras PICKLE``: a dict with key ``cameras``, as ``make_selfcal_cache.py`` writes it).
+
+Per detection setting (``dense`` = bench_real_data.DETECTION, 2,900-4,100 particles per image; ``ptv`` = OpenPTV's
+particle settings, 780-1,350):
+
+1. **Frame 0 only** (not reported below): the true-match model (bias map of degree 3 and per-camera scatter,
+   ``fit_true_model``, TRAIN_THRESHOLD) is measured on the real detections; then the threshold is chosen on frame 0
+   by the stated criterion: the lowest LLR on THRESHOLDS whose decoy count (camera 1's detections moved by
+   DECOY_SHIFT_PX, scored with the same frozen model) is <= DECOY_FRACTION of the real count (>= 3-view matches with
+   camera 1).
+2. **Frames 1-4**: the real detections and the decoy run through the identical pipeline with that frozen model and
+   threshold: >= 3-view points with camera 1 (real, decoy), points seen by >= 3 cameras, reprojection RMS (on the
+   detections moved by the bias map, px). Also the whole threshold sweep (key ``sweep``).
+3. Baseline: the one-frame matching of the benchmark (``match_views`` with SELFCAL_GATES, bench_real_data.frame_figures)
+   on the same detections, with its decoy (``--no-baseline`` skips it; for ``dense`` it takes ~1 min per frame).
+
+    PYTHONPATH=$PWD python benchmarks/bench_likelihood_matching.py [--json] [--cameras PICKLE] [--detections dense ptv]
+
+The selection with a threshold is the prefix of the greedy selection without one (ranked by score, each
+detection once), so one scoring per frame gives every threshold.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pickle
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+import bench_real_data as B  # noqa: E402
+from reconstruction import likelihood_matching as L  # noqa: E402
+from vfmlab import openptv  # noqa: E402
+
+#: candidates' gates (epipolar_px, radius_px, max_residual_px): the matching over time's loose gates
+GATES = (3.0, 2.5, 2.5)
+#: threshold of the selection while the true-match model is measured on frame 0 (3 passes, bias map degree 3)
+TRAIN_THRESHOLD = 10.0
+DEGREE = 3
+#: thresholds tried on frame 0 (LLR, nats) and the criterion: decoy <= this fraction of the real count
+THRESHOLDS = tuple(np.arange(8.0, 24.01, 0.5))
+DECOY_FRACTION = 0.10
+TRAIN_FRAME = 0
+FRAMES = (1, 2, 3, 4)
+
+
+def cameras(path: str | None) -> tuple[list, str]:
+    """The self-calibrated cameras: from the pickle ``path``, or computed as bench_real_data does (2-3 min)."""
+    if path:
+        with open(path, "rb") as f:
+            return pickle.load(f)["cameras"], f"cached: {Path(path).name}"
+    imported = openptv.load_cameras(B.DATA)
+    pts, body_px = openptv.body_dots(B.DATA, imported)
+    seed, _ = B.selected_body_calibration(imported, False)
+    sc, _ = B.self_calibration(seed, body_px, pts, 0.5)
+    return sc.cameras, "self-calibrated (seed selected-ptvpar, body weight 0.5)"
+
+
+def detect(setting: str, frame: int) -> list:
+    return openptv.detect_frame(B.DATA, frame, **B.DETECTION) if setting == "dense" else openptv.detect_frame(B.DATA, frame)
+
+
+def decoy_of(dets: list) -> list:
+    return [dets[0] + np.asarray(B.DECOY_SHIFT_PX), *dets[1:]]
+
+
+def ranked(dets: list, cams: list, bounds, model) -> dict:
+    """Greedy selection without threshold: per accepted match (rank order) its score, views, camera 1, RMS."""
+    m = L.likelihood_match(dets, cams, bounds, model, -np.inf, gates=GATES)
+    nv = (m.observations >= 0).sum(axis=1)
+    return {"score": m.score, "views": nv, "cam1": m.observations[:, 0] >= 0, "rms": m.rms,
+            "candidates": len(m.candidate_score)}
+
+
+def at_threshold(r: dict, q: dict, T: float) -> dict:
+    """Figures of real ``r`` and decoy ``q`` rankings at threshold ``T``."""
+    k, kq = r["score"] >= T, q["score"] >= T
+    real = int((k & r["cam1"] & (r["views"] >= 3)).sum())
+    decoy = int((kq & q["cam1"] & (q["views"] >= 3)).sum())
+    return {"threshold": float(T), "our_points_3plus_views": int((k & (r["views"] >= 3)).sum()),
+            "our_points_3plus_views_with_cam1": real, "decoy_points_3plus_views_with_cam1": decoy,
+            "real_minus_decoy": real - decoy, "decoy_fraction": decoy / max(real, 1),
+            "four_view_points": int((k & (r["views"] == 4)).sum()),
+            "reprojection_rms_px_ours": float(np.sqrt(np.mean(r["rms"][k] ** 2))) if k.any() else float("nan")}
+
+
+def choose_threshold(r: dict, q: dict) -> float:
+    """The lowest of THRESHOLDS whose decoy count is <= DECOY_FRACTION of the real count (frame 0)."""
+    for T in THRESHOLDS:
+        f = at_threshold(r, q, T)
+        if f["decoy_points_3plus_views_with_cam1"] <= DECOY_FRACTION * f["our_points_3plus_views_with_cam1"]:
+            return float(T)
+    return float(THRESHOLDS[-1])
+
+
+def run_setting(setting: str, cams: list, bounds, baseline: bool) -> dict:
+    t0 = time.time()
+    frames = {f: detect(setting, f) for f in (TRAIN_FRAME, *FRAMES)}
+    model = L.fit_true_model(frames[TRAIN_FRAME], cams, bounds, threshold=TRAIN_THRESHOLD, degree=DEGREE, gates=GATES)
+    rank = {f: (ranked(d, cams, bounds, model), ranked(decoy_of(d), cams, bounds, model)) for f, d in frames.items()}
+    T = choose_threshold(*rank[TRAIN_FRAME])
+    out = {"detections_per_camera": {str(f): [len(x) for x in d] for f, d in frames.items()},
+           "sigma_px": model.sigma_px.tolist(), "threshold": T, "train_frame": at_threshold(*rank[TRAIN_FRAME], T),
+           "likelihood": {str(f): at_threshold(*rank[f], T) for f in FRAMES},
+           "sweep": {str(f): [at_threshold(*rank[f], t) for t in THRESHOLDS[::2]] for f in (TRAIN_FRAME, *FRAMES)}}
+    if baseline:
+        out["one_frame_selfcal_gates"] = {}
+        for f in FRAMES:
+            b = B.frame_figures(f, frames[f], cams, gates=B.SELFCAL_GATES, decoy=True)
+            out["one_frame_selfcal_gates"][str(f)] = {k: b[k] for k in (
+                "our_points_3plus_views", "our_points_3plus_views_with_cam1", "decoy_points_3plus_views_with_cam1",
+                "reprojection_rms_px_ours")}
+    out["seconds"] = time.time() - t0
+    return out
+
+
+def table(res: dict) -> str:
+    lines = [f"cameras: {res['cameras']}; gates {GATES} px; model and threshold from frame {TRAIN_FRAME} "
+             f"(decoy <= {DECOY_FRACTION:.0%} of real)", "",
+             "| detections | matching | frame | points seen by >= 3 cameras | >= 3-view with camera 1, real vs decoy "
+             "| real - decoy | decoy fraction | reprojection RMS (px) |", "|---|---|---|---|---|---|---|---|"]
+    for s, o in res["settings"].items():
+        rows = [("likelihood, LLR >= %g" % o["threshold"], o["likelihood"])]
+        if "one_frame_selfcal_gates" in o:
+            rows.append(("one frame, SELFCAL_GATES", o["one_frame_selfcal_gates"]))
+        for name, per in rows:
+            for f, r in per.items():
+                a, b = r["our_points_3plus_views_with_cam1"], r["decoy_points_3plus_views_with_cam1"]
+                lines.append(f"| {s} | {name} | {f} | {r['our_points_3plus_views']} | {a} vs {b} | {a - b} | "
+                             f"{b / max(a, 1):.3f} | {r['reprojection_rms_px_ours']:.3f} |")
+    for s, o in res["settings"].items():
+        lines.append("")
+        lines.append(f"{s}: sigma per camera {np.round(o['sigma_px'], 3).tolist()} px; frame {TRAIN_FRAME} at the "
+                     f"threshold: {json.dumps(o['train_frame'])}")
+        lines.append(f"{s}, sweep (threshold: real vs decoy with camera 1):")
+        for f, rows in o["sweep"].items():
+            lines.append(f"  frame {f}: " + ", ".join(f"{r['threshold']:g}: {r['our_points_3plus_views_with_cam1']} vs "
+                                                     f"{r['decoy_points_3plus_views_with_cam1']}" for r in rows))
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--json", action="store_true", help="print one JSON object")
+    ap.add_argument("--cameras", help="pickle with the self-calibrated cameras (key 'cameras'); default: compute them")
+    ap.add_argument("--detections", nargs="+", choices=("dense", "ptv"), default=["dense", "ptv"])
+    ap.add_argument("--no-baseline", action="store_true", help="skip the one-frame matching with SELFCAL_GATES")
+    a = ap.parse_args(argv)
+    if not (B.DATA / "parameters" / "ptv.par").is_file():
+        print(f"data not found: {B.DATA}", file=sys.stderr)
+        return 1
+    cams, how = cameras(a.cameras)
+    bounds = B.selfcal_bounds()
+    res = {"cameras": how, "gates_px": list(GATES), "settings": {}}
+    for s in a.detections:
+        res["settings"][s] = run_setting(s, cams, bounds, not a.no_baseline)
+    print(json.dumps(res, indent=1) if a.json else table(res))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
