@@ -17,7 +17,10 @@ particle settings, 780-1,350):
    detections moved by the bias map, px). Also the whole threshold sweep (key ``sweep``).
 3. Baseline: the one-frame matching of the benchmark (``match_views`` with SELFCAL_GATES, bench_real_data.frame_figures)
    on the same detections, with its decoy (``--no-baseline`` skips it; for ``dense`` it takes ~1 min per frame).
-4. Check of the decoy: the decoy's frame 0 measures its own model (camera 1's detections moved there too), scored
+4. Over time (``likelihood_over_time``): the same scores plus a bonus for the candidates in a smooth triplet of
+   frames 0-4 (the matching over time's persistence test, PERSISTENCE); bonus (BONUSES) and threshold chosen on
+   frame 0 (the bonus with the largest real - decoy there at its threshold by the same criterion).
+5. Check of the decoy: the decoy's frame 0 measures its own model (camera 1's detections moved there too), scored
    at the same threshold (key ``decoy_with_its_own_model``).
 
     PYTHONPATH=$PWD python benchmarks/bench_likelihood_matching.py [--json] [--cameras PICKLE] [--detections dense ptv]
@@ -51,10 +54,14 @@ GATES = (3.0, 2.5, 2.5)
 TRAIN_THRESHOLD = 10.0
 DEGREE = 3
 #: thresholds tried on frame 0 (LLR, nats) and the criterion: decoy <= this fraction of the real count
-THRESHOLDS = tuple(np.arange(8.0, 24.01, 0.5))
+THRESHOLDS = tuple(np.arange(4.0, 24.01, 0.5))
 DECOY_FRACTION = 0.10
 TRAIN_FRAME = 0
 FRAMES = (1, 2, 3, 4)
+#: over time: the matching over time's persistence test (bench_real_data.TEMPORAL: links <= 1 mm, second difference
+#: <= 0.6 mm, residual change <= 0.5 px, motion >= 0.2 mm) and the bonuses (nats) tried on frame 0
+PERSISTENCE = {k: B.TEMPORAL[k] for k in ("max_step_m", "max_accel_m", "max_residual_change_px", "min_motion_m")}
+BONUSES = (3.0, 5.0, 8.0)
 
 
 def cameras(path: str | None) -> tuple[list, str]:
@@ -77,12 +84,17 @@ def decoy_of(dets: list) -> list:
     return [dets[0] + np.asarray(B.DECOY_SHIFT_PX), *dets[1:]]
 
 
-def ranked(dets: list, cams: list, bounds, model) -> dict:
+def scored(frames: dict, cams: list, bounds, model) -> dict:
+    """Per frame: the candidates (with their 3-view subsets) and their LLR, real and decoy."""
+    return {f: tuple(L.score_candidates(d, cams, bounds, model, gates=GATES)[:2] for d in (dets, decoy_of(dets)))
+            for f, dets in frames.items()}
+
+
+def ranked(cands, score) -> dict:
     """Greedy selection without threshold: per accepted match (rank order) its score, views, camera 1, RMS."""
-    m = L.likelihood_match(dets, cams, bounds, model, -np.inf, gates=GATES)
-    nv = (m.observations >= 0).sum(axis=1)
-    return {"score": m.score, "views": nv, "cam1": m.observations[:, 0] >= 0, "rms": m.rms,
-            "candidates": len(m.candidate_score)}
+    keep = L.select_by_score(cands.observations, score)
+    obs = cands.observations[keep]
+    return {"score": score[keep], "views": (obs >= 0).sum(axis=1), "cam1": obs[:, 0] >= 0, "rms": cands.rms[keep]}
 
 
 def at_threshold(r: dict, q: dict, T: float) -> dict:
@@ -106,22 +118,47 @@ def choose_threshold(r: dict, q: dict) -> float:
     return float(THRESHOLDS[-1])
 
 
+def one_frame(sc: dict) -> dict:
+    """The likelihood matching frame by frame: threshold from frame 0, figures of FRAMES and the sweep."""
+    rank = {f: tuple(ranked(*x) for x in pair) for f, pair in sc.items()}
+    T = choose_threshold(*rank[TRAIN_FRAME])
+    return {"threshold": T, "train_frame": at_threshold(*rank[TRAIN_FRAME], T),
+            "per_frame": {str(f): at_threshold(*rank[f], T) for f in FRAMES},
+            "sweep": {str(f): [at_threshold(*rank[f], t) for t in THRESHOLDS[::2]] for f in (TRAIN_FRAME, *FRAMES)}}
+
+
+def over_time(sc: dict) -> dict:
+    """The likelihood plus PERSISTENCE bonus for the candidates in a smooth triplet (frames 0-4): per bonus of
+    BONUSES the threshold from frame 0 (same criterion); the bonus with the largest real - decoy on frame 0."""
+    frames = sorted(sc)
+    sup = [L.persistence_support([sc[f][k][0] for f in frames], **PERSISTENCE) for k in (0, 1)]
+    best = None
+    for bonus in BONUSES:
+        rank = {f: tuple(ranked(sc[f][k][0], sc[f][k][1] + bonus * (sup[k][i] > 0)) for k in (0, 1))
+                for i, f in enumerate(frames)}
+        T = choose_threshold(*rank[TRAIN_FRAME])
+        row = {"bonus": bonus, "threshold": T, "train_frame": at_threshold(*rank[TRAIN_FRAME], T),
+               "per_frame": {str(f): at_threshold(*rank[f], T) for f in FRAMES}}
+        if best is None or row["train_frame"]["real_minus_decoy"] > best["train_frame"]["real_minus_decoy"]:
+            best = row
+    return best
+
+
 def run_setting(setting: str, cams: list, bounds, baseline: bool) -> dict:
     t0 = time.time()
     frames = {f: detect(setting, f) for f in (TRAIN_FRAME, *FRAMES)}
     model = L.fit_true_model(frames[TRAIN_FRAME], cams, bounds, threshold=TRAIN_THRESHOLD, degree=DEGREE, gates=GATES)
-    rank = {f: (ranked(d, cams, bounds, model), ranked(decoy_of(d), cams, bounds, model)) for f, d in frames.items()}
-    T = choose_threshold(*rank[TRAIN_FRAME])
+    sc = scored(frames, cams, bounds, model)
+    out = {"detections_per_camera": {str(f): [len(x) for x in d] for f, d in frames.items()},
+           "sigma_px": model.sigma_px.tolist(), "likelihood": one_frame(sc), "likelihood_over_time": over_time(sc)}
     # check: the decoy with a model measured on its own frame 0 (camera 1 moved there too), the same threshold
     own = L.fit_true_model(decoy_of(frames[TRAIN_FRAME]), cams, bounds, threshold=TRAIN_THRESHOLD, degree=DEGREE,
                            gates=GATES)
-    own_decoy = {str(f): at_threshold(rank[f][0], ranked(decoy_of(frames[f]), cams, bounds, own), T)
-                 ["decoy_points_3plus_views_with_cam1"] for f in FRAMES}
-    out = {"decoy_with_its_own_model": own_decoy, "sigma_px_decoy_own_model": own.sigma_px.tolist(),
-           "detections_per_camera": {str(f): [len(x) for x in d] for f, d in frames.items()},
-           "sigma_px": model.sigma_px.tolist(), "threshold": T, "train_frame": at_threshold(*rank[TRAIN_FRAME], T),
-           "likelihood": {str(f): at_threshold(*rank[f], T) for f in FRAMES},
-           "sweep": {str(f): [at_threshold(*rank[f], t) for t in THRESHOLDS[::2]] for f in (TRAIN_FRAME, *FRAMES)}}
+    T = out["likelihood"]["threshold"]
+    out["decoy_with_its_own_model"] = {str(f): int(at_threshold(
+        ranked(*sc[f][0]), ranked(*L.score_candidates(decoy_of(frames[f]), cams, bounds, own, gates=GATES)[:2]), T)
+        ["decoy_points_3plus_views_with_cam1"]) for f in FRAMES}
+    out["sigma_px_decoy_own_model"] = own.sigma_px.tolist()
     if baseline:
         out["one_frame_selfcal_gates"] = {}
         for f in FRAMES:
@@ -139,7 +176,9 @@ def table(res: dict) -> str:
              "| detections | matching | frame | points seen by >= 3 cameras | >= 3-view with camera 1, real vs decoy "
              "| real - decoy | decoy fraction | reprojection RMS (px) |", "|---|---|---|---|---|---|---|---|"]
     for s, o in res["settings"].items():
-        rows = [("likelihood, LLR >= %g" % o["threshold"], o["likelihood"])]
+        lk, ot = o["likelihood"], o["likelihood_over_time"]
+        rows = [("likelihood, LLR >= %g" % lk["threshold"], lk["per_frame"]),
+                ("likelihood + persistence %g, >= %g" % (ot["bonus"], ot["threshold"]), ot["per_frame"])]
         if "one_frame_selfcal_gates" in o:
             rows.append(("one frame, SELFCAL_GATES", o["one_frame_selfcal_gates"]))
         for name, per in rows:
@@ -150,11 +189,12 @@ def table(res: dict) -> str:
     for s, o in res["settings"].items():
         lines.append("")
         lines.append(f"{s}: sigma per camera {np.round(o['sigma_px'], 3).tolist()} px; frame {TRAIN_FRAME} at the "
-                     f"threshold: {json.dumps(o['train_frame'])}")
+                     f"threshold: {json.dumps(o['likelihood']['train_frame'])}; over time: "
+                     f"{json.dumps(o['likelihood_over_time']['train_frame'])}")
         lines.append(f"{s}: decoy with a model measured on its own frame {TRAIN_FRAME}, same threshold: "
                      f"{o['decoy_with_its_own_model']} (sigma {np.round(o['sigma_px_decoy_own_model'], 3).tolist()} px)")
         lines.append(f"{s}, sweep (threshold: real vs decoy with camera 1):")
-        for f, rows in o["sweep"].items():
+        for f, rows in o["likelihood"]["sweep"].items():
             lines.append(f"  frame {f}: " + ", ".join(f"{r['threshold']:g}: {r['our_points_3plus_views_with_cam1']} vs "
                                                      f"{r['decoy_points_3plus_views_with_cam1']}" for r in rows))
     return "\n".join(lines)

@@ -27,6 +27,10 @@ volume, the triangulation's Laplace factor, nearly the same for 3 and 4 views) g
 runs candidates, score and selection on one frame; :func:`fit_true_model` measures the bias map and ``s_c``
 on one frame by alternating selection and fit (then used frozen on other frames).
 
+Over time (:func:`likelihood_match_over_time`): a candidate in a smooth triplet of consecutive frames
+(``temporal_matching.smooth_triplets``: small second difference, some motion, a residual per camera that stays
+constant) gets ``persistence_bonus`` added to its score before the selection: the persistence test's evidence.
+
 Pure functions over arrays; metres and pixels as OpenCV (``docs/decisions/0002-frames-and-shapes.md``).
 """
 
@@ -41,11 +45,12 @@ from scipy.spatial import cKDTree
 from reconstruction.cameras import Camera
 from reconstruction.correspondence import observed_pixels
 from reconstruction.temporal_matching import (FrameCandidates, apply_pixel_correction, fit_pixel_correction,
-                                              frame_candidates)
+                                              frame_candidates, link_frames, smooth_triplets)
 from reconstruction.triangulation import triangulate
 
 __all__ = ["TrueModel", "LikelihoodMatch", "local_density", "with_subsets", "log_likelihood_ratio",
-           "select_by_score", "score_candidates", "likelihood_match", "fit_true_model"]
+           "select_by_score", "score_candidates", "likelihood_match", "fit_true_model", "persistence_support",
+           "likelihood_match_over_time"]
 
 log = logging.getLogger(__name__)
 
@@ -279,3 +284,42 @@ def select_rows(table: np.ndarray, rows: np.ndarray) -> np.ndarray:
     """Index in ``table`` ``(n, k)`` of each row of ``rows`` ``(m, k)`` (every row must be in the table)."""
     lookup = {tuple(r): i for i, r in enumerate(np.asarray(table).tolist())}
     return np.array([lookup[tuple(r)] for r in np.asarray(rows).tolist()], np.int64)
+
+
+def persistence_support(candidates: list[FrameCandidates], *, max_step_m: float, max_accel_m: float,
+                        max_residual_change_px: float = 0.5, min_motion_m: float = 0.2e-3) -> list[np.ndarray]:
+    """Per frame, the number of smooth triplets (``temporal_matching.smooth_triplets`` over the candidates of
+    consecutive frames, linked within ``max_step_m``) each candidate belongs to: ``(n_t,)`` of int.
+
+    ``candidates``: per consecutive frame, its FrameCandidates (points m, residuals px). Distances in m, px."""
+    links = [link_frames(a.points, b.points, max_step_m) for a, b in zip(candidates[:-1], candidates[1:])]
+    trip = smooth_triplets([c.points for c in candidates], links, max_accel_m, [c.residuals for c in candidates],
+                           max_residual_change_px, min_motion_m)
+    sup = [np.zeros(len(c.points), np.int64) for c in candidates]
+    for k, off in ((1, -1), (2, 0), (3, 1)):
+        for t in np.unique(trip[:, 0]):
+            np.add.at(sup[t + off], trip[trip[:, 0] == t, k], 1)
+    return sup
+
+
+def likelihood_match_over_time(frames: list[list[np.ndarray]], cameras: list[Camera], bounds, model: TrueModel,
+                               threshold: float, *, persistence_bonus: float, max_step_m: float, max_accel_m: float,
+                               max_residual_change_px: float = 0.5, min_motion_m: float = 0.2e-3,
+                               **options) -> list[LikelihoodMatch]:
+    """Per frame of ``frames`` (consecutive; each the detections of every camera, px), the matches by
+    log-likelihood ratio plus ``persistence_bonus`` (nats) for the candidates in a smooth triplet
+    (:func:`persistence_support`; ``max_step_m``, ``max_accel_m``, ``min_motion_m`` in m,
+    ``max_residual_change_px`` in px), selected at ``threshold``. ``options``: keywords of
+    :func:`score_candidates`. The LikelihoodMatch scores include the bonus."""
+    if len(frames) < 3:
+        raise ValueError(f"frames must hold at least 3 consecutive frames (a smooth triplet); got {len(frames)}")
+    scored = [score_candidates(d, cameras, bounds, model, **options)[:2] for d in frames]
+    sup = persistence_support([c for c, _ in scored], max_step_m=max_step_m, max_accel_m=max_accel_m,
+                              max_residual_change_px=max_residual_change_px, min_motion_m=min_motion_m)
+    out = []
+    for (cands, score), s in zip(scored, sup):
+        total = score + persistence_bonus * (s > 0)
+        keep = select_by_score(cands.observations, total, threshold)
+        out.append(LikelihoodMatch(cands.observations[keep], cands.points[keep], cands.rms[keep], total[keep],
+                                   cands, total))
+    return out

@@ -7,7 +7,8 @@ import numpy as np
 from _window_rig import window_rig
 from reconstruction.correspondence import match_views
 from reconstruction.likelihood_matching import (TrueModel, fit_true_model, likelihood_match, local_density,
-                                                log_likelihood_ratio, select_by_score, with_subsets)
+                                                log_likelihood_ratio, persistence_support, select_by_score,
+                                                with_subsets)
 
 BOUNDS = (np.array([-0.03, -0.03, -0.02]), np.array([0.03, 0.03, 0.02]))
 #: per camera: constant bias (px) and its gradient over the image (px per half image), the calibration's error
@@ -76,3 +77,17 @@ def test_score_and_greedy_selection_on_hand_made_candidates():
     assert np.allclose(local_density(np.array([[0.0, 0.0], [3.0, 0.0], [100.0, 0.0]]), 10.0),
                        [1 / (np.pi * 100)] * 3)
     assert TrueModel.isotropic(0.3, 4).coefficients.shape == (4, 10, 2)
+
+
+def test_persistence_support_counts_smooth_moving_triplets_only():
+    from reconstruction.temporal_matching import FrameCandidates
+
+    def frame(t):
+        pts = np.array([[0.0, 0.0, 3e-4 * t], [0.01, 0.0, 0.0], [0.02, 0.0, 3e-4 * t]])  # moving, static, moving
+        res = np.zeros((4, 3, 2))
+        res[0, 2] = 0.4 * t  # the third one's residual changes by 0.4 px per frame in camera 1
+        return FrameCandidates(np.zeros((3, 4), np.int64), pts, np.zeros(3), res)
+
+    sup = persistence_support([frame(t) for t in range(4)], max_step_m=1e-3, max_accel_m=0.1e-3,
+                              max_residual_change_px=0.3, min_motion_m=0.2e-3)
+    assert [s.tolist() for s in sup] == [[1, 0, 0], [2, 0, 0], [2, 0, 0], [1, 0, 0]]
