@@ -9,9 +9,9 @@ particle settings, 780-1,350):
 
 1. **Frame 0 only** (not reported below): the true-match model (bias map of degree 3 and per-camera scatter,
    ``fit_true_model``, TRAIN_THRESHOLD) is measured on the real detections; then the threshold is chosen on frame 0
-   by the stated criterion: the lowest LLR on THRESHOLDS whose decoy count (camera 1's detections moved by
-   DECOY_SHIFT_PX, scored with the same frozen model) is <= DECOY_FRACTION of the real count (>= 3-view matches with
-   camera 1).
+   by the stated criterion: of THRESHOLDS, the one with the largest real - decoy among those whose decoy count
+   (camera 1's detections moved by DECOY_SHIFT_PX, scored with the same frozen model) is <= DECOY_FRACTION of the
+   real count (>= 3-view matches with camera 1).
 2. **Frames 1-4**: the real detections and the decoy run through the identical pipeline with that frozen model and
    threshold: >= 3-view points with camera 1 (real, decoy), points seen by >= 3 cameras, reprojection RMS (on the
    detections moved by the bias map, px). Also the whole threshold sweep (key ``sweep``).
@@ -77,7 +77,8 @@ def cameras(path: str | None) -> tuple[list, str]:
 
 
 def detect(setting: str, frame: int) -> list:
-    return openptv.detect_frame(B.DATA, frame, **B.DETECTION) if setting == "dense" else openptv.detect_frame(B.DATA, frame)
+    settings = B.DETECTION if setting == "dense" else {}
+    return openptv.detect_frame(B.DATA, frame, **settings)
 
 
 def decoy_of(dets: list) -> list:
@@ -110,12 +111,11 @@ def at_threshold(r: dict, q: dict, T: float) -> dict:
 
 
 def choose_threshold(r: dict, q: dict) -> float:
-    """The lowest of THRESHOLDS whose decoy count is <= DECOY_FRACTION of the real count (frame 0)."""
-    for T in THRESHOLDS:
-        f = at_threshold(r, q, T)
-        if f["decoy_points_3plus_views_with_cam1"] <= DECOY_FRACTION * f["our_points_3plus_views_with_cam1"]:
-            return float(T)
-    return float(THRESHOLDS[-1])
+    """Of THRESHOLDS, the one with the largest real - decoy on frame 0 among those whose decoy count is <=
+    DECOY_FRACTION of the real count (the highest threshold when none is)."""
+    rows = [at_threshold(r, q, T) for T in THRESHOLDS]
+    ok = [x for x in rows if x["decoy_fraction"] <= DECOY_FRACTION]
+    return float(max(ok, key=lambda x: x["real_minus_decoy"])["threshold"]) if ok else float(THRESHOLDS[-1])
 
 
 def one_frame(sc: dict) -> dict:
@@ -192,7 +192,8 @@ def table(res: dict) -> str:
                      f"threshold: {json.dumps(o['likelihood']['train_frame'])}; over time: "
                      f"{json.dumps(o['likelihood_over_time']['train_frame'])}")
         lines.append(f"{s}: decoy with a model measured on its own frame {TRAIN_FRAME}, same threshold: "
-                     f"{o['decoy_with_its_own_model']} (sigma {np.round(o['sigma_px_decoy_own_model'], 3).tolist()} px)")
+                     f"{o['decoy_with_its_own_model']} (sigma "
+                     f"{np.round(o['sigma_px_decoy_own_model'], 3).tolist()} px)")
         lines.append(f"{s}, sweep (threshold: real vs decoy with camera 1):")
         for f, rows in o["likelihood"]["sweep"].items():
             lines.append(f"  frame {f}: " + ", ".join(f"{r['threshold']:g}: {r['our_points_3plus_views_with_cam1']} vs "
