@@ -39,6 +39,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -95,7 +96,8 @@ def ranked(cands, score) -> dict:
     """Greedy selection without threshold: per accepted match (rank order) its score, views, camera 1, RMS."""
     keep = L.select_by_score(cands.observations, score)
     obs = cands.observations[keep]
-    return {"score": score[keep], "views": (obs >= 0).sum(axis=1), "cam1": obs[:, 0] >= 0, "rms": cands.rms[keep]}
+    return {"score": score[keep], "views": (obs >= 0).sum(axis=1), "cam1": obs[:, 0] >= 0, "rms": cands.rms[keep],
+            "points": cands.points[keep]}
 
 
 def at_threshold(r: dict, q: dict, T: float) -> dict:
@@ -108,6 +110,17 @@ def at_threshold(r: dict, q: dict, T: float) -> dict:
             "real_minus_decoy": real - decoy, "decoy_fraction": decoy / max(real, 1),
             "four_view_points": int((k & (r["views"] == 4)).sum()),
             "reprojection_rms_px_ours": float(np.sqrt(np.mean(r["rms"][k] ** 2))) if k.any() else float("nan")}
+
+
+def with_openptv(row: dict, r: dict, frame: int) -> dict:
+    """``row`` (:func:`at_threshold` of the real ranking ``r``) with ``our_points`` and the fraction of OpenPTV's
+    points of ``frame`` with one of ours within 0.3 mm (``agree_within_0p3mm``)."""
+    X = r["points"][r["score"] >= row["threshold"]]
+    P = B.openptv_result(frame)[0]
+    row = {**row, "our_points": int(len(X))}
+    if P is not None:
+        row["agree_within_0p3mm"] = float(np.mean(cKDTree(X).query(P)[0] <= 0.3e-3)) if len(X) else 0.0
+    return row
 
 
 def choose_threshold(r: dict, q: dict) -> float:
@@ -123,7 +136,7 @@ def one_frame(sc: dict) -> dict:
     rank = {f: tuple(ranked(*x) for x in pair) for f, pair in sc.items()}
     T = choose_threshold(*rank[TRAIN_FRAME])
     return {"threshold": T, "train_frame": at_threshold(*rank[TRAIN_FRAME], T),
-            "per_frame": {str(f): at_threshold(*rank[f], T) for f in FRAMES},
+            "per_frame": {str(f): with_openptv(at_threshold(*rank[f], T), rank[f][0], f) for f in FRAMES},
             "sweep": {str(f): [at_threshold(*rank[f], t) for t in THRESHOLDS[::2]] for f in (TRAIN_FRAME, *FRAMES)}}
 
 
@@ -138,7 +151,7 @@ def over_time(sc: dict) -> dict:
                 for i, f in enumerate(frames)}
         T = choose_threshold(*rank[TRAIN_FRAME])
         row = {"bonus": bonus, "threshold": T, "train_frame": at_threshold(*rank[TRAIN_FRAME], T),
-               "per_frame": {str(f): at_threshold(*rank[f], T) for f in FRAMES}}
+               "per_frame": {str(f): with_openptv(at_threshold(*rank[f], T), rank[f][0], f) for f in FRAMES}}
         if best is None or row["train_frame"]["real_minus_decoy"] > best["train_frame"]["real_minus_decoy"]:
             best = row
     return best
