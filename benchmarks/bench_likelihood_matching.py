@@ -24,6 +24,7 @@ particle settings, 780-1,350):
    at the same threshold (key ``decoy_with_its_own_model``).
 
     PYTHONPATH=$PWD python benchmarks/bench_likelihood_matching.py [--json] [--cameras PICKLE] [--detections dense ptv]
+        [--no-baseline] [--gates 3 2.5 2.5] [--degree 3] [--uniform-density]   # the last three: what each part adds
 
 The selection with a threshold is the prefix of the greedy selection without one (ranked by score, each
 detection once), so one scoring per frame gives every threshold.
@@ -54,6 +55,8 @@ GATES = (3.0, 2.5, 2.5)
 #: threshold of the selection while the true-match model is measured on frame 0 (3 passes, bias map degree 3)
 TRAIN_THRESHOLD = 10.0
 DEGREE = 3
+#: radius of the local detection density (px; None = one density per image: ``--uniform-density``)
+DENSITY_RADIUS_PX = 25.0
 #: thresholds tried on frame 0 (LLR, nats) and the criterion: decoy <= this fraction of the real count
 THRESHOLDS = tuple(np.arange(4.0, 24.01, 0.5))
 DECOY_FRACTION = 0.10
@@ -88,7 +91,8 @@ def decoy_of(dets: list) -> list:
 
 def scored(frames: dict, cams: list, bounds, model) -> dict:
     """Per frame: the candidates (with their 3-view subsets) and their LLR, real and decoy."""
-    return {f: tuple(L.score_candidates(d, cams, bounds, model, gates=GATES)[:2] for d in (dets, decoy_of(dets)))
+    opts = {"gates": GATES, "density_radius_px": DENSITY_RADIUS_PX}
+    return {f: tuple(L.score_candidates(d, cams, bounds, model, **opts)[:2] for d in (dets, decoy_of(dets)))
             for f, dets in frames.items()}
 
 
@@ -160,16 +164,17 @@ def over_time(sc: dict) -> dict:
 def run_setting(setting: str, cams: list, bounds, baseline: bool) -> dict:
     t0 = time.time()
     frames = {f: detect(setting, f) for f in (TRAIN_FRAME, *FRAMES)}
-    model = L.fit_true_model(frames[TRAIN_FRAME], cams, bounds, threshold=TRAIN_THRESHOLD, degree=DEGREE, gates=GATES)
+    opts = {"gates": GATES, "density_radius_px": DENSITY_RADIUS_PX}
+    model = L.fit_true_model(frames[TRAIN_FRAME], cams, bounds, threshold=TRAIN_THRESHOLD, degree=DEGREE, **opts)
     sc = scored(frames, cams, bounds, model)
     out = {"detections_per_camera": {str(f): [len(x) for x in d] for f, d in frames.items()},
            "sigma_px": model.sigma_px.tolist(), "likelihood": one_frame(sc), "likelihood_over_time": over_time(sc)}
     # check: the decoy with a model measured on its own frame 0 (camera 1 moved there too), the same threshold
     own = L.fit_true_model(decoy_of(frames[TRAIN_FRAME]), cams, bounds, threshold=TRAIN_THRESHOLD, degree=DEGREE,
-                           gates=GATES)
+                           **opts)
     T = out["likelihood"]["threshold"]
     out["decoy_with_its_own_model"] = {str(f): int(at_threshold(
-        ranked(*sc[f][0]), ranked(*L.score_candidates(decoy_of(frames[f]), cams, bounds, own, gates=GATES)[:2]), T)
+        ranked(*sc[f][0]), ranked(*L.score_candidates(decoy_of(frames[f]), cams, bounds, own, **opts)[:2]), T)
         ["decoy_points_3plus_views_with_cam1"]) for f in FRAMES}
     out["sigma_px_decoy_own_model"] = own.sigma_px.tolist()
     if baseline:
@@ -215,18 +220,26 @@ def table(res: dict) -> str:
 
 
 def main(argv=None) -> int:
+    global GATES, DEGREE, DENSITY_RADIUS_PX
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--json", action="store_true", help="print one JSON object")
     ap.add_argument("--cameras", help="pickle with the self-calibrated cameras (key 'cameras'); default: compute them")
     ap.add_argument("--detections", nargs="+", choices=("dense", "ptv"), default=["dense", "ptv"])
     ap.add_argument("--no-baseline", action="store_true", help="skip the one-frame matching with SELFCAL_GATES")
+    ap.add_argument("--gates", type=float, nargs=3, default=GATES, metavar=("EPIPOLAR", "RADIUS", "RESIDUAL"),
+                    help="candidates' gates, px (default %(default)s)")
+    ap.add_argument("--degree", type=int, default=DEGREE, help="degree of the bias map (0: none)")
+    ap.add_argument("--uniform-density", action="store_true", help="one detection density per image, not local")
     a = ap.parse_args(argv)
+    GATES, DEGREE = tuple(a.gates), a.degree
+    DENSITY_RADIUS_PX = None if a.uniform_density else DENSITY_RADIUS_PX
     if not (B.DATA / "parameters" / "ptv.par").is_file():
         print(f"data not found: {B.DATA}", file=sys.stderr)
         return 1
     cams, how = cameras(a.cameras)
     bounds = B.selfcal_bounds()
-    res = {"cameras": how, "gates_px": list(GATES), "settings": {}}
+    res = {"cameras": how, "gates_px": list(GATES), "degree": DEGREE, "density_radius_px": DENSITY_RADIUS_PX,
+           "settings": {}}
     for s in a.detections:
         res["settings"][s] = run_setting(s, cams, bounds, not a.no_baseline)
     print(json.dumps(res, indent=1) if a.json else table(res))

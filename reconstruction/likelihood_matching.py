@@ -113,16 +113,20 @@ class LikelihoodMatch:
     candidate_score: np.ndarray
 
 
-def local_density(detections: np.ndarray, radius_px: float = 25.0) -> np.ndarray:
+def local_density(detections: np.ndarray, radius_px: float | None = 25.0) -> np.ndarray:
     """Detections per px^2 around each detection: the others within ``radius_px``, over the disc's area.
 
     ``detections`` ``(n, 2)`` px -> ``(n,)`` px^-2; at least one detection per disc is assumed (a lone
-    detection is not infinitely credible)."""
+    detection is not infinitely credible). ``radius_px=None``: one density for all, the count over the area of
+    the detections' bounding box (no local information)."""
     d = np.asarray(detections, float).reshape(-1, 2)
-    if not radius_px > 0:
-        raise ValueError(f"radius_px must be > 0 px; got {radius_px}")
+    if radius_px is not None and not radius_px > 0:
+        raise ValueError(f"radius_px must be > 0 px or None; got {radius_px}")
     if len(d) == 0:
         return np.zeros(0)
+    if radius_px is None:
+        area = max(float(np.prod(np.ptp(d, axis=0))), 1.0)
+        return np.full(len(d), len(d) / area)
     n = cKDTree(d).query_ball_point(d, radius_px, return_length=True) - 1
     return np.maximum(n, 1) / (np.pi * radius_px**2)
 
@@ -199,7 +203,7 @@ def select_by_score(observations: np.ndarray, score: np.ndarray, threshold: floa
 
 def score_candidates(detections: list[np.ndarray], cameras: list[Camera], bounds, model: TrueModel, *,
                      gates=(3.0, 2.5, 2.5), min_views: int = 3,
-                     density_radius_px: float = 25.0) -> tuple[FrameCandidates, np.ndarray, list[np.ndarray]]:
+                     density_radius_px: float | None = 25.0) -> tuple[FrameCandidates, np.ndarray, list[np.ndarray]]:
     """Candidates of one frame on the detections moved by ``model``'s bias map, with their 4-view candidates'
     3-view subsets, and their log-likelihood ratio.
 
@@ -214,8 +218,8 @@ def score_candidates(detections: list[np.ndarray], cameras: list[Camera], bounds
     gates : tuple of 3 float
         (epipolar_px, radius_px, max_residual_px) of :func:`reconstruction.temporal_matching.frame_candidates`.
     min_views : int
-    density_radius_px : float
-        Radius of :func:`local_density`, px.
+    density_radius_px : float or None
+        Radius of :func:`local_density`, px (None: one density for the whole image).
 
     Returns
     -------
