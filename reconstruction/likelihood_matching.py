@@ -268,26 +268,20 @@ def fit_true_model(detections: list[np.ndarray], cameras: list[Camera], bounds, 
     model = TrueModel.isotropic(sigma_px, len(cameras), max(degree, 1))
     sizes = [c.image_size for c in cameras]
     for it in range(iterations):
-        m = likelihood_match(detections, cameras, bounds, model, threshold, **options)
-        px = observed_pixels(detections, m.observations)  # (n_cams, m, 2), as given
-        res = m.candidates.residuals[:, select_rows(m.candidates.observations, m.observations)]
+        cands, score, _ = score_candidates(detections, cameras, bounds, model, **options)
+        keep = select_by_score(cands.observations, score, threshold)
+        obs, res = cands.observations[keep], cands.residuals[:, keep]
         coef = model.coefficients
         if degree > 0:
-            coef = coef + fit_pixel_correction(px, res, sizes, degree=degree)
+            coef = coef + fit_pixel_correction(observed_pixels(detections, obs), res, sizes, degree=degree)
             moved = TrueModel(model.sigma_px, coef).corrected(detections, cameras)
-            res = triangulate(observed_pixels(moved, m.observations), cameras, covariance=False).residuals
+            res = triangulate(observed_pixels(moved, obs), cameras, covariance=False).residuals
         norm = np.linalg.norm(res, axis=-1)
         sigma = np.array([np.nanmedian(n) / 1.1774 if np.isfinite(n).sum() >= 10 else s
                           for n, s in zip(norm, model.sigma_px)])
         model = TrueModel(sigma, coef)
-        log.info("fit_true_model: pass %d, %d matches, sigma %s px", it + 1, len(m.observations), np.round(sigma, 3))
+        log.info("fit_true_model: pass %d, %d matches, sigma %s px", it + 1, len(obs), np.round(sigma, 3))
     return model
-
-
-def select_rows(table: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """Index in ``table`` ``(n, k)`` of each row of ``rows`` ``(m, k)`` (every row must be in the table)."""
-    lookup = {tuple(r): i for i, r in enumerate(np.asarray(table).tolist())}
-    return np.array([lookup[tuple(r)] for r in np.asarray(rows).tolist()], np.int64)
 
 
 def persistence_support(candidates: list[FrameCandidates], *, max_step_m: float, max_accel_m: float,
