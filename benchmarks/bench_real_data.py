@@ -191,6 +191,7 @@ def run(frames: list[int], selfcal_seed: str = "imported", dense: bool = True, b
     out["self_calibrated"] = {}
     out["calibration_body_rms_px_self_calibrated"] = dict(zip(out["calibration_body_rms_px"], sc.body_rms_px.tolist()))
     out["temporal"], out["temporal_diagnostics"] = temporal(frames, sc.cameras)
+    out["likelihood"], out["likelihood_over_time"] = likelihood_matching(frames, sc.cameras)
     if variants:
         out["temporal_diagnostics"]["variants"] = temporal_variants(frames, sc.cameras)
     for f in frames:
@@ -269,6 +270,19 @@ def temporal(frames: list[int], cams: list) -> tuple[dict, dict]:
         diag["no_correction"][str(f)] = _temporal_figures(f, m0, d0, t, c0[t], cams)
         diag["candidates_with_cam1"][str(f)] = _true_candidates(dets[t], decoy[t], cams, bounds)
     return out, diag
+
+
+def likelihood_matching(frames: list[int], cams: list) -> tuple[dict, dict]:
+    """Matching by likelihood ratio (benchmarks/bench_likelihood_matching.py, DETECTION's particles; model and
+    threshold measured on frame 0, the decoy through the same pipeline), per frame of ``frames`` in 1-4: one frame
+    at a time, and with the persistence bonus (frames 0-4)."""
+    import bench_likelihood_matching as BL
+
+    res = BL.run_setting("dense", cams, selfcal_bounds(), baseline=False)
+    keys = ("our_points", "our_points_3plus_views", "our_points_3plus_views_with_cam1",
+            "decoy_points_3plus_views_with_cam1", "reprojection_rms_px_ours", "agree_within_0p3mm", "threshold")
+    return tuple({str(f): {k: res[name]["per_frame"][str(f)][k] for k in keys} for f in frames
+                  if str(f) in res[name]["per_frame"]} for name in ("likelihood", "likelihood_over_time"))
 
 
 def _correction_max(coef, sizes) -> list[float]:
@@ -421,7 +435,8 @@ def table(res: dict) -> str:
             "reprojection_median_px_openptv", "agree_within_0p3mm", "our_points_3plus_views_with_cam1",
             "decoy_points_3plus_views_with_cam1"]
     lines = ["| calibration | frame | " + " | ".join(keys) + " |", "|" + "---|" * (len(keys) + 2)]
-    for cal in ("imported", "own", "self_calibrated", "temporal", "no_refraction"):
+    for cal in ("imported", "own", "self_calibrated", "temporal", "likelihood", "likelihood_over_time",
+                "no_refraction"):
         for f, row in res.get(cal, {}).items():
             lines.append(f"| {cal} | {f} | " + " | ".join(_fmt(row.get(k)) for k in keys) + " |")
     lines.append("")
