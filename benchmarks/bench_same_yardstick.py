@@ -15,7 +15,9 @@ Ours: the one-frame matching (``match_views``) with the volume-self-calibrated c
 seed ``--selfcal-seed``, ``--body-weight``; about 2 min) at two operating points, OPERATING_POINTS: ``precise`` (the
 benchmark's ``self_calibrated`` rows: OpenPTV's particle settings, gates 1.5 / 1.0 px) and ``dense`` (touching
 particles split, 7 grey levels: about OpenPTV's chance share); and the matching over time (``over_time``:
-``bench_real_data.temporal``'s, the decoy camera moved in every frame).
+``bench_real_data.temporal``'s, the decoy camera moved in every frame) and the matching by likelihood ratio
+(``likelihood``, ``likelihood_over_time``, ``likelihood_inclusive``: ``bench_likelihood_matching.py``'s, frozen on
+frame 0).
 
     python benchmarks/bench_same_yardstick.py [--json] [--frames 1 2 3 4]   # needs optv; 4-6 min
 """
@@ -96,6 +98,47 @@ def over_time(frames: list[int], cams: list) -> dict:
     return out
 
 
+def likelihood(frames: list[int], cams: list) -> dict:
+    """The matching by likelihood ratio on DETECTION's particles (``bench_likelihood_matching.py``: model, threshold
+    and persistence bonus chosen on frame 0 with camera 1's decoy, then frozen), one frame at a time
+    (``likelihood``) and with the persistence bonus (``likelihood_over_time``); the decoy of each camera in turn
+    through the same frozen model, threshold and bonus (moved in every frame)."""
+    import bench_likelihood_matching as BL
+    from reconstruction import likelihood_matching as L
+
+    bounds, every = B.selfcal_bounds(), (BL.TRAIN_FRAME, *BL.FRAMES)
+    opts = {"gates": BL.GATES, "density_radius_px": BL.DENSITY_RADIUS_PX}
+    dets = {f: BL.detect("dense", f) for f in every}
+    model = L.fit_true_model(dets[BL.TRAIN_FRAME], cams, bounds, threshold=BL.TRAIN_THRESHOLD, degree=BL.DEGREE,
+                             **opts)
+    sc = BL.scored(dets, cams, bounds, model)
+    one, ot = BL.one_frame(sc), BL.over_time(sc)
+    inc = BL.over_time(sc, BL.INCLUSIVE_DECOY_FRACTION, (ot["bonus"],))
+
+    def selections(moved_camera: int | None) -> dict:
+        runs = {f: L.score_candidates(dets[f] if moved_camera is None else _moved(dets[f], moved_camera), cams,
+                                      bounds, model, **opts)[:2] for f in every}
+        sup = L.persistence_support([runs[f][0] for f in every], **BL.PERSISTENCE)
+        out = {}
+        for i, f in enumerate(every):
+            c, score = runs[f]
+            out[f] = [c.observations[L.select_by_score(c.observations, score, one["threshold"])]]
+            out[f] += [c.observations[L.select_by_score(c.observations, score + o["bonus"] * (sup[i] > 0),
+                                                        o["threshold"])] for o in (ot, inc)]
+        return out
+
+    real, decoys = selections(None), [selections(k) for k in range(len(cams))]
+    names = ("likelihood", "likelihood_over_time", "likelihood_inclusive")
+    res = {name: {} for name in names}
+    res["likelihood_settings"] = {name: {"threshold": o["threshold"], "bonus": o.get("bonus", 0.0)}
+                                  for name, o in zip(names, (one, ot, inc))}
+    for f in frames:
+        n = [len(d) for d in dets[f]]
+        for j, name in enumerate(names):
+            res[name][str(f)] = per_camera(real[f][j], [d[f][j] for d in decoys], n)
+    return res
+
+
 class OpenPTV:
     """OpenPTV's own detection and correspondences on the data set (``optv``), with its parameter files."""
 
@@ -157,7 +200,9 @@ class OpenPTV:
 def self_calibrated_cameras(seed: str, body_weight: float) -> list:
     imported = openptv.load_cameras(B.DATA)
     pts, body_px = openptv.body_dots(B.DATA, imported)
-    seed_cams = B.selected_body_calibration(imported, seed == "selected")[0] if seed.startswith("selected") else imported
+    seed_cams = imported
+    if seed.startswith("selected"):
+        seed_cams = B.selected_body_calibration(imported, seed == "selected")[0]
     return B.self_calibration(seed_cams, body_px, pts, body_weight)[0].cameras
 
 
@@ -170,13 +215,15 @@ def run(frames: list[int], cams: list) -> dict:
         for name, (detection, gates) in OPERATING_POINTS.items():
             out[name][str(f)] = ours(f, cams, detection, gates)
     out["over_time"] = over_time(frames, cams)
+    out.update(likelihood(frames, cams))
     return out
 
 
 def table(res: dict) -> str:
     rows = ["| matching | frame | points seen by >= 3 cameras | per camera 1-4: real vs decoy -> estimated real "
             "(chance share) |", "|---|---|---|---|"]
-    for name in ("openptv", *OPERATING_POINTS, "over_time"):
+    for name in ("openptv", *OPERATING_POINTS, "over_time", "likelihood", "likelihood_over_time",
+                 "likelihood_inclusive"):
         for f, r in res[name].items():
             cells = [f"{c['real']} vs {c['decoy']} -> {c['true_estimate']:.0f} ({100 * (c['chance_share'] or 0):.0f} %)"
                      for c in r["cameras"].values()]
