@@ -4,7 +4,8 @@ The issue compares our count of points seen by >= 3 cameras with OpenPTV's (``re
 of how many of the points are real particles. This benchmark measures both tools the same way:
 
 1. match the frame as the tool does (OpenPTV: its own ``target_recognition`` and ``correspondences`` through
-   ``optv``, test extra, with the data set's parameter files; this reproduces ``rt_is`` exactly, checked below);
+   ``optv``, test extra, with the data set's parameter files: every >= 3-view point of ``rt_is`` comes back, and all
+   its rows in frames 1-2; ``rt_is_rows_reproduced``);
 2. match it again with camera k's detections moved by DECOY_SHIFT_PX (20, 13 px): whatever is still matched with
    camera k is chance;
 3. per camera k: R = >= 3-view points with camera k, D = the same in the decoy run, n = camera k's detections;

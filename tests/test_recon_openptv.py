@@ -438,7 +438,7 @@ def test_cli_body_selected_keeps_the_terms_the_dots_determine(tmp_path, capsys, 
 
 
 def test_same_yardstick_reproduces_openptv_and_measures_its_chance_share():
-    """benchmarks/bench_same_yardstick.py runs OpenPTV's own correspondences (optv) and finds every row of its
+    """benchmarks/bench_same_yardstick.py runs OpenPTV's own correspondences (optv) and finds every row of its frame-1
     rt_is again; with camera 1's targets moved by 20, 13 px OpenPTV still matches most of its >= 3-view points
     with camera 1: what its count is made of. The estimate is the one our matchings are scored with."""
     pytest.importorskip("optv")
