@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import pickle
 import sys
 import time
 from pathlib import Path
@@ -73,14 +72,8 @@ BONUSES = (3.0, 5.0, 8.0)
 
 def cameras(path: str | None) -> tuple[list, str]:
     """The self-calibrated cameras: from the pickle ``path``, or computed as bench_real_data does (2-3 min)."""
-    if path:
-        with open(path, "rb") as f:
-            return pickle.load(f)["cameras"], f"cached: {Path(path).name}"
-    imported = openptv.load_cameras(B.DATA)
-    pts, body_px = openptv.body_dots(B.DATA, imported)
-    seed, _ = B.selected_body_calibration(imported, False)
-    sc, _ = B.self_calibration(seed, body_px, pts, 0.5)
-    return sc.cameras, "self-calibrated (seed selected-ptvpar, body weight 0.5)"
+    cams = B.self_calibrated_cameras(pickle_path=path)
+    return cams, f"cached: {Path(path).name}" if path else "self-calibrated (seed selected-ptvpar, body weight 0.5)"
 
 
 def detect(setting: str, frame: int) -> list:

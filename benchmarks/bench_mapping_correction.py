@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import pickle
 import sys
 import time
 from pathlib import Path
@@ -50,17 +49,6 @@ from vfmlab import openptv  # noqa: E402
 
 FRAMES = (1, 2, 3, 4)
 OPTIONS = {k: B.TEMPORAL[k] for k in ("max_step_m", "max_accel_m", "max_residual_change_px", "min_motion_m")}
-
-
-def self_calibrated_cameras(pickle_path: str | None) -> list:
-    """bench_real_data's self-calibration (seed selected-ptvpar, body weight 0.5), or the cameras of a pickle."""
-    if pickle_path:
-        with open(pickle_path, "rb") as f:
-            return pickle.load(f)["cameras"]
-    imported = openptv.load_cameras(B.DATA)
-    pts, body_px = openptv.body_dots(B.DATA, imported)
-    seed, _ = B.selected_body_calibration(imported, False)
-    return B.self_calibration(seed, body_px, pts, 0.5)[0].cameras
 
 
 def first_pass(dense: list, cams: list, bounds) -> dict:
@@ -183,7 +171,7 @@ def check(bright: list, model, bounds) -> dict:
 
 def run(pickle_path: str | None = None) -> dict:
     t0 = time.time()
-    cams = self_calibrated_cameras(pickle_path)
+    cams = B.self_calibrated_cameras(pickle_path=pickle_path)
     bounds = B.selfcal_bounds()
     dense = [openptv.detect_frame(B.DATA, f, **B.DETECTION) for f in B.TEMPORAL_FRAMES]
     bright = [openptv.detect_frame(B.DATA, f) for f in B.TEMPORAL_FRAMES]

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import pickle
 import sys
 from pathlib import Path
 
@@ -181,16 +180,6 @@ def _keys(r: dict) -> dict:
                               "decoy_points_3plus_views_with_cam1", "reprojection_rms_px_ours", "agree_within_0p3mm")}
 
 
-def load_cameras(path: str | None) -> list:
-    if path:
-        with open(path, "rb") as f:
-            return pickle.load(f)["cameras"]
-    imported = openptv.load_cameras(B.DATA)
-    pts, body_px = openptv.body_dots(B.DATA, imported)
-    seed, _ = B.selected_body_calibration(imported, False)
-    return B.self_calibration(seed, body_px, pts, 0.5)[0].cameras
-
-
 def report(res: dict) -> str:
     lines = []
     if "synthetic" in res:
@@ -237,7 +226,7 @@ def main(argv=None) -> int:
     if "synthetic" in a.parts:
         res["synthetic"] = synthetic()
     if {"residuals", "matching"} & set(a.parts):
-        cams = load_cameras(a.cameras)
+        cams = B.self_calibrated_cameras(pickle_path=a.cameras)
         dense = detections(B.TEMPORAL_FRAMES, B.DETECTION, a.estimators)
         if "residuals" in a.parts:
             res["residuals"] = residuals(cams, dense)

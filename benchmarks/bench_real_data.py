@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import pickle
 import sys
 from pathlib import Path
 
@@ -362,6 +363,21 @@ def self_calibration(cams: list, body_px: np.ndarray, pts: np.ndarray, body_weig
     return sc, {"message": sc.message, "passes": passes, "disparity_after_last_tolerances": _summary(sc.maps[-1]),
                 "check_first_tolerances": {"before": _summary(sc.maps[0]), "after": _summary(sc.check_map)},
                 "tight_gates": {}, "imported_same_matching": {}}
+
+
+def self_calibrated_cameras(seed: str = "selected-ptvpar", body_weight: float = 0.5,
+                            pickle_path: str | None = None) -> list:
+    """The self-calibrated cameras as :func:`run` makes them (``seed``, ``body_weight``; 2-3 min), or those saved in
+    ``pickle_path`` (a pickle of a dict with key ``cameras``: skips the self-calibration while developing)."""
+    if pickle_path:
+        with open(pickle_path, "rb") as f:
+            return pickle.load(f)["cameras"]
+    imported = openptv.load_cameras(DATA)
+    pts, body_px = openptv.body_dots(DATA, imported)
+    seed_cams = imported
+    if seed.startswith("selected"):
+        seed_cams = selected_body_calibration(imported, seed == "selected")[0]
+    return self_calibration(seed_cams, body_px, pts, body_weight)[0].cameras
 
 
 def _real_and_decoy(frame: int, dets: list, cams: list) -> dict:

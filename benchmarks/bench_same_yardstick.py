@@ -198,15 +198,6 @@ class OpenPTV:
         return out
 
 
-def self_calibrated_cameras(seed: str, body_weight: float) -> list:
-    imported = openptv.load_cameras(B.DATA)
-    pts, body_px = openptv.body_dots(B.DATA, imported)
-    seed_cams = imported
-    if seed.startswith("selected"):
-        seed_cams = B.selected_body_calibration(imported, seed == "selected")[0]
-    return B.self_calibration(seed_cams, body_px, pts, body_weight)[0].cameras
-
-
 def run(frames: list[int], cams: list) -> dict:
     optv = OpenPTV()
     out = {"decoy_shift_px": list(B.DECOY_SHIFT_PX), "openptv": {}}
@@ -244,7 +235,7 @@ def main(argv=None) -> int:
     except ImportError:
         print("needs OpenPTV's Python package optv (pip install -e '.[test]')", file=sys.stderr)
         return 1
-    res = run(a.frames, self_calibrated_cameras(a.selfcal_seed, a.body_weight))
+    res = run(a.frames, B.self_calibrated_cameras(a.selfcal_seed, a.body_weight))
     print(json.dumps(res, indent=1) if a.json else table(res))
     return 0
 
