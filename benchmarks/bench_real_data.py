@@ -289,9 +289,15 @@ def likelihood_matching(frames: list[int], cams: list) -> tuple[dict, dict, dict
     res = BL.run_setting("dense", cams, selfcal_bounds(), baseline=False)
     keys = ("our_points", "our_points_3plus_views", "our_points_3plus_views_with_cam1",
             "decoy_points_3plus_views_with_cam1", "reprojection_rms_px_ours", "agree_within_0p3mm", "threshold")
-    return tuple({str(f): {k: res[name]["per_frame"][str(f)][k] for k in keys} for f in frames
-                  if str(f) in res[name]["per_frame"]}
-                 for name in ("likelihood", "likelihood_over_time", "likelihood_inclusive"))
+    out = tuple({str(f): {k: res[name]["per_frame"][str(f)][k] for k in keys} for f in frames
+                 if str(f) in res[name]["per_frame"]}
+                for name in ("likelihood", "likelihood_over_time", "likelihood_inclusive"))
+    for rows in out:
+        for f, row in rows.items():
+            tgt = openptv_result(int(f))[1]
+            if tgt is not None:
+                row["openptv_points_3plus_views"] = int(((tgt >= 0).sum(axis=1) >= 3).sum())
+    return out
 
 
 def _correction_max(coef, sizes) -> list[float]:
