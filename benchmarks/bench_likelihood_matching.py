@@ -47,6 +47,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import bench_real_data as B  # noqa: E402
 from reconstruction import likelihood_matching as L  # noqa: E402
+from reconstruction.temporal_matching import persistence_support  # noqa: E402
 from vfmlab import openptv  # noqa: E402
 
 #: candidates' gates (epipolar_px, radius_px, max_residual_px): the matching over time's loose gates
@@ -145,7 +146,7 @@ def over_time(sc: dict, fraction: float = DECOY_FRACTION, bonuses: tuple = BONUS
     ``bonuses`` the threshold from frame 0 (decoy <= ``fraction`` of real); the bonus with the largest real - decoy on
     frame 0."""
     frames = sorted(sc)
-    sup = [L.persistence_support([sc[f][k][0] for f in frames], **PERSISTENCE) for k in (0, 1)]
+    sup = [persistence_support([sc[f][k][0] for f in frames], **PERSISTENCE) for k in (0, 1)]
     best = None
     for bonus in bonuses:
         rank = {f: tuple(ranked(sc[f][k][0], sc[f][k][1] + bonus * (sup[k][i] > 0)) for k in (0, 1))

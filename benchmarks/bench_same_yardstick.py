@@ -106,6 +106,7 @@ def likelihood(frames: list[int], cams: list) -> dict:
     through the same frozen model, threshold and bonus (moved in every frame)."""
     import bench_likelihood_matching as BL
     from reconstruction import likelihood_matching as L
+    from reconstruction.temporal_matching import persistence_support
 
     bounds, every = B.selfcal_bounds(), (BL.TRAIN_FRAME, *BL.FRAMES)
     opts = {"gates": BL.GATES, "density_radius_px": BL.DENSITY_RADIUS_PX}
@@ -117,9 +118,9 @@ def likelihood(frames: list[int], cams: list) -> dict:
     inc = BL.over_time(sc, BL.INCLUSIVE_DECOY_FRACTION, (ot["bonus"],))
 
     def selections(moved_camera: int | None) -> dict:
-        runs = {f: L.score_candidates(dets[f] if moved_camera is None else _moved(dets[f], moved_camera), cams,
-                                      bounds, model, **opts)[:2] for f in every}
-        sup = L.persistence_support([runs[f][0] for f in every], **BL.PERSISTENCE)
+        runs = {f: sc[f][0] if moved_camera is None else
+                L.score_candidates(_moved(dets[f], moved_camera), cams, bounds, model, **opts)[:2] for f in every}
+        sup = persistence_support([runs[f][0] for f in every], **BL.PERSISTENCE)
         out = {}
         for i, f in enumerate(every):
             c, score = runs[f]

@@ -45,12 +45,11 @@ from scipy.spatial import cKDTree
 from reconstruction.cameras import Camera
 from reconstruction.correspondence import observed_pixels
 from reconstruction.temporal_matching import (FrameCandidates, apply_pixel_correction, fit_pixel_correction,
-                                              frame_candidates, link_frames, smooth_triplets)
+                                              frame_candidates, persistence_support, select_greedy)
 from reconstruction.triangulation import triangulate
 
 __all__ = ["TrueModel", "LikelihoodMatch", "local_density", "with_subsets", "log_likelihood_ratio",
-           "select_by_score", "score_candidates", "likelihood_match", "fit_true_model", "persistence_support",
-           "likelihood_match_over_time"]
+           "select_by_score", "score_candidates", "likelihood_match", "fit_true_model", "likelihood_match_over_time"]
 
 log = logging.getLogger(__name__)
 
@@ -181,24 +180,11 @@ def select_by_score(observations: np.ndarray, score: np.ndarray, threshold: floa
 
     ``observations`` ``(n, n_cameras)`` (-1 = not seen), ``score`` ``(n,)`` -> ndarray of int ``(m,)``, in rank
     order."""
-    obs = np.asarray(observations, np.int64)
     score = np.asarray(score, float)
-    if obs.shape[0] != score.shape[0]:
-        raise ValueError(f"score must have one value per candidate ({obs.shape[0]}); got {score.shape[0]}")
+    if len(observations) != score.shape[0]:
+        raise ValueError(f"score must have one value per candidate ({len(observations)}); got {score.shape[0]}")
     idx = np.flatnonzero(score >= threshold)
-    idx = idx[np.argsort(-score[idx], kind="stable")]
-    size = int(obs.max(initial=-1)) + 1
-    used = np.zeros((obs.shape[1], max(size, 1)), bool)
-    cams = np.arange(obs.shape[1])
-    keep = []
-    for i in idx:
-        row = obs[i]
-        seen = row >= 0
-        if used[cams[seen], row[seen]].any():
-            continue
-        used[cams[seen], row[seen]] = True
-        keep.append(i)
-    return np.asarray(keep, np.int64)
+    return select_greedy(observations, idx[np.argsort(-score[idx], kind="stable")])
 
 
 def score_candidates(detections: list[np.ndarray], cameras: list[Camera], bounds, model: TrueModel, *,
@@ -284,29 +270,13 @@ def fit_true_model(detections: list[np.ndarray], cameras: list[Camera], bounds, 
     return model
 
 
-def persistence_support(candidates: list[FrameCandidates], *, max_step_m: float, max_accel_m: float,
-                        max_residual_change_px: float = 0.5, min_motion_m: float = 0.2e-3) -> list[np.ndarray]:
-    """Per frame, the number of smooth triplets (``temporal_matching.smooth_triplets`` over the candidates of
-    consecutive frames, linked within ``max_step_m``) each candidate belongs to: ``(n_t,)`` of int.
-
-    ``candidates``: per consecutive frame, its FrameCandidates (points m, residuals px). Distances in m, px."""
-    links = [link_frames(a.points, b.points, max_step_m) for a, b in zip(candidates[:-1], candidates[1:])]
-    trip = smooth_triplets([c.points for c in candidates], links, max_accel_m, [c.residuals for c in candidates],
-                           max_residual_change_px, min_motion_m)
-    sup = [np.zeros(len(c.points), np.int64) for c in candidates]
-    for k, off in ((1, -1), (2, 0), (3, 1)):
-        for t in np.unique(trip[:, 0]):
-            np.add.at(sup[t + off], trip[trip[:, 0] == t, k], 1)
-    return sup
-
-
 def likelihood_match_over_time(frames: list[list[np.ndarray]], cameras: list[Camera], bounds, model: TrueModel,
                                threshold: float, *, persistence_bonus: float, max_step_m: float, max_accel_m: float,
                                max_residual_change_px: float = 0.5, min_motion_m: float = 0.2e-3,
                                **options) -> list[LikelihoodMatch]:
     """Per frame of ``frames`` (consecutive; each the detections of every camera, px), the matches by
     log-likelihood ratio plus ``persistence_bonus`` (nats) for the candidates in a smooth triplet
-    (:func:`persistence_support`; ``max_step_m``, ``max_accel_m``, ``min_motion_m`` in m,
+    (``temporal_matching.persistence_support``; ``max_step_m``, ``max_accel_m``, ``min_motion_m`` in m,
     ``max_residual_change_px`` in px), selected at ``threshold``. ``options``: keywords of
     :func:`score_candidates`. The LikelihoodMatch scores include the bonus."""
     if len(frames) < 3:

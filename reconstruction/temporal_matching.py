@@ -20,7 +20,7 @@ A chance match of particles that do not move persists unchanged: static chains p
    ``max_accel_m``, that move by at least ``min_motion_m`` and whose residual changes by at most
    ``max_residual_change_px`` from frame to frame in every camera. A candidate in at least one such triplet
    is *supported*; its score is the number of triplets it belongs to (a track through 5 frames gives its
-   middle candidate 3).
+   middle candidate 3; :func:`persistence_support`).
 4. **Selection** (:func:`select_per_frame`): per frame, supported candidates in order of score, then
    views, then reprojection RMS; each detection is used once.
 5. **Recovery** (:func:`recover_from_tracks`): the selected points are chained over the
@@ -50,7 +50,8 @@ from reconstruction.triangulation import triangulate
 from reconstruction.volume_selfcal import loose_candidates
 
 __all__ = ["FrameCandidates", "TemporalMatch", "frame_candidates", "link_frames", "smooth_triplets",
-           "select_per_frame", "recover_from_tracks", "temporal_match", "fit_pixel_correction",
+           "persistence_support", "select_greedy", "select_per_frame",
+           "recover_from_tracks", "temporal_match", "fit_pixel_correction",
            "apply_pixel_correction", "match_over_time"]
 
 log = logging.getLogger(__name__)
@@ -208,38 +209,49 @@ def smooth_triplets(points: list[np.ndarray], links: list[np.ndarray], max_accel
     return np.concatenate(out)
 
 
-def _support(triplets: np.ndarray, sizes: list[int]) -> list[np.ndarray]:
-    """Number of smooth triplets each candidate belongs to, per frame ``(n_t,)``."""
-    sup = [np.zeros(n, np.int64) for n in sizes]
-    for k, off in ((1, -1), (2, 0), (3, 1)):
-        for t in np.unique(triplets[:, 0]):
-            rows = triplets[triplets[:, 0] == t]
-            np.add.at(sup[t + off], rows[:, k], 1)
-    return sup
+def persistence_support(candidates: list[FrameCandidates], *, max_step_m: float, max_accel_m: float,
+                        max_residual_change_px: float = np.inf, min_motion_m: float = 0.0) -> list[np.ndarray]:
+    """Steps 2-3: per frame, the number of smooth triplets each candidate belongs to, ``(n_t,)`` of int.
+
+    ``candidates``: per consecutive frame, its FrameCandidates (points m, residuals px); the other arguments
+    as :func:`link_frames` and :func:`smooth_triplets` (m, px)."""
+    links = [link_frames(a.points, b.points, max_step_m) for a, b in zip(candidates[:-1], candidates[1:])]
+    trip = smooth_triplets([c.points for c in candidates], links, max_accel_m, [c.residuals for c in candidates],
+                           max_residual_change_px, min_motion_m)
+    offsets = np.concatenate([[0], np.cumsum([len(c.points) for c in candidates])]).astype(np.int64)
+    flat = np.zeros(offsets[-1], np.int64)
+    for k, off in ((1, -1), (2, 0), (3, 1)):  # the triplet's frames t - 1, t, t + 1
+        np.add.at(flat, offsets[trip[:, 0] + off] + trip[:, k], 1)
+    return np.split(flat, offsets[1:-1])
+
+
+def select_greedy(observations: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """Indices of the candidates kept, taken in ``order``: one is kept when none of its detections is taken yet
+    (each detection used once). ``observations`` ``(n, n_cameras)`` detection ids (-1: none), ``order`` ``(k,)``
+    candidate indices -> ndarray of int ``(m,)``, in order."""
+    obs = np.asarray(observations, np.int64)
+    used = np.zeros((obs.shape[1], max(int(obs.max(initial=-1)) + 1, 1)), bool)
+    cams = np.arange(obs.shape[1])
+    keep = []
+    for i in order:  # sequential by nature: whether a candidate stands depends on those taken before it
+        seen = obs[i] >= 0
+        if used[cams[seen], obs[i, seen]].any():
+            continue
+        used[cams[seen], obs[i, seen]] = True
+        keep.append(i)
+    return np.asarray(keep, np.int64)
 
 
 def select_per_frame(cands: FrameCandidates, support: np.ndarray, *, min_support: int = 1) -> np.ndarray:
     """Step 4: indices of the candidates kept in one frame, each detection used once.
 
     Candidates with ``support >= min_support`` in order of support (descending), views (descending),
-    reprojection RMS (ascending); one is kept when none of its detections is taken yet.
-    ``support``: ``(n,)`` from the smooth triplets. Returns ndarray of int ``(m,)``.
+    reprojection RMS (ascending), then :func:`select_greedy`. ``support``: ``(n,)`` from
+    :func:`persistence_support`. Returns ndarray of int ``(m,)``.
     """
-    obs = cands.observations
-    views = (obs >= 0).sum(axis=1)
+    views = (cands.observations >= 0).sum(axis=1)
     idx = np.flatnonzero(support >= min_support)
-    idx = idx[np.lexsort((cands.rms[idx], -views[idx], -support[idx]))]
-    used = [set() for _ in range(obs.shape[1])]
-    keep = []
-    for i in idx:
-        row = obs[i]
-        if any(r >= 0 and r in used[c] for c, r in enumerate(row)):
-            continue
-        for c, r in enumerate(row):
-            if r >= 0:
-                used[c].add(int(r))
-        keep.append(i)
-    return np.asarray(keep, np.int64)
+    return select_greedy(cands.observations, idx[np.lexsort((cands.rms[idx], -views[idx], -support[idx]))])
 
 
 def _nearest_link(points_a: np.ndarray, points_b: np.ndarray, max_step_m: float) -> np.ndarray:
@@ -381,10 +393,8 @@ def temporal_match(frames: list[list[np.ndarray]], cameras: list[Camera], bounds
         raise ValueError(f"max_step_m and max_accel_m must be > 0 m; got {max_step_m}, {max_accel_m}")
     cands = [frame_candidates(d, cameras, bounds, epipolar_px=epipolar_px, radius_px=radius_px,
                               max_residual_px=max_residual_px, min_views=min_views) for d in frames]
-    links = [link_frames(a.points, b.points, max_step_m) for a, b in zip(cands[:-1], cands[1:])]
-    trip = smooth_triplets([c.points for c in cands], links, max_accel_m, [c.residuals for c in cands],
-                           max_residual_change_px, min_motion_m)
-    sup = _support(trip, [len(c.points) for c in cands])
+    sup = persistence_support(cands, max_step_m=max_step_m, max_accel_m=max_accel_m,
+                              max_residual_change_px=max_residual_change_px, min_motion_m=min_motion_m)
     keep = [select_per_frame(c, s, min_support=min_support) for c, s in zip(cands, sup)]
     obs = [c.observations[k] for c, k in zip(cands, keep)]
     pts = [c.points[k] for c, k in zip(cands, keep)]

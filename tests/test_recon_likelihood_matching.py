@@ -7,8 +7,8 @@ import numpy as np
 from _window_rig import window_rig
 from reconstruction.correspondence import match_views
 from reconstruction.likelihood_matching import (TrueModel, fit_true_model, likelihood_match, local_density,
-                                                log_likelihood_ratio, persistence_support, select_by_score,
-                                                with_subsets)
+                                                log_likelihood_ratio, select_by_score, with_subsets)
+from reconstruction.temporal_matching import persistence_support
 
 BOUNDS = (np.array([-0.03, -0.03, -0.02]), np.array([0.03, 0.03, 0.02]))
 #: per camera: constant bias (px) and its gradient over the image (px per half image), the calibration's error
