@@ -66,13 +66,6 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 
-# ---------------------------------------------------------------------------------------------
-# projection with per-observation parameters (vectorised)
-
-
-# ---------------------------------------------------------------------------------------------
-
-
 def calibrate_cameras(
     image_points: np.ndarray,
     object_points: np.ndarray,

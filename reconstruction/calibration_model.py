@@ -221,6 +221,10 @@ def _pivot(win: Window, x_cam: np.ndarray, x_view: np.ndarray) -> np.ndarray:
     return p + (win.offset - p @ win.normal) * win.normal
 
 
+# ---------------------------------------------------------------------------------------------
+# projection with per-observation parameters (vectorised)
+
+
 def _project(cam_params: np.ndarray, view_params: np.ndarray, ci: np.ndarray, vi: np.ndarray, X: np.ndarray,
              windows: list | None = None) -> np.ndarray:
     """Pixels ``(n_obs, 2)`` of board points ``X (n_obs, 3)`` for parameter arrays.

@@ -11,7 +11,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from reconstruction.detection import Detections, _records, _concat, _empty
+from reconstruction.detection_records import Detections, _concat, _empty, _records
 from reconstruction.particle_centres import (CENTRE_ESTIMATORS, HYBRID_SPLIT, MATCHED_FILTER_PX, gauss2d_centres,
                                              gauss3_centres, peak_pixels)
 
