@@ -14,6 +14,7 @@ from .calibration_model import _N_CAM, CalibrationError
 
 log = logging.getLogger(__name__)
 
+
 def _compose_inverse_pose(R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return R.T, -R.T @ t
 

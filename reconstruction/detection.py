@@ -27,14 +27,7 @@ import numpy as np
 from .detection_blobs import _candidate_mask, _components, _glare_blobs
 from .detection_centroids import _NO_SPLIT, _centroids, _Split, _split_groups
 from .detection_measure import _classify, _joined, _measure_groups, _Measures
-from .detection_records import (
-    REJECT_DTYPE,
-    REJECT_REASONS,
-    Detections,
-    _concat,
-    _empty,
-    _records,
-)
+from .detection_records import REJECT_DTYPE, REJECT_REASONS, Detections, _concat, _empty, _records
 
 __all__ = ["Detections", "REJECT_DTYPE", "REJECT_REASONS", "detect_markers", "detect_markers_near"]
 

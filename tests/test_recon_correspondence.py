@@ -83,7 +83,8 @@ def test_validation(cams):
 def test_bootstrap_without_three_view_markers_keeps_the_loose_prior(cams):
     """Two cameras cannot see a marker three times: the specimen prior stays the one given (no
     empty-array statistics, which would warn and fail under filterwarnings=error)."""
-    from reconstruction.pipeline import ReconstructionSettings, _bootstrap_prior
+    from reconstruction import ReconstructionSettings
+    from reconstruction.step_points import _bootstrap_prior
 
     pair = cams[:2]
     dets, *_ = projected_series(pair, n_steps=1, n_fake=0, seed=7)
