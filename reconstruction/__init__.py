@@ -4,8 +4,8 @@ Pure functions over arrays and images: no files, ports or clocks.
 """
 
 from reconstruction.calibration import CalibrationError, CalibrationResult, calibrate_cameras, calibrate_from_detections
+from reconstruction.calibration_errors import CalibrationFileError
 from reconstruction.calibration_io import (
-    CalibrationFileError,
     camera_from_openptv,
     camera_to_openptv,
     cameras_from_arrays,

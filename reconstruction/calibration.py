@@ -40,15 +40,8 @@ from .calibration_init import (
     _pose_graph,
     _resolve_flips,
 )
-from .calibration_model import (
-    _N_CAM,
-    CalibrationError,
-    CalibrationResult,
-    WindowFit,
-    _project,
-    _window_model,
-    _WindowModel,
-)
+from .calibration_errors import CalibrationError
+from .calibration_model import _N_CAM, CalibrationResult, WindowFit, _project, _window_model, _WindowModel
 from .cameras import Camera, rotation_matrix
 from .refraction import Window
 from .targets import BoardDetection, BoardSpec

@@ -10,7 +10,8 @@ import logging
 import cv2
 import numpy as np
 
-from .calibration_model import _N_CAM, CalibrationError
+from .calibration_errors import CalibrationError
+from .calibration_model import _N_CAM
 
 log = logging.getLogger(__name__)
 

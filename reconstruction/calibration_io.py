@@ -29,6 +29,7 @@ import cv2
 import numpy as np
 import tomli_w
 
+from .calibration_errors import CalibrationFileError
 from .calibration_openptv import OpenPTVControl, camera_from_openptv, camera_to_openptv, parse_ptv_par
 from .cameras import Camera
 from .refraction import Window
@@ -51,10 +52,6 @@ __all__ = [
 UNIT_SCALE = {"m": 1.0, "cm": 1e-2, "mm": 1e-3, "um": 1e-6, "µm": 1e-6}
 _UNIT_ALIASES = {"meter": "m", "meters": "m", "metre": "m", "metres": "m", "millimeter": "mm", "millimeters": "mm",
                  "millimetre": "mm", "millimetres": "mm", "centimeter": "cm", "centimeters": "cm", "micron": "um"}
-
-
-class CalibrationFileError(ValueError):
-    """A calibration file is malformed or uses an unsupported model."""
 
 
 def _scale(units: str, where: str) -> float:

@@ -9,17 +9,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .calibration_errors import CalibrationError
 from .cameras import Camera, rotation_matrix
 from .refraction import Window, refracted_directions
 
-__all__ = ["CalibrationError", "CalibrationResult", "WindowFit"]
+__all__ = ["CalibrationResult", "WindowFit"]
 
 _N_CAM = 15  # fx fy cx cy k1 k2 p1 p2 k3 | rvec | tvec
 _N_VIEW = 6
-
-
-class CalibrationError(RuntimeError):
-    """Calibration cannot proceed (too few views, disconnected cameras, ...)."""
 
 
 @dataclass

@@ -27,6 +27,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from reconstruction.calibration_errors import CalibrationFileError
 from reconstruction.cameras import Camera
 from reconstruction.refraction import Window
 
@@ -36,8 +37,6 @@ _FLIP = np.diag([1.0, -1.0, -1.0])
 
 
 def _error(msg: str) -> Exception:
-    from reconstruction.calibration_io import CalibrationFileError  # late: calibration_io re-exports this module
-
     return CalibrationFileError(msg)
 
 
