@@ -12,8 +12,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from reconstruction.cameras import Camera, rotation_matrix
-from reconstruction.targets import BoardSpec
+from reconstruction import BoardSpec, Camera, rotation_matrix
 
 from .refraction import project_refracted, rays_in_water
 from .render import undistort_grid

@@ -10,7 +10,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from reconstruction.cameras import Camera
+from reconstruction import Camera
 
 __all__ = ["camera_ring", "look_at", "specimen_triangulation_error"]
 
@@ -130,7 +130,7 @@ def specimen_triangulation_error(true_cameras: list[Camera], estimated_cameras: 
         3-D distance to the truth of every point seen by >= 2 cameras.
     seen : ndarray of bool, shape (n_points,)
     """
-    from reconstruction.triangulation import triangulate
+    from reconstruction import triangulate
 
     rng = np.random.default_rng(seed)
     theta, z = rng.uniform(-np.pi, np.pi, n_points), rng.uniform(-half_length, half_length, n_points)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from reconstruction.cameras import Camera
+from reconstruction import Camera
 
 from .render import RenderedFrame, render_markers
 from .specimen_geometry import SurfaceOfRevolution

@@ -13,8 +13,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from reconstruction.cameras import Camera
-from reconstruction.refraction import Window
+from reconstruction import Camera, Window
 
 __all__ = ["FlatWindow", "tilted_window", "project_refracted", "rays_in_water"]
 

@@ -13,10 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from reconstruction.calibration import calibrate_cameras
-from reconstruction.cameras import Camera, rotation_matrix
-from reconstruction.targets import BoardSpec
-from reconstruction.triangulation import triangulate
+from reconstruction import BoardSpec, Camera, calibrate_cameras, rotation_matrix, triangulate
 
 from .board import board_poses
 from .cameras import camera_ring

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from reconstruction.cameras import Camera, project_points
+from reconstruction import Camera, project_points
 
 from .refraction import FlatWindow, project_refracted, rays_in_water
 from .sensor import SensorModel, expose, illumination_field

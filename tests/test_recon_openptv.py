@@ -262,7 +262,7 @@ def test_cli_detect_particles_passes_its_options_to_the_detector(tmp_path, capsy
 
 def test_reconstruct_detects_with_the_polarity_import_images_recorded(tmp_path, monkeypatch):
     # import-images --polarity bright records marker_polarity in the session's rig settings; reconstruct must use it
-    import reconstruction.pipeline as recon
+    import reconstruction as recon
     from acquisition.session import CameraSpec, SessionWriter, SpecimenInfo, StepRecord
     from vfmlab.pipeline import reconstruct_stored
 

@@ -79,7 +79,7 @@ def _commands(path: Path, identify_result, calib_file: Path):
         identification.identify = lambda *a, **k: identify_result
 
     def stub_reconstruct():
-        import reconstruction.pipeline as rp
+        import reconstruction as rp
         rp.reconstruct_series = lambda images, cameras, settings, n_steps, **k: _fake_series(n_steps, len(cameras))
 
     return {
@@ -173,7 +173,7 @@ def test_disk_full_at_every_write_leaves_the_session_byte_identical(command, bas
     saved = {}
     stub_state = {}
     import identification
-    import reconstruction.pipeline as rp
+    import reconstruction as rp
     stub_state["identify"], stub_state["series"] = identification.identify, rp.reconstruct_series
     try:
         stub()

@@ -69,8 +69,7 @@ def calibrate_from_session(path: str | Path, fix_k3: bool = True) -> list:
     """Calibrated cameras from the session's calibration-board views (``vfmlab calibrate``'s
     defaults: ChArUco board, joint bundle adjustment), reading the file while it is written."""
     from acquisition.session import open_session
-    from reconstruction.calibration import calibrate_from_detections
-    from reconstruction.targets import BoardSpec
+    from reconstruction import BoardSpec, calibrate_from_detections
     from vfmlab.pipeline import session_board_detections
 
     spec = BoardSpec()
@@ -207,7 +206,7 @@ class LiveResults:
             self._set(seconds_per_step=time.perf_counter() - t0)
 
     def _step(self, row: int, images: dict[str, np.ndarray], pressure: float, force: float) -> None:
-        from reconstruction.pipeline import ReconstructionSettings, SeriesTracker, detect_step
+        from reconstruction import ReconstructionSettings, SeriesTracker, detect_step
 
         if self._tracker is None:
             if self._cameras is None:

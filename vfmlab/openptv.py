@@ -13,7 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from reconstruction.calibration_io import CalibrationFileError, camera_from_openptv, parse_ptv_par
+from reconstruction import CalibrationFileError, camera_from_openptv, parse_ptv_par
 
 __all__ = ["is_openptv_folder", "load_cameras", "read_image", "read_rt_is", "read_target_file", "frame_path",
            "physical_media", "describe_media", "calibrate_body_folder", "detect_frame", "observation_depth",
@@ -112,7 +112,7 @@ def describe_media(window) -> str:
 
 def detect_frame(folder: str | Path, frame: int, n_cameras: int = 4, **settings) -> list[np.ndarray]:
     """Particle centres ``(n_i, 2)`` (OpenCV px) in every camera's image of ``frame``."""
-    from reconstruction.particles import detect_particles
+    from reconstruction import detect_particles
 
     opts = {**PARTICLE_SETTINGS, **settings}
     return [detect_particles(read_image(frame_path(folder, c + 1, frame)), **opts).centres for c in range(n_cameras)]
@@ -125,7 +125,7 @@ def calibrate_body_folder(folder: str | Path, seeds: list, *, dot_radius_px: flo
     refined on the image (:func:`~reconstruction.calibration_body.refine_dot_centres`, ``dot_radius_px``;
     None keeps the detector's threshold centroids). ``media``: refractive indices for the fine fit instead of the
     seeds' (keys ``indices`` (tuple, one per layer) and/or ``n_bath``): the seeds only give the matching."""
-    from reconstruction.calibration_body import calibrate_from_body
+    from reconstruction import calibrate_from_body
 
     folder = Path(folder)
     _, body = read_target_file(folder / "cal" / "target_on_a_side.txt")
@@ -146,8 +146,7 @@ def _with_media(camera, media: dict | None):
 def _matched_dots(folder: Path, i: int, seed, body: np.ndarray, dot_radius_px: float | None):
     """Dots of ``cal/cam{i+1}.tif`` matched to the body's points ``(n_body, 2)`` px (refined centres unless
     ``dot_radius_px`` is None) and the coarse fit (fixed focal length, 20 px gate) that matched them."""
-    from reconstruction.calibration_body import calibrate_from_body, match_body_points, refine_dot_centres
-    from reconstruction.particles import detect_particles
+    from reconstruction import calibrate_from_body, detect_particles, match_body_points, refine_dot_centres
 
     image = read_image(folder / "cal" / f"cam{i + 1}.tif")
     dots = detect_particles(image, **BODY_DOT_SETTINGS).centres
@@ -167,7 +166,7 @@ def select_body_folder(folder: str | Path, seeds: list, *, dot_radius_px: float 
     over the whole image are refined, the others keep the seed's values (``bench_real_data.py --selfcal-seed
     selected-ptvpar``: the seed the volume self-calibration matches best from). ``progress(done, total, camera
     name)`` after each camera. Returns the ``BodyModelSelection`` per camera."""
-    from reconstruction.calibration_body import select_body_model
+    from reconstruction import select_body_model
 
     folder = Path(folder)
     _, body = read_target_file(folder / "cal" / "target_on_a_side.txt")
@@ -212,8 +211,7 @@ def observation_depth(folder: str | Path) -> tuple[float, float]:
 def body_dots(folder: str | Path, cameras: list) -> tuple[np.ndarray, np.ndarray]:
     """The calibration body's points ``(n_body, 3)`` m and their dots in ``cal/camN.tif`` per camera
     ``(n_cameras, n_body, 2)`` px (threshold centroids matched with ``cameras``, NaN = not found)."""
-    from reconstruction.calibration_body import match_body_points
-    from reconstruction.particles import detect_particles
+    from reconstruction import detect_particles, match_body_points
 
     folder = Path(folder)
     _, pts = read_target_file(folder / "cal" / "target_on_a_side.txt")
@@ -237,8 +235,7 @@ def self_calibrate_folder(folder: str | Path, cameras: list, frames: list[int], 
     points ``(n_body, 3)`` m, their dots ``(n_cameras, n_body, 2)`` px and the detections per frame and camera.
     Raises FileNotFoundError naming a missing image and ValueError for a frame with too few particles.
     """
-    from reconstruction.particles import detect_particles
-    from reconstruction.volume_selfcal import common_view_box, self_calibrate
+    from reconstruction import common_view_box, detect_particles, self_calibrate
 
     folder = Path(folder)
     paths = [[folder / images.format(camera=c + 1, frame=f) for c in range(len(cameras))] for f in frames]

@@ -412,7 +412,7 @@ def _report(runner: SessionRunner, path: Path, console: Console) -> Outcome:
 def detector_from_reconstruction() -> Callable[[np.ndarray], int] | None:
     """Marker counter for the live view (reconstruction's detector), or None if unavailable."""
     try:
-        from reconstruction.detection import detect_markers
+        from reconstruction import detect_markers
     except ImportError:
         return None
 

@@ -139,7 +139,7 @@ def session_board_detections(session: Any, spec: Any, advance: Callable[[], None
     """Board detections per camera (``reconstruction.targets.detect_board`` on every calibration view) and
     image sizes (width, height) px, from an open session; ``advance`` is called after each camera.
     A ValueError names a camera without calibration views."""
-    from reconstruction.targets import detect_board
+    from reconstruction import detect_board
 
     detections, sizes = {}, {}
     for name in session.camera_names:
@@ -312,7 +312,7 @@ def session_step_rows(session, include_superseded: bool = False) -> np.ndarray:
 
 def session_calibrated_cameras(session) -> tuple[list, str]:
     """The session's cameras from its latest "calibration" result, and a description of the source."""
-    from reconstruction.calibration_io import CalibrationFileError, cameras_from_arrays
+    from reconstruction import CalibrationFileError, cameras_from_arrays
 
     calib = session.latest("calibration")
     if calib is None:
@@ -365,7 +365,7 @@ def reconstruct_stored(path: str | os.PathLike, *, cameras: list | None = None, 
     camera names, calibration source).
     """
     try:
-        from reconstruction.pipeline import ReconstructionSettings, reconstruct_series
+        from reconstruction import ReconstructionSettings, reconstruct_series
     except ImportError as exc:  # pragma: no cover - the reconstruction package ships with vfmlab
         raise StageUnavailable(f"the reconstruction package is not available: {exc}") from None
     try:

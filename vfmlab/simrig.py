@@ -158,7 +158,7 @@ class SimScene:
         ``vfmlab calibrate`` defaults) in pose ``index`` of ``n_views`` seeded poses."""
         with self._lock:
             if self._board_poses is None or len(self._board_poses[0]) != n_views:
-                from reconstruction.targets import BoardSpec
+                from reconstruction import BoardSpec
                 from rig_sim.board import board_poses
 
                 self._board_poses = board_poses(self.cameras, BoardSpec(), n_views, seed=self.seed)
@@ -172,7 +172,7 @@ class SimScene:
 
     def _board(self, k: int) -> list[np.ndarray]:
         if k not in self._board_images:
-            from reconstruction.targets import BoardSpec
+            from reconstruction import BoardSpec
             from rig_sim.board import render_board_views
 
             rv, tv = self._board_poses

@@ -34,7 +34,7 @@ def _folder_views(images_dir: Path) -> tuple[list[str], list[str], dict[str, dic
 
 
 def _board_spec(board, squares, square_size_mm, marker_size_mm, dictionary, subpix):
-    from reconstruction.targets import BoardSpec, TargetError
+    from reconstruction import BoardSpec, TargetError
 
     try:
         cols, rows = (int(v) for v in squares.lower().split("x"))
@@ -60,7 +60,7 @@ def _table(result) -> Table:
 
 def _read_calibration(path: Path, file_units: str, body: str | None) -> tuple[list, dict]:
     """Cameras and metadata of ``--import``: a TOML/YAML file or an OpenPTV folder (optionally refined on its body)."""
-    from reconstruction.calibration_io import CalibrationFileError, cameras_from_toml, cameras_from_yaml
+    from reconstruction import CalibrationFileError, cameras_from_toml, cameras_from_yaml
     from vfmlab import openptv
 
     try:
@@ -132,7 +132,7 @@ def _import(path: Path, file_units: str, session, store: bool, out, units: str, 
             selfcal: dict | None = None) -> None:
     """``--import``: read a calibration, check it against the session's cameras, optionally refine it on the
     particles (``selfcal``: options of :func:`_self_calibrate`), store and/or convert it."""
-    from reconstruction.calibration_io import cameras_to_arrays, cameras_to_toml, cameras_to_yaml
+    from reconstruction import cameras_to_arrays, cameras_to_toml, cameras_to_yaml
 
     if selfcal is not None:
         _check_selfcal_folder(path)
@@ -282,7 +282,7 @@ def _self_calibrate(folder: Path, cams: list, meta: dict, *, frames: str, images
 
 def _selfcal_meta(sc, before: list, frames, images, body_weight, bounds, pts, px, dets, body_sides: bool) -> dict:
     """What the session and --json keep of a self-calibration (SI and px, the unit in every key)."""
-    from reconstruction.volume_selfcal import body_rms
+    from reconstruction import body_rms
     from vfmlab import openptv
 
     names = [c.name for c in before]
@@ -401,7 +401,7 @@ def command(session, images_dir, board, squares, square_size_mm, marker_size_mm,
     and all camera and board poses together, rejecting outliers. Prints the RMS reprojection error
     per camera; writes --out and/or stores the result in SESSION.
     """
-    from reconstruction.calibration import CalibrationError, calibrate_from_detections
+    from reconstruction import CalibrationError, calibrate_from_detections
 
     if out is not None and out.suffix.lower() not in (".toml", ".yaml", ".yml"):
         raise CliInputError(f"--out must end in .toml, .yaml or .yml; got {out.name!r}")
@@ -460,7 +460,7 @@ def _detect_in_folder(images_dir: Path, spec) -> tuple[dict, dict, str]:
     """Board detections ``{camera: [BoardDetection per view]}``, image sizes and the source, from DIR/<camera>/<view>."""
     import cv2
 
-    from reconstruction.targets import BoardDetection, detect_board
+    from reconstruction import BoardDetection, detect_board
 
     detections: dict = {}
     sizes: dict = {}
@@ -505,7 +505,7 @@ def _session_window(session: Path | None, refine: bool):
     through that session's window too."""
     window = None
     if session is not None:
-        from reconstruction.refraction import Window
+        from reconstruction import Window
         from vfmlab.cli._sessions import cli_session
 
         with cli_session(session) as s:
@@ -538,7 +538,7 @@ def _reference_index(names: list[str], reference: str | None) -> int:
 
 
 def _write_file(out: Path, result, units: str, meta: dict) -> None:
-    from reconstruction.calibration_io import cameras_to_toml, cameras_to_yaml
+    from reconstruction import cameras_to_toml, cameras_to_yaml
 
     text = (cameras_to_toml if out.suffix.lower() == ".toml" else cameras_to_yaml)(result.cameras, units=units, metadata=meta)
     out.write_text(text)
@@ -547,7 +547,7 @@ def _write_file(out: Path, result, units: str, meta: dict) -> None:
 def _store(session: Path, result, params: dict) -> str:
     """Store the board calibration as a new 'calibration' result of SESSION; its name."""
     from acquisition.session import SessionError, write_result
-    from reconstruction.calibration_io import cameras_to_arrays
+    from reconstruction import cameras_to_arrays
 
     arrays = cameras_to_arrays(result.cameras, result.rms)
     arrays["rms_per_view"] = result.rms_per_view

@@ -79,8 +79,7 @@ def _first_images(cams: list, files: dict) -> tuple[dict, str]:
 def _measure_tube(first: dict, cams: list, marker_diameter_mm: float, polarity: str, radius_mm, length_mm,
                   notes: list) -> tuple[float, float]:
     """Radius and length (mm) not given, measured from the step-0 markers (a tube, or an error); says so in ``notes``."""
-    from reconstruction.pipeline import ReconstructionSettings, reconstruct_step
-    from reconstruction.surface import fit_cylinder
+    from reconstruction import ReconstructionSettings, fit_cylinder, reconstruct_step
 
     settings = ReconstructionSettings(marker_diameter=marker_diameter_mm * 1e-3, detection={"polarity": polarity})
     pts, _ = reconstruct_step(first, cams, settings)
@@ -157,7 +156,7 @@ def command(images_dir, calibration, polarity, calibration_units, loads_csv, out
     step 0 = reference), the camera calibration and a loads CSV. Then run 'vfmlab reconstruct OUT'."""
     from acquisition.markers_csv import read_loads_csv
     from acquisition.session import CameraSpec, SessionError, SessionWriter, SpecimenInfo, StepRecord, write_result
-    from reconstruction.calibration_io import cameras_to_arrays
+    from reconstruction import cameras_to_arrays
 
     check_output_path(out, force=overwrite, inputs=[calibration, loads_csv])
     if not marker_diameter_mm > 0:

@@ -17,7 +17,7 @@ log = logging.getLogger(__name__)
 def load_calibration_file(path: Path, units: str | None = None) -> list:
     """Cameras from an aniposelib ``.toml`` or OpenCV ``.yaml``/``.yml`` calibration file, or an OpenPTV
     working folder (``parameters/ptv.par`` + ``cal/*.ori``/``.addpar``: cameras with their window)."""
-    from reconstruction.calibration_io import CalibrationFileError, cameras_from_toml, cameras_from_yaml
+    from reconstruction import CalibrationFileError, cameras_from_toml, cameras_from_yaml
     from vfmlab import openptv
 
     if path.is_dir():
