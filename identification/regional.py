@@ -31,7 +31,7 @@ from .errors import IdentificationError
 from .mesh import SurfaceMesh, build_mesh
 from .models import Model, get_model
 from .models._base import pk2_components
-from .optimize import GAP_FOR_FLAGS, RESOLUTION_LIMIT, TYPICAL, IdentificationResult, identify_prepared
+from .fit import GAP_FOR_FLAGS, RESOLUTION_LIMIT, TYPICAL, IdentificationResult, identify_prepared
 from .vfm import VFMData, prepare
 from .virtual_fields import VirtualFields
 
