@@ -404,5 +404,3 @@ def identify_prepared(
         field_names=data.field_names, converged=ok, message=msg, n_evaluations=int(n_evaluations),
         starts=tuple(starts),
     )
-
-

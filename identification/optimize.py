@@ -28,10 +28,8 @@ __all__ = ["identify", "identify_noise_weighted", "drop_partial_steps", "per_ste
 MIN_COVERAGE = 0.8
 
 
-
 #: Fraction of a step's triangles left out (unobserved markers) above which unsmoothed fits are flagged.
 MISSING_AREA = 0.01
-
 
 
 def drop_partial_steps(positions, pressure, axial_force):
@@ -52,7 +50,6 @@ def drop_partial_steps(positions, pressure, axial_force):
             np.flatnonzero(~keep).tolist())
 
 
-
 def per_step_rows(options: Mapping | None, n_steps: int, dropped) -> dict | None:
     """``options`` with the ``dropped`` steps left out of every per-step array among them (``marker_sigma``,
     ``marker_weights``: shape (n_steps, n_markers[, ...]) with ``n_steps`` rows)."""
@@ -61,7 +58,6 @@ def per_step_rows(options: Mapping | None, n_steps: int, dropped) -> dict | None
     keep = np.setdiff1d(np.arange(n_steps), dropped)
     return {k: (np.asarray(v)[keep] if k in ("marker_sigma", "marker_weights") and np.ndim(v) >= 2
                 and np.shape(v)[0] == n_steps else v) for k, v in options.items()}
-
 
 
 def identify(

@@ -28,7 +28,6 @@ def _specimen_frame_to_world(r, theta, z, axes) -> np.ndarray:
     return np.einsum("snj,sji->sni", local, basis) + origin[:, None]
 
 
-
 def remeasured_mesh(mesh: SurfaceMesh, reference: np.ndarray) -> SurfaceMesh:
     """The same triangulation on re-measured reference positions (n_markers, 3), m: the reference
     coordinates (and the innermost boundary positions of the virtual fields) follow the new markers."""
@@ -40,7 +39,6 @@ def remeasured_mesh(mesh: SurfaceMesh, reference: np.ndarray) -> SurfaceMesh:
     r, theta, z = r * nan, theta * nan, z * nan
     return replace(mesh, r=r, theta=theta, z=z, z_bottom=float(z[np.unique(mesh.bottom_edges)].max()),
                    z_top=float(z[np.unique(mesh.top_edges)].min()))
-
 
 
 def fitted_positions(data: VFMData, positions: np.ndarray, reference_step: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -84,7 +82,6 @@ def fitted_positions(data: VFMData, positions: np.ndarray, reference_step: int =
     return fitted, residual
 
 
-
 def marker_noise_level(data: VFMData, residual: np.ndarray, n_basis: int | None = None) -> float:
     """Per-coordinate marker noise (m) to simulate: the RMS scatter of the displacements about the
     smoothed field (corrected for the ``n_basis`` functions fitted per component and step; it also
@@ -101,12 +98,10 @@ def marker_noise_level(data: VFMData, residual: np.ndarray, n_basis: int | None 
     return level
 
 
-
 def basis_size(smoothing) -> int:
     if smoothing is None:
         return 0
     return int(np.mean([(nz + 1) * (2 * nt + 1) for nz, nt in smoothing]))
-
 
 
 def resimulated_measurements(data: VFMData, positions: np.ndarray, *, marker_sigma: np.ndarray | None = None,
