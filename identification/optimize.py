@@ -109,7 +109,7 @@ def identify(
     prepare_options
         Passed to ``prepare`` (fields, mesh, n_layers, quadrature, clamp_radius, smoothing...).
         ``smoothing="auto"`` smooths with a basis chosen from the data (generalised
-        cross-validation, ``kinematics.select_smoothing``) unless the markers look exact.
+        cross-validation, ``smoothing.select_smoothing``) unless the markers look exact.
     """
     if uncertainty not in ("gauss-newton", "bootstrap"):
         raise ValueError(f"uncertainty must be 'gauss-newton' or 'bootstrap'; got {uncertainty!r}")

@@ -13,8 +13,10 @@ from dataclasses import replace
 import numpy as np
 
 from .errors import IdentificationError
-from .kinematics import align_steps, marker_outliers, smooth_cylindrical, smoothing_basis, step_cylindrical
+from .kinematics import align_steps, step_cylindrical
 from .mesh import SurfaceMesh, to_cylindrical
+from .outliers import marker_outliers
+from .smoothing import smooth_cylindrical, smoothing_basis
 from .vfm import VFMData
 
 __all__ = ["fitted_positions", "marker_noise_level", "remeasured_mesh", "resimulated_measurements"]

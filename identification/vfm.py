@@ -76,7 +76,7 @@ class VFMData:
     n_outliers : ndarray, shape (n_steps,)
         Markers set unobserved as mis-tracked, per step.
     marker_noise : float
-        Estimated marker noise (m, median over steps; ``kinematics.marker_outliers``).
+        Estimated marker noise (m, median over steps; ``outliers.marker_outliers``).
     smoothing : tuple or None
         Smoothing degrees used: three (axial degree, harmonics) pairs for the r, theta, z
         displacement components, or None.
@@ -220,21 +220,21 @@ def prepare(
         World direction of the load-cell end (default +z).
     smoothing : (int, int), optional
         Smooth each step's displacement field on Legendre(Z) x Fourier(Theta) of these degrees
-        before differentiating (for noisy markers; see ``kinematics.smooth_cylindrical``);
-        ``"auto"``: the basis of each component chosen from the data (``kinematics.select_smoothing``)
+        before differentiating (for noisy markers; see ``smoothing.smooth_cylindrical``);
+        ``"auto"``: the basis of each component chosen from the data (``smoothing.select_smoothing``)
         unless the markers look exact.
     marker_weights : ndarray, shape (n_steps, n_markers), optional
         Relative weights of the markers in the smoothing fit (1 / variance, e.g. from the
         reconstruction's reported uncertainty); default equal.
     smooth_reference : bool
         With smoothing (default), also replace the reference radius of the markers by its smooth fit
-        (``kinematics.smooth_reference_radius``); False: the measured reference radius (before issue 10).
+        (``smoothing.smooth_reference_radius``); False: the measured reference radius (before issue 10).
     reference_noise_correction : bool
         With smoothing, remove the errors-in-variables bias of the reference markers' noise
-        (``kinematics.regressor_noise_correction``).
+        (``smoothing.regressor_noise_correction``).
     reject_outliers : bool
         Treat markers that disagree with their neighbours in a step (mis-tracked) as unobserved
-        there (``kinematics.marker_outliers``); counts in ``VFMData.n_outliers``.
+        there (``outliers.marker_outliers``); counts in ``VFMData.n_outliers``.
     estimate_noise : bool
         False: leave ``VFMData.marker_noise`` NaN when nothing else needs the neighbour-mismatch noise
         estimate (``reject_outliers=False``, smoothing given as degrees): a bootstrap replicate's ~1.5 ms.
