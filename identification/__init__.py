@@ -17,12 +17,12 @@ from .models import Model, available_models, cauchy_stress, get_model, pk2_stres
 from .fit import PAPER_INITIAL_GUESS, identify_prepared
 from .optimize import identify, identify_noise_weighted
 from .result import IdentificationResult
-from .vfm import VFMData, internal_virtual_work, prepare
+from .vfm import PrepareSettings, VFMData, internal_virtual_work, prepare
 from .virtual_fields import VirtualFields, paper_fields
 
 __all__ = [
     "Axis", "DegenerateDataError", "IdentificationError", "IdentificationResult", "Kinematics", "MeshError",
-    "Model", "PAPER_INITIAL_GUESS", "StressStrainCurves", "SurfaceMesh", "VFMData", "VirtualFields",
+    "Model", "PAPER_INITIAL_GUESS", "PrepareSettings", "StressStrainCurves", "SurfaceMesh", "VFMData", "VirtualFields",
     "align_steps", "available_models", "build_mesh", "cauchy_stress", "fit_axis", "get_model", "identify",
     "identify_noise_weighted", "identify_prepared", "internal_virtual_work", "laplace_curves", "membrane_kinematics", "paper_fields",
     "pk2_stress", "prepare", "strain_energy", "to_cylindrical", "to_trimesh",

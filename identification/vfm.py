@@ -30,7 +30,8 @@ cost evaluation is then a few vectorised array operations.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from dataclasses import fields as fields_of
 
 import numpy as np
 
@@ -43,7 +44,7 @@ from .models._base import Model, pk2_components, seed_virtual_strains, virtual_w
 from .virtual_fields import VirtualFields, check_fields, paper_fields
 from .thick_fields import flat_end_fields
 
-__all__ = ["VFMData", "prepare", "internal_virtual_work", "virtual_work_basis", "end_force"]
+__all__ = ["PrepareSettings", "VFMData", "prepare", "internal_virtual_work", "virtual_work_basis", "end_force"]
 
 log = logging.getLogger(__name__)
 
@@ -140,27 +141,49 @@ def _check_inputs(positions, pressure, axial_force, thickness):
     return x, p, f
 
 
+@dataclass(frozen=True)
+class PrepareSettings:
+    """How ``prepare`` builds the balance: every option of ``prepare`` but the data and the thickness.
+
+    The fields and their defaults are ``prepare``'s keywords (documented there); ``prepare(..., settings=s)``
+    or ``prepare(..., wall="thick", ...)`` (the keywords override ``settings``).
+    """
+
+    wall: str = "membrane"
+    ends: str = "clamped"
+    fields: VirtualFields | None = None
+    mesh: SurfaceMesh | None = None
+    reference_step: int = 0
+    clamp_radius: float | None = None
+    n_layers: int = 4
+    quadrature: int = 1
+    toward: np.ndarray | None = None
+    smoothing: tuple[int, int] | str | None = None
+    reject_outliers: bool = True
+    marker_weights: np.ndarray | None = None
+    smooth_reference: bool = True
+    reference_noise_correction: bool = False
+    estimate_noise: bool = True
+
+    @classmethod
+    def from_options(cls, settings: PrepareSettings | None = None, **options) -> PrepareSettings:
+        """``settings`` (default: the defaults) with the given keyword ``options`` replacing its fields."""
+        unknown = sorted(set(options) - {f.name for f in fields_of(cls)})
+        if unknown:
+            raise TypeError(f"prepare() got unexpected keyword argument(s) {unknown}; expected the fields of "
+                            f"PrepareSettings {[f.name for f in fields_of(cls)]}")
+        base = cls() if settings is None else settings
+        return replace(base, **options) if options else base
+
+
 def prepare(
     positions: np.ndarray,
     pressure: np.ndarray,
     axial_force: np.ndarray,
     *,
     thickness: float,
-    wall: str = "membrane",
-    ends: str = "clamped",
-    fields: VirtualFields | None = None,
-    mesh: SurfaceMesh | None = None,
-    reference_step: int = 0,
-    clamp_radius: float | None = None,
-    n_layers: int = 4,
-    quadrature: int = 1,
-    toward: np.ndarray | None = None,
-    smoothing: tuple[int, int] | str | None = None,
-    reject_outliers: bool = True,
-    marker_weights: np.ndarray | None = None,
-    smooth_reference: bool = True,
-    reference_noise_correction: bool = False,
-    estimate_noise: bool = True,
+    settings: PrepareSettings | None = None,
+    **options,
 ) -> VFMData:
     """Build the virtual-work balance from measured data.
 
@@ -174,6 +197,10 @@ def prepare(
         Axial force carried by the wall at the load-cell end (N).
     thickness : float
         Reference wall thickness e0 (m).
+    settings : PrepareSettings, optional
+        The options below in one frozen object (default: their defaults).
+    **options
+        Any field of ``PrepareSettings`` by keyword, replacing the one of ``settings``:
     wall : {"membrane", "thick"}
     ends : {"clamped", "free"}
         "clamped": the tube is tied on cannulae (radius fixed there) beyond the measured region,
@@ -214,6 +241,13 @@ def prepare(
         False: leave ``VFMData.marker_noise`` NaN when nothing else needs the neighbour-mismatch noise
         estimate (``reject_outliers=False``, smoothing given as degrees): a bootstrap replicate's ~1.5 ms.
     """
+    s = PrepareSettings.from_options(settings, **options)
+    wall, ends, fields, mesh, reference_step, clamp_radius = (s.wall, s.ends, s.fields, s.mesh, s.reference_step,
+                                                              s.clamp_radius)
+    n_layers, quadrature, toward, smoothing, reject_outliers = (s.n_layers, s.quadrature, s.toward, s.smoothing,
+                                                                 s.reject_outliers)
+    marker_weights, smooth_reference = s.marker_weights, s.smooth_reference
+    reference_noise_correction, estimate_noise = s.reference_noise_correction, s.estimate_noise
     if wall not in WALLS:
         raise ValueError(f"wall must be one of {WALLS}; got {wall!r}")
     if ends not in ENDS:
