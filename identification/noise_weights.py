@@ -115,7 +115,7 @@ def in_physical_units(result, data: VFMData, model):
 def weighted_flags(result, first, data: VFMData, model) -> tuple[str, ...]:
     """The weighted fit's flags, its "poor fit" judged on the paper's (unweighted) gaps: the weighted
     gaps are measured against the small work of the low-pressure steps and look large on any noisy data."""
-    POOR_FIT_GAP = 0.05  # optimize.identify_prepared's threshold
+    POOR_FIT_GAP = 0.05  # fit.identify_prepared's threshold
 
     kept = tuple(f for f in first.flags if f.startswith(("steps ", "up to ")))  # about the data, not the fit
     flags = [f for f in result.flags if not f.startswith("poor fit")]

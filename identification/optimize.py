@@ -150,7 +150,7 @@ def identify(
 def identify_noise_weighted(positions, pressure, axial_force, *, thickness: float, model="fung",
                             uncertainty: str = "gauss-newton", uncertainty_options: Mapping | None = None,
                             n_weight_replicates: int = 10, weight_seed: int = 0, **prepare_options):
-    """``optimize.identify`` with the gaps weighted by their measured noise (module docstring).
+    """``identify`` with the gaps weighted by their measured noise (the ``noise_weights`` module docstring).
 
     First the paper's (unweighted) fit; if the data were smoothed, the gap noise at that estimate
     (``gap_noise``), then the weighted fit started from it. With ``uncertainty="bootstrap"`` the
