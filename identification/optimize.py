@@ -90,7 +90,7 @@ def identify(
         Axial force carried by the wall at the load-cell end (N).
     thickness : float
         Reference wall thickness (m).
-    model : {"fung", "delfino", "hgo", "neohookean"} or Model
+    model : str (one of ``available_models()``) or Model
     wall : {"membrane", "thick"}
     ends : {"clamped", "free"}
     optimizer : {"lsq", "nelder-mead"}
