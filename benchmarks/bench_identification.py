@@ -318,7 +318,7 @@ def _command_times(sim, repeats):
 def bench_starts(n_seeds):
     """How many starts the least-squares fit needs: is the first start's minimum the best one?"""
     from identification.models import get_model
-    from identification.optimize import _default_starts
+    from identification.fit import _default_starts
 
     print(f"\n## Starts needed (lsq; {'clamped' if CLAMPED else 'homogeneous'} membrane tube; exact data and "
           f"{n_seeds} noise seeds at 0.01 mm)\n")
@@ -449,7 +449,7 @@ def _parse_variant(text):
 def _noise_fit(sim, model, pos, variant, seed, **identify_options):
     """One fit of the noise / coverage studies for a variant of ``_parse_variant`` (or a bare smoothing)."""
     from identification import identify
-    from identification.noise_weights import identify_noise_weighted
+    from identification import identify_noise_weighted
 
     if not isinstance(variant, dict):
         variant = {"smoothing": variant, "smooth_reference": False, "weighted": False,

@@ -9,19 +9,27 @@ Typical use::
     result.parameters, result.stderr, result.flags
 """
 
+from .checks import check_setup
 from .curves import StressStrainCurves, laplace_curves
 from .errors import DegenerateDataError, IdentificationError, MeshError
+from .fit import PAPER_INITIAL_GUESS, identify_prepared
 from .kinematics import Kinematics, align_steps, membrane_kinematics
-from .mesh import Axis, SurfaceMesh, build_mesh, fit_axis, to_cylindrical, to_trimesh
+from .mesh import Axis, SurfaceMesh, build_mesh, describe_dropped, fit_axis, to_cylindrical, to_trimesh
 from .models import Model, available_models, cauchy_stress, get_model, pk2_stress, strain_energy
-from .optimize import IdentificationResult, identify, identify_prepared, PAPER_INITIAL_GUESS
-from .vfm import VFMData, internal_virtual_work, prepare
+from .optimize import identify, identify_noise_weighted
+from .regional import RegionalData, RegionalResult, identify_regional, prepare_regional
+from .regional_uncertainty import choose_bands, with_bootstrap
+from .result import IdentificationResult
+from .uncertainty import Uncertainty, bootstrap
+from .vfm import PrepareSettings, VFMData, internal_virtual_work, prepare
 from .virtual_fields import VirtualFields, paper_fields
 
 __all__ = [
     "Axis", "DegenerateDataError", "IdentificationError", "IdentificationResult", "Kinematics", "MeshError",
-    "Model", "PAPER_INITIAL_GUESS", "StressStrainCurves", "SurfaceMesh", "VFMData", "VirtualFields",
-    "align_steps", "available_models", "build_mesh", "cauchy_stress", "fit_axis", "get_model", "identify",
-    "identify_prepared", "internal_virtual_work", "laplace_curves", "membrane_kinematics", "paper_fields",
-    "pk2_stress", "prepare", "strain_energy", "to_cylindrical", "to_trimesh",
+    "Model", "PAPER_INITIAL_GUESS", "PrepareSettings", "RegionalData", "RegionalResult", "StressStrainCurves",
+    "SurfaceMesh", "Uncertainty", "VFMData", "VirtualFields", "align_steps", "available_models", "bootstrap",
+    "build_mesh", "cauchy_stress", "check_setup", "choose_bands", "describe_dropped", "fit_axis", "get_model",
+    "identify", "identify_noise_weighted", "identify_prepared", "identify_regional", "internal_virtual_work",
+    "laplace_curves", "membrane_kinematics", "paper_fields", "pk2_stress", "prepare", "prepare_regional",
+    "strain_energy", "to_cylindrical", "to_trimesh", "with_bootstrap",
 ]

@@ -22,8 +22,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .fit import identify_prepared
 from .mesh import fit_axis, to_cylindrical
-from .vfm import VFMData
+from .vfm import VFMData, prepare
 
 __all__ = ["CHECK_LIMITS", "SetupCheck", "end_taper", "ends_gap", "with_ends", "wall_gap", "check_setup"]
 
@@ -129,17 +130,12 @@ def _rms(residuals: np.ndarray) -> float:
 
 def ends_gap(data: VFMData, model, parameters) -> float:
     """RMS normalised gap of a fit of ``model`` with the other end condition (one more fit)."""
-    from .optimize import identify_prepared
-
     other = with_ends(data, "free" if data.ends == "clamped" else "clamped")
     return _rms(identify_prepared(other, model, initial=parameters).residuals)
 
 
 def wall_gap(positions, data: VFMData, model, parameters, **prepare_options) -> float:
     """RMS normalised gap of a fit of ``model`` with the other wall form (prepares the data again)."""
-    from .optimize import identify_prepared
-    from .vfm import prepare
-
     other = prepare(positions, data.pressure, data.axial_force, thickness=data.thickness,
                     wall="thick" if data.wall == "membrane" else "membrane", ends=data.ends, mesh=data.mesh,
                     smoothing=data.smoothing, **prepare_options)

@@ -25,9 +25,10 @@ from typing import Mapping
 import numpy as np
 
 from .errors import IdentificationError
+from .resimulation import basis_size, fitted_positions, marker_noise_level, remeasured_mesh
 from .vfm import VFMData, internal_virtual_work, prepare
 
-__all__ = ["gap_noise", "weighted_data", "identify_noise_weighted", "WEIGHT_FLOOR"]
+__all__ = ["gap_noise", "weighted_data", "weights_from_noise", "WEIGHT_FLOOR"]
 
 log = logging.getLogger(__name__)
 
@@ -55,12 +56,10 @@ def gap_noise(data: VFMData, positions: np.ndarray, parameters: Mapping[str, flo
     sd : ndarray, shape (n_fields, n_steps)
         Of ``(IVW - EVW) / scale`` (dimensionless, the units of the optimiser's residuals).
     """
-    from .uncertainty import _n_basis, fitted_positions, marker_noise_level, remeasured_mesh
-
     if int(n_replicates) < 3:
         raise ValueError(f"n_replicates must be at least 3; got {n_replicates!r}")
     fitted, residual = fitted_positions(data, positions)
-    level = marker_noise_level(data, residual, _n_basis(data.smoothing))
+    level = marker_noise_level(data, residual, basis_size(data.smoothing))
     rng = np.random.default_rng(seed)
     options = dict(prepare_options or {})
     gaps = []
@@ -104,47 +103,7 @@ def weights_from_noise(sd: np.ndarray) -> np.ndarray:
     return w / np.sqrt(np.mean(w[:, 1:] ** 2))
 
 
-def identify_noise_weighted(positions, pressure, axial_force, *, thickness: float, model="fung",
-                            uncertainty: str = "gauss-newton", uncertainty_options: Mapping | None = None,
-                            n_weight_replicates: int = 10, weight_seed: int = 0, **prepare_options):
-    """``optimize.identify`` with the gaps weighted by their measured noise (module docstring).
-
-    First the paper's (unweighted) fit; if the data were smoothed, the gap noise at that estimate
-    (``gap_noise``), then the weighted fit started from it. With ``uncertainty="bootstrap"`` the
-    replicates are weighted alike (same weights), so the interval describes this estimator.
-    Unsmoothed (exact-looking) data return the unweighted fit unchanged.
-    Returns an ``IdentificationResult`` whose ``data``, ``ivw``, ``evw`` and ``residuals`` are the paper's
-    (unweighted; the weights only chose the estimate and its interval).
-    """
-    from .optimize import identify, identify_prepared, per_step_rows
-
-    first = identify(positions, pressure, axial_force, thickness=thickness, model=model, **prepare_options)
-    data = first.data
-    if data.smoothing is None:
-        if uncertainty == "bootstrap":
-            return identify(positions, pressure, axial_force, thickness=thickness, model=model,
-                            uncertainty=uncertainty, uncertainty_options=uncertainty_options, **prepare_options)
-        return first
-    options = {k: v for k, v in prepare_options.items() if k not in ("mesh", "smoothing", "reject_outliers",
-                                                                      "marker_weights", "wall", "ends", "n_starts")}
-    sd = gap_noise(data, _used_positions(first, positions), first.parameters, model,
-                   n_replicates=n_weight_replicates, seed=weight_seed, prepare_options=options)
-    w = weights_from_noise(sd)
-    wdata = weighted_data(data, w)
-    result = dataclasses.replace(identify_prepared(wdata, model, initial=first.parameters),
-                                 smoothing=data.smoothing, data=wdata, steps=first.steps)
-    result = dataclasses.replace(result, flags=_flags(result, first, data, model))
-    if uncertainty == "bootstrap":
-        from .uncertainty import with_uncertainty
-
-        n_input = np.shape(positions)[0]
-        dropped = [] if first.steps is None else sorted(set(range(n_input)) - set(first.steps))
-        result = with_uncertainty(result, data, _used_positions(first, positions), prepare_options=options,
-                                  gap_weights=w, **(per_step_rows(uncertainty_options, n_input, dropped) or {}))
-    return _in_physical_units(result, data, model)
-
-
-def _in_physical_units(result, data: VFMData, model):
+def in_physical_units(result, data: VFMData, model):
     """``result`` with the paper's (unweighted) data, virtual works (J) and normalised gaps: what is stored and
     what the setting checks compare against other end conditions and wall forms (weighted gaps are measured
     against the small work of the low-pressure steps and made a correct wall form look wrong)."""
@@ -153,10 +112,10 @@ def _in_physical_units(result, data: VFMData, model):
                                residuals=(ivw - data.evw) / data.scale[:, None])
 
 
-def _flags(result, first, data: VFMData, model) -> tuple[str, ...]:
+def weighted_flags(result, first, data: VFMData, model) -> tuple[str, ...]:
     """The weighted fit's flags, its "poor fit" judged on the paper's (unweighted) gaps: the weighted
     gaps are measured against the small work of the low-pressure steps and look large on any noisy data."""
-    POOR_FIT_GAP = 0.05  # optimize.identify_prepared's threshold
+    POOR_FIT_GAP = 0.05  # fit.identify_prepared's threshold
 
     kept = tuple(f for f in first.flags if f.startswith(("steps ", "up to ")))  # about the data, not the fit
     flags = [f for f in result.flags if not f.startswith("poor fit")]
@@ -168,7 +127,7 @@ def _flags(result, first, data: VFMData, model) -> tuple[str, ...]:
     return tuple(flags) + kept
 
 
-def _used_positions(result, positions) -> np.ndarray:
+def used_positions(result, positions) -> np.ndarray:
     """The steps of ``positions`` that ``result`` was identified from (identify may leave some out)."""
     x = np.asarray(positions, dtype=float)
     steps = getattr(result, "steps", None)

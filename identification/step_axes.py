@@ -1,9 +1,9 @@
-"""Specimen axes by damped Gauss-Newton: ``mesh.fit_axis``'s solver, and every step's axis at once.
+"""Specimen axes by damped Gauss-Newton: one cloud's (``fit_axis``), and every step's axis at once.
 
 The residual is the radius of each marker minus its least-squares Legendre profile along the axis
 (variable projection); the variables are the tilt of the axis and the offset of its origin in the
 frame of a starting axis. ``fit_clouds`` solves it for a batch of marker clouds together (numpy
-only: no solver set-up per cloud); ``mesh.fit_axis`` uses it for one cloud and ``refit_axes`` for
+only: no solver set-up per cloud); ``fit_axis`` uses it for one cloud and ``refit_axes`` for
 all the (aligned) steps of a test from the reference axis, which every step is close to.
 """
 
@@ -11,9 +11,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .mesh import MIN_MARKERS, Axis, _frame
+from .axis import MIN_MARKERS, Axis, _frame
+from .errors import MeshError
 
-__all__ = ["fit_clouds", "refit_axes"]
+__all__ = ["fit_axis", "fit_clouds", "refit_axes"]
 
 #: Relative finite-difference step of the residual's Jacobian (the iteration's fixed point does not
 #: depend on it: only the speed of convergence does).
@@ -169,7 +170,7 @@ def refit_axes(points: np.ndarray, observed: np.ndarray, initial: Axis, *, profi
 
 
 def axes_from(pts, w, d, o, r, res, toward: np.ndarray, x_hint: np.ndarray) -> list[Axis]:
-    """``Axis`` objects of fitted directions and origins, oriented and framed as ``mesh.fit_axis`` does.
+    """``Axis`` objects of fitted directions and origins, oriented and framed as ``fit_axis`` does.
 
     pts (s, n, 3), w (s, n) 0/1 weights, d and o (s, 3), r and res (s, n). Each direction is turned
     to have a positive component along ``toward`` (3,); its origin moves to the mean axial position
@@ -184,3 +185,79 @@ def axes_from(pts, w, d, o, r, res, toward: np.ndarray, x_hint: np.ndarray) -> l
     radius = (r * w).sum(axis=1) / n_w
     rms = np.sqrt((res * res * w).sum(axis=1) / n_w)
     return [Axis(origin=o[k], basis=frames[k], radius=float(radius[k]), rms=float(rms[k])) for k in range(len(d))]
+
+
+def fit_axis(points: np.ndarray, *, toward: np.ndarray | None = None, initial: Axis | None = None,
+             profile_degree: int = 4) -> Axis:
+    """Fit the axis of a tube (a surface of revolution) to a marker cloud.
+
+    The radius is modelled as a Legendre polynomial of degree ``profile_degree`` in the axial
+    coordinate (a bulged or tapered tube keeps its symmetry axis); the axis minimises the
+    residual of that profile (variable projection).
+
+    Parameters
+    ----------
+    points : ndarray, shape (n_markers, 3)
+        Marker positions (m); rows with NaN are ignored.
+    toward : ndarray, shape (3,), optional
+        The axis is oriented to have a positive component along this direction (default world +z,
+        or ``initial``'s direction).
+    initial : Axis, optional
+        Start from this axis (one local fit) instead of trying the three principal directions.
+    profile_degree : int
+        Degree of the radius profile r(z).
+
+    Returns
+    -------
+    Axis
+    """
+    pts = np.asarray(points, dtype=float)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise ValueError(f"points must have shape (n_markers, 3); got {pts.shape}")
+    pts = pts[np.all(np.isfinite(pts), axis=1)]
+    if len(pts) < MIN_MARKERS:
+        raise MeshError(f"fitting the specimen axis needs at least {MIN_MARKERS} finite markers; got {len(pts)}")
+    centre = pts.mean(axis=0)
+    scale = float(np.sqrt(np.mean(np.sum((pts - centre) ** 2, axis=1))))
+    best = None
+    for d0, c0 in _axis_candidates(pts, centre, initial):
+        res, d, o, r = fit_clouds(pts[None], np.ones((1, len(pts))), _frame(d0)[None], np.asarray(c0, float)[None],
+                                  scale, profile_degree=int(profile_degree))
+        rms = float(np.sqrt(np.mean(res[0] ** 2)))
+        if best is None or rms / r[0].mean() < best[0]:
+            best = (rms / r[0].mean(), d[0], o[0], r[0], rms)
+        if best[0] < 0.05:  # a tube: the most promising principal direction was right
+            break
+    _, d, o, r, rms = best
+    if toward is None:
+        toward = np.array([0.0, 0.0, 1.0]) if initial is None else initial.direction
+    return _oriented_axis(pts, d, o, r, rms, np.asarray(toward, dtype=float), initial)
+
+
+def _axis_candidates(pts: np.ndarray, centre: np.ndarray, initial: Axis | None) -> list:
+    """Starting (direction, origin) pairs of ``fit_axis``: ``initial``'s, or the three principal
+    directions of the cloud, the one with the least relative scatter of the radii about it first."""
+    if initial is not None:
+        return [(initial.direction, initial.origin)]
+    v = pts - centre
+    _, _, vt = np.linalg.svd(v, full_matrices=False)
+
+    def spread(d0):  # relative scatter of the radii about the principal direction, before fitting
+        r = np.linalg.norm(v - np.outer(v @ d0, d0), axis=1)
+        return np.std(r) / np.mean(r)
+
+    return sorted([(d0, centre) for d0 in vt], key=lambda c: spread(c[0]))
+
+
+def _oriented_axis(pts, d, o, r, rms, toward: np.ndarray, initial: Axis | None) -> Axis:
+    """The ``Axis`` of a fitted direction d and origin o: d turned towards ``toward``, the origin moved to
+    the markers' mean axial position, the angular origin kept from ``initial`` if given."""
+    if d @ toward < 0:
+        d = -d
+    o = o + ((pts - o) @ d).mean() * d
+    frame = _frame(d)
+    if initial is not None:  # keep the angular origin of the initial frame
+        x = initial.basis[0] - (initial.basis[0] @ d) * d
+        x /= np.linalg.norm(x)
+        frame = np.stack([x, np.cross(d, x), d])
+    return Axis(origin=o, basis=frame, radius=float(r.mean()), rms=rms)

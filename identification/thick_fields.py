@@ -2,7 +2,7 @@
 
 The paper's fields (``virtual_fields.paper_fields``: ``sin(pi zeta) e_r`` and ``zeta e_z``) have a
 non-zero axial gradient on the measured boundary. In the thick form the fields are extended through
-the wall so as to be divergence-free (``vfm._layer``): where ``d u_z / d z`` or ``d u_r / d z`` is not 0,
+the wall so as to be divergence-free (``_wall._layer``): where ``d u_z / d z`` or ``d u_r / d z`` is not 0,
 the inner layers of the boundary cross-section move radially, so the transverse shear stress there
 (unknown, and not small next to a clamp, where the wall bends) would do virtual work that the balance
 leaves out; the layered kinematics (material lines through the wall stay radial) is also least right

@@ -35,9 +35,10 @@ import numpy as np
 from scipy.special import stdtrit  # scipy.stats costs ~0.4 s of import for one quantile
 
 from .errors import IdentificationError
-from .kinematics import align_steps, marker_outliers, smooth_cylindrical, smoothing_basis, step_cylindrical
-from .mesh import SurfaceMesh, to_cylindrical
+from .fit import identify_prepared
 from .models import get_model
+from .noise_weights import weighted_data
+from .resimulation import fitted_positions, marker_noise_level, remeasured_mesh, resimulated_measurements
 from .vfm import VFMData, prepare
 
 __all__ = ["Uncertainty", "bootstrap", "fitted_positions", "marker_noise_level", "remeasured_mesh", "uncertainty_flags",
@@ -97,90 +98,6 @@ class Uncertainty:
     @property
     def n_replicates(self) -> int:
         return int(self.replicates.shape[0]) + self.n_failed
-
-
-def _specimen_frame_to_world(r, theta, z, axes) -> np.ndarray:
-    """Cylindrical coordinates (n_steps, n_markers) about each step's axis -> positions (n_steps, n_markers, 3)."""
-    local = np.stack([r * np.cos(theta), r * np.sin(theta), z], -1)
-    basis = np.stack([a.basis for a in axes])  # (s, 3, 3)
-    origin = np.stack([a.origin for a in axes])  # (s, 3)
-    return np.einsum("snj,sji->sni", local, basis) + origin[:, None]
-
-
-def remeasured_mesh(mesh: SurfaceMesh, reference: np.ndarray) -> SurfaceMesh:
-    """The same triangulation on re-measured reference positions (n_markers, 3), m: the reference
-    coordinates (and the innermost boundary positions of the virtual fields) follow the new markers."""
-    r, theta, z = to_cylindrical(reference, mesh.axis)
-    used = mesh.used & np.all(np.isfinite(reference), axis=-1)
-    if not np.array_equal(used, mesh.used):
-        raise IdentificationError("a re-measured reference lost markers of the mesh")
-    nan = np.where(mesh.used, 1.0, np.nan)
-    r, theta, z = r * nan, theta * nan, z * nan
-    return replace(mesh, r=r, theta=theta, z=z, z_bottom=float(z[np.unique(mesh.bottom_edges)].max()),
-                   z_top=float(z[np.unique(mesh.top_edges)].min()))
-
-
-def fitted_positions(data: VFMData, positions: np.ndarray, reference_step: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """The marker positions as the identification saw them, and their scatter about them.
-
-    Parameters
-    ----------
-    data : VFMData
-        From ``prepare`` on ``positions``.
-    positions : ndarray, shape (n_steps, n_markers, 3)
-        The measured positions (m), NaN = not observed.
-
-    Returns
-    -------
-    fitted : ndarray, shape (n_steps, n_markers, 3)
-        Smoothed positions (rigidly aligned on the reference step) where ``data.smoothing`` is set,
-        else the aligned measured positions; NaN where not observed.
-    residual : ndarray, shape (n_steps, n_markers, 3)
-        Measured minus fitted displacements (m; zeros if unsmoothed, NaN where not observed or
-        mis-tracked).
-    """
-    x = np.asarray(positions, dtype=float)
-    aligned, _, _ = align_steps(x, x[reference_step])
-    observed = np.all(np.isfinite(aligned), axis=-1)
-    if data.smoothing is None:
-        return aligned, np.where(observed[..., None], 0.0, np.nan)
-    mesh = data.mesh
-    r, th, z, axes = step_cylindrical(mesh, aligned)
-    outliers, _ = marker_outliers(mesh, r, th, z)
-    r, th, z = (np.where(outliers, np.nan, a) for a in (r, th, z))
-    rs, ts, zs = smooth_cylindrical(mesh, r, th, z, data.smoothing)
-    # the reference surface's own noise is re-simulated too: take its smooth shape as the truth
-    basis, ok_ref = smoothing_basis(mesh, max(data.smoothing[0], (4, 2)))
-    coef, *_ = np.linalg.lstsq(basis[ok_ref], mesh.r[ok_ref], rcond=None)
-    rs = rs + np.where(ok_ref, basis @ coef - mesh.r, 0.0)[None]
-    fitted = _specimen_frame_to_world(rs, ts, zs, axes)
-    keep = observed & mesh.used[None]
-    fitted = np.where(keep[..., None], fitted, np.nan)
-    fitted_disp = _specimen_frame_to_world(*smooth_cylindrical(mesh, r, th, z, data.smoothing), axes)
-    residual = np.where((keep & ~outliers)[..., None], aligned - fitted_disp, np.nan)
-    return fitted, residual
-
-
-def marker_noise_level(data: VFMData, residual: np.ndarray, n_basis: int | None = None) -> float:
-    """Per-coordinate marker noise (m) to simulate: the RMS scatter of the displacements about the
-    smoothed field (corrected for the ``n_basis`` functions fitted per component and step; it also
-    holds whatever the basis misses), or the neighbour-mismatch estimate ``data.marker_noise`` for
-    unsmoothed data (measured: 5-10 % high at 0.17 mm)."""
-    level = float(data.marker_noise) if np.isfinite(data.marker_noise) else 0.0
-    res = residual[1:]  # the reference step's displacement is zero by construction
-    n = int(np.sum(np.isfinite(res[..., 0])))
-    if data.smoothing is not None and n:
-        p = (n_basis or 0) * res.shape[0]
-        rss = float(np.nansum(res**2)) / 3.0
-        # a displacement carries the noise of its step and of the reference: variance 2 sigma^2
-        level = float(np.sqrt(rss / max(n - p, 1) / 2.0))
-    return level
-
-
-def _n_basis(smoothing) -> int:
-    if smoothing is None:
-        return 0
-    return int(np.mean([(nz + 1) * (2 * nt + 1) for nz, nt in smoothing]))
 
 
 def _to_x(model, values: np.ndarray) -> np.ndarray:
@@ -265,8 +182,6 @@ def _replicate_fit(data: VFMData, model, initial, options, gap_weights, replicat
 
 def _reidentify(data: VFMData, model, initial, pos, p, f, mesh, options, gap_weights):
     """One replicate prepared like ``data`` and identified from ``initial`` (one start); None if it fails."""
-    from .optimize import identify_prepared
-
     if mesh is None:
         return None
     try:
@@ -274,8 +189,6 @@ def _reidentify(data: VFMData, model, initial, pos, p, f, mesh, options, gap_wei
             d = prepare(pos, p, f, thickness=data.thickness, wall=data.wall, ends=data.ends, mesh=mesh,
                         smoothing=data.smoothing, reject_outliers=False, estimate_noise=False, **options)
             if gap_weights is not None:
-                from .noise_weights import weighted_data
-
                 d = weighted_data(d, gap_weights)
             return identify_prepared(d, model, initial=initial, n_starts=1)
     except (IdentificationError, ValueError, np.linalg.LinAlgError) as exc:
@@ -371,42 +284,3 @@ def with_uncertainty(result, data: VFMData, positions: np.ndarray, **options):
     return replace(result, stderr=stderr, flags=tuple(result.flags) + tuple(flags), uncertainty=unc)
 
 
-def resimulated_measurements(data: VFMData, positions: np.ndarray, *, marker_sigma: np.ndarray | None = None,
-                             pressure_noise: float = 0.0, force_noise: float = 0.0, n_replicates: int = 16,
-                             seed: int = 0):
-    """The measurements ``bootstrap`` re-simulates, for identifications other than ``identify_prepared``
-    (e.g. ``identification.regional``): the fitted field plus noise at the level the data show.
-
-    Parameters are those of ``bootstrap``. Returns ``(level, replicates)``: the simulated per-coordinate
-    marker noise (m) and a generator of ``(positions (n_steps, n_markers, 3) m, pressure (n_steps,) Pa,
-    axial_force (n_steps,) N, mesh)`` with ``mesh`` the same triangulation on the replicate's reference
-    (``remeasured_mesh``; an ``IdentificationError`` when a replicate loses markers of the mesh).
-    """
-    if int(n_replicates) < 5:
-        raise ValueError(f"n_replicates must be at least 5; got {n_replicates!r}")
-    fitted, residual = fitted_positions(data, positions)
-    level = marker_noise_level(data, residual, _n_basis(data.smoothing))
-    shape = np.ones(fitted.shape[:2])
-    if marker_sigma is not None:
-        ms = np.asarray(marker_sigma, dtype=float)
-        if ms.shape != fitted.shape[:2]:
-            raise ValueError(f"marker_sigma must have shape {fitted.shape[:2]} (n_steps, n_markers); got {ms.shape}")
-        med = np.nanmedian(ms)
-        if np.isfinite(med) and med > 0:
-            shape = np.where(np.isfinite(ms) & (ms > 0), ms / med, 1.0)
-    sigma = level * shape
-
-    def replicates():
-        rng = np.random.default_rng(seed)
-        for _ in range(int(n_replicates)):
-            pos = fitted + sigma[..., None] * rng.standard_normal(fitted.shape)
-            p = data.pressure + pressure_noise * rng.standard_normal(data.pressure.shape) * (data.pressure != 0)
-            f = data.axial_force + force_noise * rng.standard_normal(data.axial_force.shape)
-            try:
-                with np.errstate(all="ignore"):
-                    mesh = remeasured_mesh(data.mesh, pos[0])
-            except IdentificationError:
-                mesh = None
-            yield pos, p, f, mesh
-
-    return level, replicates()

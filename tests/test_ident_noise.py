@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from identification import identify
-from identification.noise_weights import identify_noise_weighted, weighted_data
+from identification import identify_noise_weighted
+from identification.noise_weights import weighted_data
 from identification.vfm import internal_virtual_work, prepare
 from ident_synth import E0, PAPER, homogeneous, lam_t_for_pressures
 

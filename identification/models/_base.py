@@ -110,7 +110,7 @@ def register(model: Model) -> Model:
 
 
 def get_model(name: str | Model) -> Model:
-    """Look a model up by name (``fung``, ``delfino``, ``hgo``, ``neohookean``)."""
+    """Look a model up by name (one of ``available_models()``)."""
     if isinstance(name, Model):
         return name
     try:
@@ -120,7 +120,7 @@ def get_model(name: str | Model) -> Model:
 
 
 def available_models() -> list[str]:
-    """Names of the registered models."""
+    """Names of the registered models: THE list of identifiable models (sorted)."""
     return sorted(_REGISTRY)
 
 
