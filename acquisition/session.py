@@ -1,6 +1,6 @@
 """The HDF5 session file: one file per test, the contract between the stages.
 
-Layout (NeXus-like, documented in ``docs/session-format.md``)::
+Layout (NeXus-like, documented in ``docs/guide/session-format.md``)::
 
     /                       @vfmlab_schema_version, @creator, @HDF5_Version, @h5py_version, @file_time
     /entry                  NXentry  @start_time @software_version @writer_pid @writer_host
