@@ -1,7 +1,7 @@
 """Acquisition: instruments, cameras, the session file and the operator's session runner.
 
 This is the only stage that talks to hardware; it writes the HDF5 session file that the
-other stages read (see ``docs/session-format.md``).
+other stages read (see ``docs/guide/session-format.md``).
 
 The instrument names below are re-exported lazily (PEP 562): ``from acquisition import Sampler``
 works as before, but commands that only read session files (``vfmlab identify``, ``info``) never

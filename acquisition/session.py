@@ -1,6 +1,6 @@
 """The HDF5 session file: one file per test, the contract between the stages.
 
-Layout (NeXus-like, documented in ``docs/session-format.md``)::
+Layout (NeXus-like, documented in ``docs/guide/session-format.md``)::
 
     /                       @vfmlab_schema_version, @creator, @HDF5_Version, @h5py_version, @file_time
     /entry                  NXentry  @start_time @software_version @writer_pid @writer_host
@@ -170,7 +170,7 @@ def _create_h5(tmp: Path, path: Path) -> h5py.File:
 
 
 def _now_iso() -> str:
-    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="milliseconds")
+    return _dt.datetime.now(_dt.UTC).isoformat(timespec="milliseconds")
 
 
 def _software_version() -> str:
@@ -551,7 +551,7 @@ def incomplete_leftover(path: str | os.PathLike) -> bool:
 
 def _refuse_live_session(path: Path) -> None:
     """Two writers never share a file: refuse to replace a session another process is recording."""
-    for attempt in range(3):
+    for _attempt in range(3):
         try:
             with open_session(path) as session:
                 status = session.status
@@ -583,7 +583,7 @@ def _trim_partial_records(entry: h5py.Group) -> list[str]:
     tables = [entry["log"][channel] for channel in _LOG_CHANNELS] + [entry["events"]]
     for group in tables:
         n = min(ds.shape[0] for ds in group.values())
-        for name, ds in group.items():
+        for ds in group.values():
             if ds.shape[0] > n:
                 dropped.append(f"{ds.name}[{n}:{ds.shape[0]}]")
                 ds.resize((n,) + ds.shape[1:])

@@ -8,7 +8,7 @@ For every seed: ``vfmlab run examples/paper-protocol.toml --specimen examples/sp
 ``vfmlab reconstruct`` and ``vfmlab identify --model fung --json``, every option at its default. One JSON line per seed is appended to ``--log`` as it finishes (seeds
 already in the log are skipped, so a cut run resumes); ``--summarise LOG`` prints the table. The seed changes the
 marker layout, the camera-ring imperfections and every noise of the simulated rig; the specimen (homogeneous Fung
-tube, the seed paper's Table-1 parameters) is the same. Prints markdown (docs/identification.md, "Coverage").
+tube, the seed paper's Table-1 parameters) is the same. Prints markdown (docs/validation/identification.md, "Coverage").
 """
 
 from __future__ import annotations

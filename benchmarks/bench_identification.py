@@ -1,4 +1,4 @@
-"""Benchmarks of the VFM identification (prints markdown tables; docs/identification.md quotes them).
+"""Benchmarks of the VFM identification (prints markdown tables; docs/validation/identification.md quotes them).
 
     OMP_NUM_THREADS=1 PYTHONPATH=. python benchmarks/bench_identification.py [--quick] [--part timing|thick|noise|all]
 

@@ -1,7 +1,7 @@
 """Figures of the simulator's exact mechanics: thick-wall vs membrane bias, clamped-BVP cost and accuracy.
 
 Run: ``python benchmarks/bench_mech.py`` (about a minute on one core). Prints Markdown tables used in
-docs/mechanics.md.
+docs/validation/mechanics.md.
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """Benchmark of the regional (per-band / smooth-profile) identification: prints the markdown tables that
-docs/identification.md ("Regional") quotes.
+docs/validation/identification.md ("Regional") quotes.
 
     OMP_NUM_THREADS=1 PYTHONPATH=. python benchmarks/bench_regional.py [--quick] [--seeds N] [--only bands|auto|legendre]
 

@@ -1,5 +1,5 @@
 """Volume self-calibration variants on OpenPTV test_cavity: does any lower both the calibration-body RMS and the
-cross-camera disparity? (issue 14; docs/reconstruction.md, "The body against the particles").
+cross-camera disparity? (issue 14; docs/validation/reconstruction.md, "The body against the particles").
 
 Seed: the body calibration with only the terms its dots determine, ptv.par's media (``bench_real_data.py
 --selfcal-seed selected-ptvpar``); frames 0-4, OpenPTV's particle settings, the benchmark's volume and settings.

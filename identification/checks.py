@@ -1,7 +1,7 @@
 """Can the data tell that a setting is wrong? End-condition and wall-form checks in plain words.
 
 Two kinds of evidence, each measured on simulated clamped / free / thick-walled tubes
-(``docs/identification.md``, "Setting checks"):
+(``docs/validation/identification.md``, "Setting checks"):
 
 - **Radius profile near the ends.** A tube tied on cannulae keeps the cannula radius at the clamp,
   so under pressure its radius falls toward both ends of the marked region; a free (uniform) tube
@@ -30,7 +30,7 @@ __all__ = ["CHECK_LIMITS", "SetupCheck", "end_taper", "ends_gap", "with_ends", "
 
 log = logging.getLogger(__name__)
 
-#: Thresholds of the checks (measured: docs/identification.md, "Setting checks").
+#: Thresholds of the checks (measured: docs/validation/identification.md, "Setting checks").
 CHECK_LIMITS = {
     # mean end-band taper (fraction of the mid-length radial expansion) above which the ends look clamped
     "taper_clamped": 0.10,

@@ -4,7 +4,7 @@ Each triangle of the ``SurfaceMesh`` is parametrised by the reference cylindrica
 xi = (Theta, Z) of its markers; r, theta, z of the current configuration (and any vector field
 given by its cylindrical components) are interpolated linearly in xi. The surface is therefore a
 piece of a cylinder-like surface, not a flat chord triangle: flat triangles over-estimate the hoop
-virtual work by ~2 % at 300 markers (see ``docs/identification.md``).
+virtual work by ~2 % at 300 markers (see ``docs/validation/identification.md``).
 
 Local frame of a triangle (reference configuration): e1 along the circumferential tangent, e2 the
 in-plane axial direction orthogonal to it (Gram-Schmidt). Frames and units: ``docs/decisions``;

@@ -78,10 +78,10 @@ class SurfaceMesh:
 
 
 #: Markers closer than this fraction of the median nearest-neighbour distance to another marker are
-#: near-duplicates: one of the pair is dropped (measured: docs/identification.md, "Mesh hygiene").
+#: near-duplicates: one of the pair is dropped (measured: docs/validation/identification.md, "Mesh hygiene").
 DUPLICATE_FRACTION = 0.35
 #: Interior triangles of quality below this lose the marker at their obtuse corner, and the surface is
-#: re-meshed (measured: docs/identification.md, "Mesh hygiene").
+#: re-meshed (measured: docs/validation/identification.md, "Mesh hygiene").
 SLIVER_QUALITY = 0.3
 #: Re-meshing rounds at most (each drops the obtuse corners of the slivers left).
 MAX_REMESH = 8

@@ -105,7 +105,7 @@ def identify(
         "paper": the paper's cost (one scale per field). "noise": each virtual-work gap weighted by
         the inverse of its measured noise (``noise_weights.identify_noise_weighted``; smoothed data
         only, ``optimizer="lsq"``): at 0.17 mm marker noise Fung beta within 5 % in 80 % of seeds
-        instead of 38 % (docs/identification.md "Noise").
+        instead of 38 % (docs/validation/identification.md "Noise").
     prepare_options
         Passed to ``prepare`` (fields, mesh, n_layers, quadrature, clamp_radius, smoothing...).
         ``smoothing="auto"`` smooths with a basis chosen from the data (generalised

@@ -11,7 +11,7 @@ in the taper next to a clamp, where these fields weigh most.
 ``flat_end_fields`` uses ``sin^2(pi zeta) e_r`` and ``(zeta - sin(2 pi zeta) / (2 pi)) e_z``: the same
 boundary values (0 at the bottom, the uniform axial translation 1 at the load-cell end), with zero
 axial gradient at both ends. On exact homogeneous data any admissible fields give the exact answer;
-on the clamped finite-element tube (``rig_sim.fe_tube``, docs/identification.md "FE ground truth")
+on the clamped finite-element tube (``rig_sim.fe_tube``, docs/validation/identification.md "FE ground truth")
 they bring the Delfino RMS virtual-work gap from 1.27 % to 0.37 % and beta from -3.3 % to -0.9 %.
 """
 

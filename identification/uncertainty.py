@@ -19,7 +19,7 @@ measurement is re-simulated instead:
 
 The 95 % interval is ``estimate -+ t(0.975, n - 1) * spread`` (back-transformed). The replicates'
 mean offset from the estimate is reported as ``bias`` (not subtracted: measured, subtracting it
-does not improve coverage; see docs/identification.md, "Coverage").
+does not improve coverage; see docs/validation/identification.md, "Coverage").
 
 Units SI as everywhere; shapes in the docstrings.
 """

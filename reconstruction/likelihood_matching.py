@@ -1,7 +1,7 @@
 """Multi-camera particle matching by a likelihood ratio instead of hard gates.
 
 At a high particle density the true matches of a frame are among its candidates at wide gates, but so are
-many chance coincidences (``docs/reconstruction.md``, "Real data"). Hard gates either cut true matches whose
+many chance coincidences (``docs/validation/reconstruction.md``, "Real data"). Hard gates either cut true matches whose
 calibration error is larger than the gate or let chance in. Each candidate instead gets the log of the ratio
 of its likelihood as a true match to its likelihood as a chance coincidence, product over its cameras
 (Blackman's track score; Blackman & Popoli 1999, "Design and analysis of modern tracking systems", 6.2):

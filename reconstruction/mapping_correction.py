@@ -1,7 +1,7 @@
 """A correction of the camera model that depends on the 3-D position, not only on the pixel.
 
 After a volume self-calibration the cameras are still inconsistent by a few tenths of a pixel in a way that
-varies over the measurement volume (``docs/reconstruction.md``, "Mapping correction in 3-D"). A correction of the
+varies over the measurement volume (``docs/validation/reconstruction.md``, "Mapping correction in 3-D"). A correction of the
 detections as a function of the pixel (``temporal_matching.fit_pixel_correction``) cannot represent an error that
 changes with the depth along a camera's line of sight; Wieneke's volume self-calibration (2008) corrects the
 mapping per sub-volume in 3-D. Here, per camera, the reprojection residual of verified matches (projected minus

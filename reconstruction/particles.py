@@ -75,7 +75,7 @@ def detect_particles(
         image smoothed by a matched Gaussian filter), a least-squares 2-D Gaussian on the 5 x 5 window
         around it with touching neighbours fitted jointly, or ``hybrid`` (the 2-D fit for particles split
         from a blob with others, the centroid for the others). On test_cavity's real images the centroid
-        gives the most real matches (``docs/reconstruction.md``, "Particle centres").
+        gives the most real matches (``docs/validation/reconstruction.md``, "Particle centres").
 
     Returns
     -------

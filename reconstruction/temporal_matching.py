@@ -1,7 +1,7 @@
 """Multi-camera particle matching over time: a true match persists, a chance one does not.
 
 At a high particle density a single frame cannot tell a true three-camera match from a chance coincidence
-along the epipolar curves (``docs/reconstruction.md``, "Real data"). Consecutive frames of the same particles
+along the epipolar curves (``docs/validation/reconstruction.md``, "Real data"). Consecutive frames of the same particles
 can: a true match is a 3-D point whose track continues smoothly through the neighbouring frames (small
 displacement, consistent in every camera). A chance match is made of detections of unrelated particles; when
 they move coherently (a smooth flow, small steps) it persists too, but its reprojection residuals change as

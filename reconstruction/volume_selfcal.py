@@ -302,7 +302,7 @@ def self_calibrate(frames: list[list[np.ndarray]], cameras: list[Camera], bounds
     body_sides : bool
         When cameras look at the body from both sides (:func:`far_side`), the body as the far side sees it
         is offset along its normal by a refined distance (``SelfCalibration.body_offset_m``; test_cavity:
-        see docs/reconstruction.md). False: one body for all cameras.
+        see docs/validation/reconstruction.md). False: one body for all cameras.
     progress : callable (done, total, what) -> None, optional
         Called after each step (a pass, the two closing disparity maps): ``total`` = len(schedule) + 2.
     """

@@ -81,7 +81,7 @@ class ClampedSolution:
         Largest relative collocation residual reported by solve_bvp.
     min_dzdZ : float
         Smallest dz/dZ on the mesh; <= 0 means the meridian turns back on itself next to a cannula (the membrane
-        folds over the cannula: a membrane-model artefact, see docs/mechanics.md).
+        folds over the cannula: a membrane-model artefact, see docs/validation/mechanics.md).
     solve_time : float, s
         Wall time of this solve (including any pressure sub-steps).
     model : str

@@ -5,7 +5,7 @@
     sim.positions      # (n_steps, n_markers, 3) m, world frame of the rig
     sim.pressure, sim.axial_force, sim.stretch
 
-See docs/mechanics.md for equations and conventions.
+See docs/validation/mechanics.md for equations and conventions.
 """
 
 from .clamped import ClampedSolution, solve_clamped

@@ -2,7 +2,7 @@
 
 Homogeneous closed-form tube (tests/ident_synth.py, independent of rig_sim), the paper's protocol:
 one axial stretch 1.1, 8 pressure levels 0-150 mmHg, 300 markers. Few fixed seeds, so these are
-regression tests of two measured levers, not the statistics (docs/identification.md, "Noise").
+regression tests of two measured levers, not the statistics (docs/validation/identification.md, "Noise").
 """
 
 import numpy as np

@@ -413,7 +413,7 @@ def test_cli_self_calibration_stored_with_its_figures_and_bad_input_named(tmp_pa
 
 def test_cli_body_selected_keeps_the_terms_the_dots_determine(tmp_path, capsys, monkeypatch):
     # vfmlab calibrate --import FOLDER --body selected: select_body_model per camera (here among two models, pose and
-    # pose + principal point, to stay within the CI budget; all 32: ~2.5 min of CPU, docs/calibration.md). Measured
+    # pose + principal point, to stay within the CI budget; all 32: ~2.5 min of CPU, docs/validation/calibration.md). Measured
     # with all 32: pose + principal point (cameras 1-2), pose + window tilt (3-4), 0.22-0.70 px.
     import json
 

@@ -108,7 +108,7 @@ DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "openptv
 def test_volume_self_calibration_on_real_particles():
     """OpenPTV test_cavity, frame 1, imported calibration, one pass: the disparity peaks of the same loose
     candidates move towards zero and the calibration body does not get worse. (What it does NOT do on this
-    data: make the >= 3-view matches real; bench_real_data.py's decoy figures, docs/reconstruction.md.)"""
+    data: make the >= 3-view matches real; bench_real_data.py's decoy figures, docs/validation/reconstruction.md.)"""
     import sys
 
     from reconstruction.calibration_body import match_body_points

@@ -1,5 +1,5 @@
 """``vfmlab run --sim --sim-seed N``: the simulated rig's seed, so that a simulated test can be repeated with other
-noise (coverage on rendered rigs, docs/identification.md "Coverage")."""
+noise (coverage on rendered rigs, docs/validation/identification.md "Coverage")."""
 
 import numpy as np
 import pytest

@@ -2,7 +2,7 @@
 imaged step of the shipped protocols and the demo's: a geometric check (projection, no rendering).
 
 Issue 10 asked whether the tube leaves the 640 x 480 views at L/L0 = 1.2 (the demo); measured here: no, the
-markers span u = 80-530 px of 640 there (docs/identification.md, "Coverage").
+markers span u = 80-530 px of 640 there (docs/validation/identification.md, "Coverage").
 """
 
 from pathlib import Path

@@ -184,7 +184,7 @@ def select_body_folder(folder: str | Path, seeds: list, *, dot_radius_px: float 
 #: :func:`reconstruction.volume_selfcal.self_calibrate` settings (those of ``benchmarks/bench_real_data.py``):
 #: 2 x 2 x 2 sub-volumes; pose, k1, principal point and window tilt refined per camera; soft-L1 scale 1 px; four
 #: passes of shrinking (epipolar, radius, keep) tolerances, px; the body as cameras 3-4 see it (from its other side)
-#: offset along its normal by a refined distance (``body_sides``; test_cavity: 1.8-2.0 mm, docs/reconstruction.md)
+#: offset along its normal by a refined distance (``body_sides``; test_cavity: 1.8-2.0 mm, docs/validation/reconstruction.md)
 SELFCAL_SETTINGS = {"grid": (2, 2, 2), "free": ("pose", "k1", "principal_point", "window_tilt"), "f_scale_px": 1.0,
                     "schedule": ((4.0, 3.0, 1.5), (3.0, 2.0, 1.0), (2.0, 1.5, 0.7), (1.5, 1.0, 0.5)),
                     "body_sides": True}

@@ -179,7 +179,7 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
         inverse of its noise as re-simulated i.i.d. marker noise predicts; smoothed data and
         ``optimizer="lsq"`` only, else the paper's cost). "noise" halves the errors on i.i.d. marker
         noise but not on rendered sessions, whose low-pressure steps carry systematic errors it does
-        not model (docs/identification.md "Noise").
+        not model (docs/validation/identification.md "Noise").
     check : run the setting checks (``identification.checks``: end conditions and wall form
         against the data's own evidence) and add their warnings to the flags.
     invoked_by : recorded in the result's attributes (e.g. "identify", "reprocess").

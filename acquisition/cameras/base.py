@@ -204,7 +204,7 @@ class Camera(ABC):
     def _grab(self, timeout: float) -> tuple[np.ndarray, float, int]:
         """Return ``(pixels, device_timestamp or NaN, frame_id or -1)``."""
 
-    def _close(self) -> None:
+    def _close(self) -> None:  # noqa: B027 (a hook: cameras with nothing to release keep it empty)
         """Release the device."""
 
     def _require_open(self) -> None:

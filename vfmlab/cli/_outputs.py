@@ -45,7 +45,7 @@ def _session_note(path: Path) -> str:
     """' being recorded right now (writer pid N)' when a live writer is recording it, else ''."""
     from acquisition.session import SessionError, open_session
 
-    for attempt in range(3):
+    for _attempt in range(3):
         try:
             with open_session(path) as s:
                 if s.status == "running":

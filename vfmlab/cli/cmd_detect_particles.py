@@ -72,7 +72,7 @@ def _write_csv(out: Path, rows: list) -> None:
                    "brightest pixel (of the image or of the image smoothed by a 1 px Gaussian), a 2-D Gaussian "
                    "fit on 5 x 5 px with touching neighbours fitted jointly, or hybrid (the 2-D fit for particles "
                    "split from a blob, the centroid for the others). More precise on synthetic particles; on "
-                   "test_cavity's real images the centroid gives the most real matches (docs/reconstruction.md, "
+                   "test_cavity's real images the centroid gives the most real matches (docs/validation/reconstruction.md, "
                    "'Particle centres').")
 @click.option("-o", "--out", "out", type=click.Path(dir_okay=False, path_type=Path),
               help="Write the particles as CSV: image,u_px,v_px,diameter_px,contrast (OpenCV pixels).")

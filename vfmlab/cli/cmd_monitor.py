@@ -29,7 +29,7 @@ _NAMES = {"pressure": "pressure transducer", "force": "load cell"}
 
 def _record(channel: str, sample, device_unit: str | None) -> dict:
     row = {"channel": channel, "seq": sample.seq, "t_monotonic": sample.t_monotonic, "t_wall": sample.t_wall,
-           "time": _dt.datetime.fromtimestamp(sample.t_wall, _dt.timezone.utc).isoformat(timespec="milliseconds")}
+           "time": _dt.datetime.fromtimestamp(sample.t_wall, _dt.UTC).isoformat(timespec="milliseconds")}
     if channel == "pressure":
         row.update(value=sample.value, unit="Pa", mmHg=sample.value / MMHG_PA, kPa=sample.value / 1e3)
     else:

@@ -167,7 +167,7 @@ def _sec_protocol(ctx: _Context, rep: _Report) -> str:
         out.append(_absent("No step was captured."))
     events = s.events()
     if events:
-        rows = [[_dt.datetime.fromtimestamp(e["time"], _dt.timezone.utc).strftime("%Y-%m-%d %H:%M:%S"), e["kind"],
+        rows = [[_dt.datetime.fromtimestamp(e["time"], _dt.UTC).strftime("%Y-%m-%d %H:%M:%S"), e["kind"],
                  e["message"]] for e in events[:50]]
         out.append("<p>Events (operator notes, pauses, faults):</p>" + _table(["time (UTC)", "kind", "message"], rows))
     return "".join(out)
@@ -526,7 +526,7 @@ def build_report(session_path: str | Path, out_dir: str | Path | None = None, *,
 
 
 def _page(specimen: str, session_path: Path, rep: _Report) -> str:
-    now = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    now = _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
     nav = "".join(f'<li><a href="#{a}">{html.escape(t)}</a></li>' for a, t, _ in rep.sections)
     body = "".join(f'<section id="{a}"><h2>{html.escape(t)}</h2>{b}</section>' for a, t, b in rep.sections)
     return (f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">'
