@@ -33,7 +33,8 @@ CANDIDATE_STRETCHES = (1.05, 1.1, 1.15, 1.2)
 class DesignSpecimen:
     """The specimen of a planned test (m): reference radius of the marker surface, wall, marked length.
 
-    ``marker_margin`` leaves unmarked length at each cannula; ``wall`` and ``force_measures`` as ``TubeGeometry``.
+    ``marker_margin`` leaves unmarked length at each cannula; ``wall`` and ``force_measures`` as ``TubeGeometry``;
+    ``fixed``: which point does not move when the stretch is set (``uniform_markers``: one cannula, "end").
     """
 
     radius: float
@@ -42,6 +43,7 @@ class DesignSpecimen:
     wall: str = "membrane"
     force_measures: str = "wall"
     marker_margin: float = 0.0
+    fixed: str = "end"
 
     def geometry(self) -> TubeGeometry:
         return TubeGeometry(self.radius, self.thickness, self.wall, self.force_measures)
@@ -105,7 +107,7 @@ def design(protocol_steps, specimen: DesignSpecimen, model: str = "fung", params
         params = PAPER_TABLE1[model.name]
     params = model.check_parameters(params)
     steps = _as_steps(protocol_steps)
-    theta, z = uniform_markers(int(n_markers), specimen.length, margin=specimen.marker_margin)
+    theta, z = uniform_markers(int(n_markers), specimen.length, margin=specimen.marker_margin, fixed=specimen.fixed)
     experiment = TubeExperiment(specimen.geometry(), steps, theta, z, noise, stretch_per)
     bound = cramer_rao_bound(model, params, experiment)
     return DesignResult(model.name, params, bound.half_width_percent(), bound, int(n_markers), steps)

@@ -243,19 +243,24 @@ def solve_lam_theta(model, params, steps: TubeSteps, geometry: TubeGeometry, *, 
     return 0.5 * (a + b)
 
 
-def uniform_markers(n_markers: int, length: float, *, margin: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+def uniform_markers(n_markers: int, length: float, *, margin: float = 0.0,
+                    fixed: str = "end") -> tuple[np.ndarray, np.ndarray]:
     """Quasi-uniform marker layout (a Fibonacci lattice) over the whole circumference and the marked length.
 
-    Returns ``theta`` (n,) rad and ``Z`` (n,) m, Z in [margin, length - margin]: measured from the fixed cannula,
-    the end that does not move when the other one sets the axial stretch.
+    Returns ``theta`` (n,) rad and ``Z`` (n,) m measured from the point that does not move axially: with
+    ``fixed="end"`` (one cannula fixed, the other sets the stretch) Z is in [margin, length - margin]; with
+    ``fixed="centre"`` (both cannulae move, as ``rig_sim``) in [-length/2 + margin, length/2 - margin].
     """
     if n_markers < 1:
         raise ValueError(f"n_markers must be >= 1; got {n_markers!r}")
     if not (0 <= margin < 0.5 * length):
         raise ValueError(f"margin must be in [0, length/2={0.5 * length}) m; got {margin!r}")
+    if fixed not in ("end", "centre"):
+        raise ValueError(f"fixed must be 'end' or 'centre'; got {fixed!r}")
     k = np.arange(n_markers)
     theta = np.mod(k * np.pi * (3.0 - np.sqrt(5.0)), 2.0 * np.pi)
-    return theta, margin + (length - 2.0 * margin) * (k + 0.5) / n_markers
+    z = margin + (length - 2.0 * margin) * (k + 0.5) / n_markers
+    return theta, z - 0.5 * length if fixed == "centre" else z
 
 
 def axis_rotation(tilt_x: float, tilt_y: float) -> np.ndarray:
