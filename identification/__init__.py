@@ -10,11 +10,15 @@ Typical use::
 """
 
 from .curves import StressStrainCurves, laplace_curves
+from .design import PAPER_TABLE1, DesignResult, DesignSpecimen, Suggestion, design, suggest_steps
 from .errors import DegenerateDataError, IdentificationError, MeshError
+from .information import BoundResult, TubeExperiment, cramer_rao_bound
 from .kinematics import Kinematics, align_steps, membrane_kinematics
 from .mesh import Axis, SurfaceMesh, build_mesh, fit_axis, to_cylindrical, to_trimesh
 from .models import Model, available_models, cauchy_stress, get_model, pk2_stress, strain_energy
 from .optimize import IdentificationResult, identify, identify_prepared, PAPER_INITIAL_GUESS
+from .tube_fit import TubeFitResult, TubeObservations, fit_tube, simulate_observations
+from .tube_forward import MeasurementNoise, TubeGeometry, TubeSteps, uniform_markers
 from .vfm import VFMData, internal_virtual_work, prepare
 from .virtual_fields import VirtualFields, paper_fields
 
@@ -24,4 +28,8 @@ __all__ = [
     "align_steps", "available_models", "build_mesh", "cauchy_stress", "fit_axis", "get_model", "identify",
     "identify_prepared", "internal_virtual_work", "laplace_curves", "membrane_kinematics", "paper_fields",
     "pk2_stress", "prepare", "strain_energy", "to_cylindrical", "to_trimesh",
+    # the Cramér-Rao bound of a homogeneous tube, its maximum-likelihood fit, and test design (issue 24)
+    "BoundResult", "DesignResult", "DesignSpecimen", "MeasurementNoise", "PAPER_TABLE1", "Suggestion",
+    "TubeExperiment", "TubeFitResult", "TubeGeometry", "TubeObservations", "TubeSteps", "cramer_rao_bound", "design",
+    "fit_tube", "simulate_observations", "suggest_steps", "uniform_markers",
 ]

@@ -29,7 +29,8 @@ from .tube_forward import MeasurementNoise, TubeGeometry, TubeSteps, solve_lam_t
 log = logging.getLogger(__name__)
 
 __all__ = ["TubeExperiment", "BoundResult", "cramer_rao_bound", "geometry_layout", "marker_jacobians",
-           "reduced_marker_information", "load_jacobian", "SINGULAR_CONDITION", "Z95"]
+           "reduced_marker_information", "load_jacobian", "information_matrix", "unknown_scales", "SINGULAR_CONDITION",
+           "Z95"]
 
 #: Condition number (of the information scaled by the unknowns' magnitudes) above which the bound is not trusted.
 SINGULAR_CONDITION = 1e12
@@ -216,7 +217,7 @@ def load_jacobian(model, params: dict, experiment: TubeExperiment, lam_theta, re
     return y0, jac
 
 
-def _scales(params_values: np.ndarray, radius: float, n_geometry: int, k: int, m: int) -> np.ndarray:
+def unknown_scales(params_values: np.ndarray, radius: float, n_geometry: int, k: int, m: int) -> np.ndarray:
     """Magnitudes that make the unknowns dimensionless (parameters, R, stretches, axis)."""
     par = np.where(np.abs(params_values) > 0, np.abs(params_values), 1.0)
     axis = np.array([radius, radius, 1.0, 1.0, radius])
@@ -271,7 +272,7 @@ def cramer_rao_bound(model, params, experiment: TubeExperiment) -> BoundResult:
     info, names = information_matrix(model, params, experiment)
     n_p, k = len(model.parameter_names), experiment.steps.n_steps
     values = np.array([params[p] for p in model.parameter_names])
-    d = _scales(values, experiment.geometry.radius, len(names) - n_p, k, int(experiment.stretch_index.max()) + 1)
+    d = unknown_scales(values, experiment.geometry.radius, len(names) - n_p, k, int(experiment.stretch_index.max()) + 1)
     scaled = info * np.outer(d, d)  # the information of the dimensionless unknowns x / d
     eig = np.linalg.eigvalsh(scaled)
     condition = float(eig[-1] / eig[0]) if eig[0] > 0 else float("inf")

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from .information import AXIS_NAMES, TubeExperiment, _scales
+from .information import AXIS_NAMES, TubeExperiment, unknown_scales
 from .models import get_model
 from .tube_forward import axis_rotation, marker_positions, solve_lam_theta, tube_loads
 
@@ -158,7 +158,7 @@ def fit_tube(model, observations: TubeObservations, experiment: TubeExperiment, 
     g0 = _initial_geometry(pos, steps.stretch)
     lz0 = np.array([g0[1 + k:1 + 2 * k][idx == j].mean() for j in range(m)])
     x_si = np.concatenate([[start[p] for p in names], g0[:1 + k], lz0, g0[1 + 2 * k:]])
-    d = _scales(np.array([start[p] for p in names]), geo.radius, 1 + k + m + 5, k, m)
+    d = unknown_scales(np.array([start[p] for p in names]), geo.radius, 1 + k + m + 5, k, m)
     sp, sf = noise.load_sigma(observations.pressure, observations.force)
 
     def unpack(x):

@@ -6,10 +6,7 @@ The edge between the files (``acquisition.protocol``) and the pure prediction (`
 from __future__ import annotations
 
 from acquisition.protocol import Protocol, SpecimenFile
-from identification.design import PAPER_TABLE1, DesignSpecimen, suggest_steps
-from identification.information import Z95
-from identification.models import get_model
-from identification.tube_forward import MeasurementNoise
+from identification import PAPER_TABLE1, DesignSpecimen, MeasurementNoise, get_model, suggest_steps
 
 __all__ = ["protocol_blocks", "parse_parameters", "design_report"]
 
@@ -61,7 +58,8 @@ def design_report(protocol: Protocol, specimen: SpecimenFile, *, model: str = "f
         "blocks": [{"stretch": s, "pressures_Pa": list(p)} for s, p in blocks],
         "parameters": dict(params), "units": dict(zip(m.parameter_names, m.units)),
         "std_SI": dict(bound.std), "std_percent": dict(bound.std_percent),
-        "half_width_95_percent": dict(before.half_width), "z_95": Z95,
+        "half_width_95_percent": dict(before.half_width),
+        "half_width_95_SI": {p: before.half_width[p] / 100.0 * abs(v) for p, v in params.items()},
         "condition": bound.condition, "singular": bound.singular, "warning": bound.warning,
         "suggestions": [{"label": s.label, "added_blocks": [{"stretch": st, "pressures_Pa": list(p)}
                                                             for st, p in s.added_blocks],

@@ -82,7 +82,7 @@ def _print(report: dict) -> None:
     for p in names:
         unit = report["units"][p]
         table.add_row(p, _shown(report["parameters"][p], unit), f"{num(report['half_width_95_percent'][p], 3)} %",
-                      _shown(report["z_95"] * report["std_SI"][p], unit))
+                      _shown(report["half_width_95_SI"][p], unit))
     console.print(table)
     if report["warning"]:
         console.print(f"[bold yellow]Warning:[/] {esc(report['warning'])}")
