@@ -8,7 +8,8 @@ form, scipy least_squares on the rest) from the model's generic initial guess. R
 (for the simulator's layout), the RMS error and standard deviation over the seeds, their ratio to the bound, the
 bias, and the efficiency bound^2 / RMS^2.
 
-Run: ``python -m benchmarks.bench_bound [--seeds 100] [--models fung,delfino,hgo]`` (about 5 minutes on one core).
+Run: ``python -m benchmarks.bench_bound [--seeds 100] [--models fung,delfino,hgo] [--bound-only]`` (about 6 minutes
+on one core; the bound table alone, seconds).
 Prints the Markdown tables of docs/validation/bound.md.
 """
 
@@ -25,7 +26,7 @@ import numpy as np  # noqa: E402
 from identification.information import TubeExperiment, cramer_rao_bound  # noqa: E402
 from identification.models import get_model  # noqa: E402
 from identification.tube_fit import TubeObservations, fit_tube  # noqa: E402
-from identification.tube_forward import MeasurementNoise, TubeGeometry, TubeSteps  # noqa: E402
+from identification.tube_forward import MeasurementNoise, TubeGeometry, TubeSteps, uniform_markers  # noqa: E402
 from rig_sim.mechanics import PAPER_PARAMETERS, PAPER_PRESSURES, simulate_test  # noqa: E402
 
 R, H, L = 10e-3, 1.3e-3, 35e-3
@@ -80,13 +81,54 @@ def table(case: dict) -> str:
     return "\n".join(lines)
 
 
+#: (label, model, stretches, markers, sigma [m], wall, stretch_per, margin [m], exact loads, reference figures)
+BOUND_CASES = [
+    ("one stretch 1.1", "fung", (1.1,), 300, 0.17e-3, "membrane", "step", 0.0, False, "2.75 1.24 2.92 72"),
+    ("one stretch 1.1", "delfino", (1.1,), 300, 0.17e-3, "membrane", "step", 0.0, False, "1.61 0.51"),
+    ("one stretch 1.1", "hgo", (1.1,), 300, 0.17e-3, "membrane", "step", 0.0, False, "14.5 2.26 1.28 0.13"),
+    ("0.05 mm", "fung", (1.1,), 300, 0.05e-3, "membrane", "step", 0.0, False, "0.88 0.40 0.97"),
+    ("0.01 mm", "fung", (1.1,), 300, 0.01e-3, "membrane", "step", 0.0, False, "0.31 0.14 0.48"),
+    ("3 stretches 1.05/1.1/1.15", "fung", (1.05, 1.1, 1.15), 300, 0.17e-3, "membrane", "step", 0.0, False,
+     "1.04 0.63 0.89 22"),
+    ("10,000 points", "fung", (1.1,), 10000, 0.17e-3, "membrane", "step", 0.0, False, "0.57 0.26 0.68"),
+    ("central 27 mm marked", "fung", (1.1,), 300, 0.17e-3, "membrane", "step", 4e-3, False, "2.83 – 3.36"),
+    ("one stretch per block", "fung", (1.1,), 300, 0.17e-3, "membrane", "block", 0.0, False, "2.35 – 2.50"),
+    ("thick wall", "fung", (1.1,), 300, 0.17e-3, "thick", "step", 0.0, False, "2.86 – 2.98"),
+    ("exact loads, one stretch per block", "fung", (1.1,), 300, 0.17e-3, "membrane", "block", 0.0, True,
+     "singular (cond ~1e15)"),
+]
+
+
+def bound_table() -> str:
+    """The bound (std, % of value) of the cases of the independent computation, with its figures beside."""
+    lines = ["| case | model | bound, std % of value (parameters in model order) | condition | time (s) | "
+             "independent computation |", "|---|---|---|---|---|---|"]
+    for label, model, stretches, n, sigma, wall, per, margin, exact, ref in BOUND_CASES:
+        theta, z = uniform_markers(n, L, margin=margin)
+        noise = MeasurementNoise(sigma, 0.0, 0.0, 0.0) if exact else MeasurementNoise(sigma)
+        steps = TubeSteps.from_blocks([(s, PAPER_PRESSURES) for s in stretches])
+        t0 = time.perf_counter()
+        b = cramer_rao_bound(model, PAPER_PARAMETERS[model], TubeExperiment(TubeGeometry(R, H, wall=wall), steps,
+                                                                         theta, z, noise, per))
+        dt = time.perf_counter() - t0
+        shown = " ".join(f"{p} {v:.3g}" for p, v in b.std_percent.items())
+        lines.append(f"| {label} | {model} | {shown}{' (singular)' if b.singular else ''} | {b.condition:.2g} | "
+                     f"{dt:.2f} | {ref} |")
+    return "\n".join(lines)
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=100)
     parser.add_argument("--models", default="fung,delfino,hgo")
     parser.add_argument("--sigma-mm", type=float, default=0.17)
+    parser.add_argument("--bound-only", action="store_true", help="only the bound table (seconds)")
     args = parser.parse_args(argv)
     t0 = time.perf_counter()
+    print("## The bound at the independent computation's cases (layout: uniform_markers, fixed cannula at Z = 0)\n")
+    print(bound_table(), flush=True)
+    if args.bound_only:
+        return
     for model in args.models.split(","):
         print(table(monte_carlo(model, n_seeds=args.seeds, sigma=args.sigma_mm * 1e-3)), flush=True)
     print(f"\nTotal {time.perf_counter() - t0:.0f} s.")

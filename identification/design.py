@@ -15,7 +15,7 @@ from .information import BoundResult, TubeExperiment, cramer_rao_bound
 from .models import get_model
 from .tube_forward import MeasurementNoise, TubeGeometry, TubeSteps, uniform_markers
 
-__all__ = ["PAPER_TABLE1", "DesignSpecimen", "DesignResult", "Suggestion", "design", "suggest_steps",
+__all__ = ["PAPER_NOISE", "PAPER_TABLE1", "DesignSpecimen", "DesignResult", "Suggestion", "design", "suggest_steps",
            "CANDIDATE_STRETCHES"]
 
 #: The seed paper's Table 1 (Avril et al. 2010), SI: the default law of a prediction.
@@ -25,6 +25,8 @@ PAPER_TABLE1: dict[str, dict[str, float]] = {
     "hgo": {"c": 0.4e3, "k1": 8.7e3, "k2": 5.4, "phi": math.radians(27.0)},
     "neohookean": {"mu": 300.0e3},
 }
+#: The seed paper's marker accuracy, 0.1 % readings (floors 3 Pa, 2 mN): the default noise of a prediction.
+PAPER_NOISE = MeasurementNoise(0.17e-3)
 #: Axial stretches tried as added blocks by ``suggest_steps``.
 CANDIDATE_STRETCHES = (1.05, 1.1, 1.15, 1.2)
 
@@ -80,7 +82,7 @@ def _as_steps(protocol_steps) -> TubeSteps:
 
 
 def design(protocol_steps, specimen: DesignSpecimen, model: str = "fung", params=None, n_markers: int = 300,
-           noise: MeasurementNoise = MeasurementNoise(0.17e-3), stretch_per: str = "step") -> DesignResult:
+           noise: MeasurementNoise = PAPER_NOISE, stretch_per: str = "step") -> DesignResult:
     """The 95 % half-width each parameter can reach with a protocol.
 
     Parameters
@@ -136,7 +138,7 @@ def _candidates(blocks, n_markers: int, stretches, more_markers: int):
 
 
 def suggest_steps(protocol_steps, specimen: DesignSpecimen, model: str = "fung", params=None, n_markers: int = 300,
-                  noise: MeasurementNoise = MeasurementNoise(0.17e-3), *, target=None,
+                  noise: MeasurementNoise = PAPER_NOISE, *, target=None,
                   stretches=CANDIDATE_STRETCHES, more_markers: int | None = None) -> tuple[DesignResult, list]:
     """Evaluate added blocks (another stretch with the same pressure levels, two more, more markers).
 
@@ -173,6 +175,9 @@ def suggest_steps(protocol_steps, specimen: DesignSpecimen, model: str = "fung",
         unknown = sorted(set(goal) - set(before.half_width))
         if unknown:
             raise ValueError(f"target names parameters {unknown} that model {before.model!r} does not have")
-        reach = lambda s: all(s.half_width[p] <= t for p, t in goal.items())  # noqa: E731
+
+        def reach(s: Suggestion) -> bool:
+            return all(s.half_width[p] <= t for p, t in goal.items())
+
         out.sort(key=lambda s: (not reach(s), s.n_added_steps if reach(s) else 0, s.score))
     return before, out

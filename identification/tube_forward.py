@@ -104,7 +104,7 @@ class TubeSteps:
         object.__setattr__(self, "block", b)
 
     @classmethod
-    def from_blocks(cls, blocks) -> "TubeSteps":
+    def from_blocks(cls, blocks) -> TubeSteps:
         """Steps from ``[(stretch, pressures), ...]``: one block of pressure levels per axial stretch."""
         p, s, b = [], [], []
         for i, (stretch, pressures) in enumerate(blocks):

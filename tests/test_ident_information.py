@@ -14,11 +14,18 @@ import pytest
 from click.testing import CliRunner
 
 from identification.design import PAPER_TABLE1, DesignSpecimen, design, suggest_steps
-from identification.information import (TubeExperiment, cramer_rao_bound, geometry_layout, information_matrix)
+from identification.information import TubeExperiment, cramer_rao_bound, geometry_layout, information_matrix
 from identification.models import get_model
 from identification.tube_fit import fit_tube, simulate_observations
-from identification.tube_forward import (MeasurementNoise, TubeGeometry, TubeSteps, marker_positions,
-                                         solve_lam_theta, tube_loads, uniform_markers)
+from identification.tube_forward import (
+    MeasurementNoise,
+    TubeGeometry,
+    TubeSteps,
+    marker_positions,
+    solve_lam_theta,
+    tube_loads,
+    uniform_markers,
+)
 from rig_sim.mechanics import PAPER_PARAMETERS, PAPER_PRESSURES, inflate_membrane, inflate_thick
 from vfmlab.cli import cli
 
