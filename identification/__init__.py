@@ -11,14 +11,18 @@ Typical use::
 
 from .checks import check_setup
 from .curves import StressStrainCurves, laplace_curves
+from .design import PAPER_TABLE1, DesignResult, DesignSpecimen, Suggestion, design, suggest_steps
 from .errors import DegenerateDataError, IdentificationError, MeshError
 from .fit import PAPER_INITIAL_GUESS, identify_prepared
+from .information import BoundResult, TubeExperiment, cramer_rao_bound
 from .kinematics import Kinematics, align_steps, membrane_kinematics
 from .mesh import Axis, SurfaceMesh, build_mesh, describe_dropped, fit_axis, to_cylindrical, to_trimesh
 from .models import Model, available_models, cauchy_stress, get_model, pk2_stress, strain_energy
 from .optimize import identify, identify_noise_weighted
 from .regional import RegionalData, RegionalResult, identify_regional, prepare_regional
 from .regional_uncertainty import choose_bands, with_bootstrap
+from .tube_fit import TubeFitResult, TubeObservations, fit_tube, simulate_observations
+from .tube_forward import MeasurementNoise, TubeGeometry, TubeSteps, uniform_markers
 from .result import IdentificationResult
 from .uncertainty import Uncertainty, bootstrap
 from .vfm import PrepareSettings, VFMData, internal_virtual_work, prepare
@@ -32,4 +36,8 @@ __all__ = [
     "identify", "identify_noise_weighted", "identify_prepared", "identify_regional", "internal_virtual_work",
     "laplace_curves", "membrane_kinematics", "paper_fields", "pk2_stress", "prepare", "prepare_regional",
     "strain_energy", "to_cylindrical", "to_trimesh", "with_bootstrap",
+    # the Cramér-Rao bound of a homogeneous tube, its maximum-likelihood fit, and test design (issue 24)
+    "BoundResult", "DesignResult", "DesignSpecimen", "MeasurementNoise", "PAPER_TABLE1", "Suggestion",
+    "TubeExperiment", "TubeFitResult", "TubeGeometry", "TubeObservations", "TubeSteps", "cramer_rao_bound", "design",
+    "fit_tube", "simulate_observations", "suggest_steps", "uniform_markers",
 ]

@@ -35,6 +35,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "calibrate": ("cmd_calibrate", "Calibrate the cameras from calibration-board images."),
     "reconstruct": ("cmd_reconstruct", "Reconstruct and track 3-D marker positions in a session."),
     "identify": ("cmd_identify", "Identify constitutive parameters with the Virtual Fields Method."),
+    "design": ("cmd_design", "Predict how precisely a protocol can identify a law, and which added steps help."),
     "reprocess": ("cmd_reprocess", "Re-run stages on stored sessions with new settings."),
     "results": ("cmd_results", "List and compare derived results stored in a session."),
     "report": ("cmd_report", "Write an HTML report with figures for a session."),

@@ -1,0 +1,69 @@
+"""``vfmlab design``'s work: a protocol and a specimen (parsed files) -> what the test can identify, and what helps.
+
+The edge between the files (``acquisition.protocol``) and the pure prediction (``identification.design``).
+"""
+
+from __future__ import annotations
+
+from acquisition.protocol import Protocol, SpecimenFile
+from identification import PAPER_TABLE1, DesignSpecimen, MeasurementNoise, get_model, suggest_steps
+
+__all__ = ["protocol_blocks", "parse_parameters", "design_report"]
+
+
+def protocol_blocks(protocol: Protocol) -> list[tuple[float, tuple[float, ...]]]:
+    """The loaded blocks ``[(stretch, pressures [Pa]), ...]`` of a protocol (its stress-free reference left out)."""
+    blocks = protocol.blocks[1:] if protocol.has_reference else protocol.blocks
+    if not blocks:
+        raise ValueError(f"{protocol.source}: the protocol has no loaded block to design")
+    return [(float(b.stretch), tuple(float(p) for p in b.pressures)) for b in blocks]
+
+
+def parse_parameters(model: str, text: str | None) -> dict[str, float]:
+    """``"beta=5000,alpha11=14.5"`` (SI) over the seed paper's Table 1 values of ``model``."""
+    m = get_model(model)
+    values = dict(PAPER_TABLE1.get(m.name, m.initial_guess))
+    for item in filter(None, (s.strip() for s in (text or "").split(","))):
+        name, sep, value = item.partition("=")
+        name = name.strip()
+        if not sep or name not in m.parameter_names:
+            raise ValueError(f"--params: expected NAME=VALUE with NAME in {list(m.parameter_names)}; got {item!r}")
+        try:
+            values[name] = float(value)
+        except ValueError:
+            raise ValueError(f"--params: {name} must be a number (SI); got {value.strip()!r}") from None
+    return m.check_parameters(values)
+
+
+def design_report(protocol: Protocol, specimen: SpecimenFile, *, model: str = "fung", params: dict | None = None,
+                  n_markers: int = 300, noise_m: float = 0.17e-3, wall: str = "membrane",
+                  force_measures: str = "wall") -> dict:
+    """The prediction of a test, as plain data with SI keys.
+
+    Returns a dict: ``model``, ``parameters`` (SI), ``units``, ``half_width_95_percent`` and ``std_percent``
+    per parameter, ``condition``, ``warning``, and ``suggestions``: each candidate addition with its
+    half-widths, best first.
+    """
+    m = get_model(model)
+    params = params if params is not None else parse_parameters(m.name, None)
+    spec = DesignSpecimen(specimen.radius, specimen.thickness, specimen.length, wall, force_measures)
+    noise = MeasurementNoise(noise_m)
+    blocks = protocol_blocks(protocol)
+    before, suggestions = suggest_steps(blocks, spec, m.name, params, n_markers, noise)
+    bound = before.bound
+    return {
+        "model": m.name, "wall": wall, "force_measures": force_measures, "n_markers": n_markers,
+        "marker_noise_m": noise_m, "load_noise_relative": noise.load_relative,
+        "pressure_floor_Pa": noise.pressure_floor, "force_floor_N": noise.force_floor,
+        "blocks": [{"stretch": s, "pressures_Pa": list(p)} for s, p in blocks],
+        "parameters": dict(params), "units": dict(zip(m.parameter_names, m.units)),
+        "std_SI": dict(bound.std), "std_percent": dict(bound.std_percent),
+        "half_width_95_percent": dict(before.half_width),
+        "half_width_95_SI": {p: before.half_width[p] / 100.0 * abs(v) for p, v in params.items()},
+        "condition": bound.condition, "singular": bound.singular, "warning": bound.warning,
+        "suggestions": [{"label": s.label, "added_blocks": [{"stretch": st, "pressures_Pa": list(p)}
+                                                            for st, p in s.added_blocks],
+                         "n_markers": s.n_markers, "n_added_steps": s.n_added_steps,
+                         "half_width_95_percent": dict(s.half_width), "score": s.score} for s in suggestions],
+    }
+
