@@ -55,7 +55,7 @@ class _Synth:
 
     def __init__(self, model):
         sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-        from ident_clamped_synth import clamped_tube
+        from rig_sim.clamped_reference import clamped_tube
 
         pos, p, f = clamped_tube(model, params_of(model), np.array([15.0, 30.0, 45.0, 60.0, 75.0, 90.0]) * 133.322387415)
         self.positions = self.exact_positions = pos

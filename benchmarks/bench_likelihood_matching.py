@@ -46,8 +46,8 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import bench_real_data as B  # noqa: E402
-from reconstruction import likelihood_matching as L  # noqa: E402
-from reconstruction.temporal_matching import persistence_support  # noqa: E402
+from benchmarks.research import likelihood_matching as L  # noqa: E402
+from benchmarks.research.temporal_matching import persistence_support  # noqa: E402
 from vfmlab import openptv  # noqa: E402
 
 #: candidates' gates (epipolar_px, radius_px, max_residual_px): the matching over time's loose gates

@@ -39,9 +39,9 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import bench_real_data as B  # noqa: E402
 from reconstruction.correspondence import match_views, observed_pixels  # noqa: E402
-from reconstruction.mapping_correction import (correction_at, correction_basis, corrected_cameras,  # noqa: E402
+from benchmarks.research.mapping_correction import (correction_at, correction_basis, corrected_cameras,  # noqa: E402
                                                fit_mapping_correction, held_out_rms, polynomial_basis)
-from reconstruction.temporal_matching import (apply_pixel_correction, fit_pixel_correction,  # noqa: E402
+from benchmarks.research.temporal_matching import (apply_pixel_correction, fit_pixel_correction,  # noqa: E402
                                               temporal_match)
 from reconstruction.triangulation import triangulate  # noqa: E402
 from reconstruction.volume_selfcal import disparity_map, loose_candidates  # noqa: E402

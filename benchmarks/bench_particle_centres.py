@@ -48,7 +48,7 @@ SYNTHETIC = [(150, 0), (400, 0), (150, 1), (400, 1), (400, 2)]
 def synthetic() -> dict:
     """Centre error (px) per estimator on the blobs of SYNTHETIC's images (DETECTION's settings), isolated
     particles (no true neighbour within 5 px) and touching ones; the true centre assigned by the centroid."""
-    from _synthetic_particles import particle_image
+    from rig_sim.particle_images import particle_image
 
     err = {c: {"isolated": [], "touching": []} for c in CENTRE_ESTIMATORS}
     for n, seed in SYNTHETIC:
@@ -81,7 +81,7 @@ def residuals(cams: list, dets: dict) -> dict:
     centres (the same detections in the same cameras: the same particles), re-triangulated per estimator:
     residual per camera, raw and after the estimator's own pixel correction, and its frame-to-frame change
     along tracks (links: mutual nearest 3-D points within TEMPORAL's step, the centroids' points)."""
-    from reconstruction.temporal_matching import apply_pixel_correction, fit_pixel_correction, match_over_time
+    from benchmarks.research.temporal_matching import apply_pixel_correction, fit_pixel_correction, match_over_time
 
     opts = {**B.TEMPORAL, "max_residual_change_px": float("inf"), "degree": 0}
     runs = {c: match_over_time(f, cams, B.selfcal_bounds(), **opts)[0].observations for c, f in dets.items()}
@@ -155,7 +155,7 @@ def _residual_figures(res: list, links: list) -> dict:
 def matching(cams: list, dense: dict, bright: dict, frames: list[int]) -> dict:
     """Real vs decoy per estimator: over time (TEMPORAL on ``dense``, frames 0-4) and one frame at a time
     (``bright``: OpenPTV's particle settings, frames ``frames``) with SELFCAL_GATES and TIGHT_GATES."""
-    from reconstruction.temporal_matching import match_over_time
+    from benchmarks.research.temporal_matching import match_over_time
 
     bounds = B.selfcal_bounds()
     out = {}

@@ -232,7 +232,7 @@ TEMPORAL_VARIANTS = {"second difference <= 0.4 mm": {"max_accel_m": 0.4e-3},
 def temporal_variants(frames: list[int], cams: list) -> dict:
     """Per TEMPORAL_VARIANTS entry and frame of ``frames``: points seen by >= 3 cameras, >= 3-view matches with
     camera 1, real and decoy, and the reprojection RMS (px)."""
-    from reconstruction.temporal_matching import match_over_time
+    from benchmarks.research.temporal_matching import match_over_time
 
     bounds = selfcal_bounds()
     dets = [openptv.detect_frame(DATA, f, **DETECTION) for f in TEMPORAL_FRAMES]
@@ -254,7 +254,7 @@ def temporal(frames: list[int], cams: list) -> tuple[dict, dict]:
     camera 1's detections moved by DECOY_SHIFT_PX in every frame (the whole pipeline, correction included), per
     frame of ``frames``; diagnostics: without the pixel correction, the correction's size, and per frame the
     true >= 3-view matches with camera 1 among the single-frame candidates (estimated from the decoy)."""
-    from reconstruction.temporal_matching import match_over_time
+    from benchmarks.research.temporal_matching import match_over_time
 
     bounds = selfcal_bounds()
     dets = [openptv.detect_frame(DATA, f, **DETECTION) for f in TEMPORAL_FRAMES]
@@ -302,7 +302,7 @@ def likelihood_matching(frames: list[int], cams: list) -> tuple[dict, dict, dict
 
 def _correction_max(coef, sizes) -> list[float]:
     """Largest correction (px) of each camera over a 33 x 33 lattice of its image."""
-    from reconstruction.temporal_matching import apply_pixel_correction
+    from benchmarks.research.temporal_matching import apply_pixel_correction
 
     grids = [np.stack(np.meshgrid(np.linspace(0, W - 1, 33), np.linspace(0, H - 1, 33)), -1).reshape(-1, 2)
              for W, H in sizes]
@@ -332,7 +332,7 @@ def _true_candidates(dets: list, decoy: list, cams: list, bounds) -> dict:
     """Single-frame candidates (frame_candidates) with camera 1, per gate set (epipolar, radius, residual px): camera 1
     detections taking part, real and decoy, and the true ones estimated as (real - decoy) / (1 - decoy / n_cam1)
     (a detection with a true match also takes part by chance at the decoy's rate)."""
-    from reconstruction.temporal_matching import frame_candidates
+    from benchmarks.research.temporal_matching import frame_candidates
 
     out = {}
     for g in (TEMPORAL["gates"], TEMPORAL["loose_gates"]):
@@ -438,7 +438,7 @@ def openptv_persistence() -> dict:
     track, with TEMPORAL's criteria (links <= max_step_m, second difference <= max_accel_m, motion >=
     min_motion_m; no residual test: OpenPTV's pixel lists are not in the data set), by number of cameras.
     The decoy: the same points shifted by PERSISTENCE_DECOY_SHIFT_M (what chance neighbours give)."""
-    from reconstruction.temporal_matching import link_frames, smooth_triplets
+    from benchmarks.research.temporal_matching import link_frames, smooth_triplets
 
     res = {f: openptv_result(f) for f in range(1, 5)}
     kw = {"max_accel_m": TEMPORAL["max_accel_m"], "min_motion_m": TEMPORAL["min_motion_m"]}
@@ -518,7 +518,7 @@ def main(argv=None) -> int:
         return 0
     if a.rendered:
         sys.path.insert(0, str(ROOT / "tests"))
-        from _rendered_window import rendered_window_errors
+        from rig_sim.rendered_window import rendered_window_errors
 
         e = rendered_window_errors(image_size=(1224, 1024), n_markers=150)
         print(json.dumps(e) if a.json else f"rendered through 10 deg windows: 3-D RMS {e['window'] * 1e6:.2f} um with the "

@@ -252,7 +252,7 @@ def step_only(size, repeats):
 def rendered(n_steps=8):
     """The end-to-end figures of tests/test_recon_rendered.py (estimated calibration, 1224 x 1024, glare,
     debris, a hidden marker, a missing camera), before (serial whole-image detection) and after."""
-    from _recon_rendered import rendered_scene
+    from rig_sim.rendered_scene import rendered_scene
 
     cams, calib, frames, images, (R, t) = rendered_scene(n_steps)
     print("\n## Rendered end to end (tests/test_recon_rendered.py: estimated calibration, 6 cameras 1224x1024, "

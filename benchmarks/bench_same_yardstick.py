@@ -86,7 +86,7 @@ def ours(frame: int, cams: list, detection: dict, gates: dict) -> dict:
 def over_time(frames: list[int], cams: list) -> dict:
     """The matching over time (``bench_real_data.TEMPORAL`` on its DETECTION's particles of frames 0-4), real
     and with each camera's detections moved in every frame in turn (the whole pipeline, correction included)."""
-    from reconstruction.temporal_matching import match_over_time
+    from benchmarks.research.temporal_matching import match_over_time
 
     bounds = B.selfcal_bounds()
     dets = [openptv.detect_frame(B.DATA, f, **B.DETECTION) for f in B.TEMPORAL_FRAMES]
@@ -105,8 +105,8 @@ def likelihood(frames: list[int], cams: list) -> dict:
     (``likelihood``) and with the persistence bonus (``likelihood_over_time``); the decoy of each camera in turn
     through the same frozen model, threshold and bonus (moved in every frame)."""
     import bench_likelihood_matching as BL
-    from reconstruction import likelihood_matching as L
-    from reconstruction.temporal_matching import persistence_support
+    from benchmarks.research import likelihood_matching as L
+    from benchmarks.research.temporal_matching import persistence_support
 
     bounds, every = B.selfcal_bounds(), (BL.TRAIN_FRAME, *BL.FRAMES)
     opts = {"gates": BL.GATES, "density_radius_px": BL.DENSITY_RADIUS_PX}

@@ -4,7 +4,7 @@
 
 PART is hygiene, checks, fe, fe-convergence or all:
 
-hygiene : unsmoothed fits on independent closed-form tubes (tests/ident_synth.py, 300 uniformly random
+hygiene : unsmoothed fits on independent closed-form tubes (rig_sim/homogeneous_tube.py, 300 uniformly random
           markers, 0.01 mm noise on every marker of every step incl. the reference) for a grid of
           (near-duplicate fraction of the median spacing, sliver quality) thresholds; worst and median errors.
 checks  : detection rates of the setting checks (identification/checks.py) on rig_sim clamped / free membrane
@@ -41,7 +41,7 @@ JUDGED = {"fung": ("beta", "alpha11", "alpha22"), "hgo": ("k1", "k2", "phi"), "d
 
 
 def _closed_form(model, seed, noise):
-    from ident_synth import PAPER, homogeneous, lam_t_for_pressures
+    from rig_sim.homogeneous_tube import PAPER, homogeneous, lam_t_for_pressures
 
     ps = np.linspace(0, 20e3, 8)[1:]
     lt = np.concatenate([[1.0], lam_t_for_pressures(model, PAPER[model], ps, 1.1)])
@@ -51,7 +51,7 @@ def _closed_form(model, seed, noise):
 
 
 def bench_hygiene(n_seeds, noise=0.01e-3):
-    from ident_synth import E0
+    from rig_sim.homogeneous_tube import E0
 
     print(f"\n### Mesh hygiene: unsmoothed fits, {noise * 1e3:g} mm noise on every marker, {n_seeds} seeds\n")
     print("| duplicates < x spacing | slivers < quality | model | median error | worst error | fits off > 5 % "

@@ -1,7 +1,7 @@
 """The window refined in the board bundle adjustment, on rig_sim's renderings through a tank wall (issue 14).
 
 Three cameras look through one 6 mm glass wall (90 mm from camera 0, tilted 2 deg) into water at a ChArUco board
-at 170/200/230 mm with tilts up to 30 deg (``tests/_window_boards.py``); the views are rendered by rig_sim through
+at 170/200/230 mm with tilts up to 30 deg (``rig_sim/window_boards.py``); the views are rendered by rig_sim through
 the window, the board detected, the cameras calibrated jointly four ways:
 
 - ``nominal``: the true window, fixed;
@@ -33,8 +33,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
-from _calib_sim import rigid_fit  # noqa: E402
-from _window_boards import board_views, exact_views, render_views, specimen_points, wall_rig, wrong_window  # noqa: E402
+from rig_sim.calibration_scene import rigid_fit  # noqa: E402
+from rig_sim.window_boards import board_views, exact_views, render_views, specimen_points, wall_rig, wrong_window  # noqa: E402
 from reconstruction.calibration import calibrate_cameras, calibrate_from_detections  # noqa: E402
 from reconstruction.targets import BoardSpec, detect_boards  # noqa: E402
 from reconstruction.triangulation import triangulate  # noqa: E402

@@ -11,7 +11,7 @@ import pytest
 
 from identification import identify, prepare
 from identification.uncertainty import bootstrap, remeasured_mesh
-from ident_synth import PAPER, homogeneous, lam_t_for_pressures
+from rig_sim.homogeneous_tube import PAPER, homogeneous, lam_t_for_pressures
 
 MMHG = 133.322387415
 TRUTH = PAPER["fung"]
