@@ -13,7 +13,7 @@
 3. ``--part accuracy``: 3-D error and completeness against ground truth versus sensor noise and
    defocus blur (true calibration, reference step + one inflated step).
 
-Run:  OMP_NUM_THREADS=1 PYTHONPATH=. python benchmarks/bench_reconstruction.py [--quick] [--repeats 5]
+Run:  OMP_NUM_THREADS=1 python -m benchmarks.bench_reconstruction [--quick] [--repeats 5]
       [--part timing|step|profile|rendered|accuracy|all]
 """
 
@@ -33,11 +33,9 @@ import h5py
 import numpy as np
 from scipy.spatial import cKDTree
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-
-from reconstruction.correspondence import observed_pixels  # noqa: E402
-from reconstruction.detection import detect_markers  # noqa: E402
-from reconstruction.pipeline import (  # noqa: E402
+from reconstruction.correspondence import observed_pixels
+from reconstruction.detection import detect_markers
+from reconstruction.pipeline import (
     ReconstructionSettings,
     SeriesTracker,
     convergence_point,
@@ -48,10 +46,10 @@ from reconstruction.pipeline import (  # noqa: E402
     reconstruct_series,
     track_series,
 )
-from reconstruction.surface import marker_surface_points, surface_normals  # noqa: E402
-from reconstruction.tracking import match_step  # noqa: E402
-from reconstruction.triangulation import triangulate  # noqa: E402
-from rig_sim import SensorModel, camera_ring, deform_cylinder, random_marker_layout, render_markers  # noqa: E402
+from reconstruction.surface import marker_surface_points, surface_normals
+from reconstruction.tracking import match_step
+from reconstruction.triangulation import triangulate
+from rig_sim import SensorModel, camera_ring, deform_cylinder, random_marker_layout, render_markers
 
 
 def _frames(cams, sensor=SensorModel(), n_steps=2, seed=0):

@@ -1,6 +1,6 @@
 """Issue 10 part A benchmarks: mesh hygiene, setting checks, finite-element ground truth (prints markdown tables).
 
-    OMP_NUM_THREADS=1 PYTHONPATH=. python benchmarks/bench_trust.py --part PART [--seeds N] [--fine]
+    OMP_NUM_THREADS=1 python -m benchmarks.bench_trust --part PART [--seeds N] [--fine]
 
 PART is hygiene, checks, fe, fe-convergence or all:
 
@@ -28,12 +28,10 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests"))
 
-from identification import build_mesh, identify  # noqa: E402
-from identification.checks import check_setup  # noqa: E402
-from rig_sim.mechanics import MMHG, PAPER_PARAMETERS, simulate_test  # noqa: E402
+from identification import build_mesh, identify
+from identification.checks import check_setup
+from rig_sim.mechanics import MMHG, PAPER_PARAMETERS, simulate_test
 
 HYGIENE_GRID = [(0.05, 0.0), (0.2, 0.0), (0.35, 0.0), (0.05, 0.3), (0.2, 0.2), (0.35, 0.2), (0.35, 0.3), (0.5, 0.3),
                 (0.35, 0.4)]
