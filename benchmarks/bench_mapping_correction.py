@@ -1,4 +1,4 @@
-"""Mapping correction in 3-D (reconstruction/mapping_correction.py) on OpenPTV's test_cavity, issue 14.
+"""Mapping correction in 3-D (benchmarks/research/mapping_correction.py) on OpenPTV's test_cavity, issue 14.
 
 1. Is the cameras' remaining inconsistency depth-dependent? The self-calibrated cameras (as bench_real_data's
    ``--selfcal-seed selected-ptvpar --body-weight 0.5``), the matching over time's first pass (TEMPORAL's loose
