@@ -3,8 +3,8 @@
     OMP_NUM_THREADS=1 python -m benchmarks.ab_timing <old tree> [--rounds 3] [--cold 40]
 
 Each round runs, in a subprocess per tree (old first, then this one), from the tree's root:
-``python -m benchmarks.bench_identification --part timing --quick --no-nelder-mead --in-process`` (each tree's own
-file: the same measurement as long as their timing parts agree), and ``--cold`` cold ``prepare`` calls of the Fung bench data
+``python -m benchmarks.bench_identification --part timing --quick --no-nelder-mead --in-process`` (each tree's
+own file: the same measurement as long as their timing parts agree), and ``--cold`` cold ``prepare`` calls of the Fung bench data
 (mesh and surface-state caches cleared, CPU time). Prints every figure per round and its median over the
 rounds per tree, with the load average before and after: on a shared machine absolute times are upper
 bounds, the ratios of one run are what count. Then, finest-grained, ``--calls`` cold ``prepare`` calls of

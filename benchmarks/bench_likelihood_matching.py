@@ -51,7 +51,8 @@ def cameras(path: str | None) -> tuple[list, str]:
 
 
 def table(res: dict) -> str:
-    lines = [f"cameras: {res['cameras']}; gates {tuple(res['gates_px'])} px; model and threshold from frame {TRAIN_FRAME} "
+    lines = [f"cameras: {res['cameras']}; gates {tuple(res['gates_px'])} px; model and threshold from frame "
+             f"{TRAIN_FRAME} "
              f"(decoy <= {DECOY_FRACTION:.0%} of real)", "",
              "| detections | matching | frame | points seen by >= 3 cameras | >= 3-view with camera 1, real vs decoy "
              "| real - decoy | decoy fraction | reprojection RMS (px) |", "|---|---|---|---|---|---|---|---|"]
@@ -89,7 +90,8 @@ def main(argv=None) -> int:
     ap.add_argument("--cameras", help="pickle with the self-calibrated cameras (key 'cameras'); default: compute them")
     ap.add_argument("--detections", nargs="+", choices=("dense", "ptv"), default=["dense", "ptv"])
     ap.add_argument("--no-baseline", action="store_true", help="skip the one-frame matching with SELFCAL_GATES")
-    ap.add_argument("--gates", type=float, nargs=3, default=LIKELIHOOD_GATES, metavar=("EPIPOLAR", "RADIUS", "RESIDUAL"),
+    ap.add_argument("--gates", type=float, nargs=3, default=LIKELIHOOD_GATES,
+                    metavar=("EPIPOLAR", "RADIUS", "RESIDUAL"),
                     help="candidates' gates, px (default %(default)s)")
     ap.add_argument("--degree", type=int, default=DEGREE, help="degree of the bias map (0: none)")
     ap.add_argument("--uniform-density", action="store_true", help="one detection density per image, not local")
