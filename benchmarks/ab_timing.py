@@ -1,10 +1,10 @@
 """Before/after of the identification timing figures in one interleaved run: two trees, alternately.
 
-    OMP_NUM_THREADS=1 python benchmarks/ab_timing.py <old tree> [--rounds 3] [--cold 40]
+    OMP_NUM_THREADS=1 python -m benchmarks.ab_timing <old tree> [--rounds 3] [--cold 40]
 
-Each round runs, in a subprocess per tree (old first, then this one): ``bench_identification.py --part
-timing --quick --no-nelder-mead --in-process`` (each tree's own file, which puts its tree first on the path:
-the same measurement as long as their timing parts agree), and ``--cold`` cold ``prepare`` calls of the Fung bench data
+Each round runs, in a subprocess per tree (old first, then this one), from the tree's root:
+``python -m benchmarks.bench_identification --part timing --quick --no-nelder-mead --in-process`` (each tree's
+own file: the same measurement as long as their timing parts agree), and ``--cold`` cold ``prepare`` calls of the Fung bench data
 (mesh and surface-state caches cleared, CPU time). Prints every figure per round and its median over the
 rounds per tree, with the load average before and after: on a shared machine absolute times are upper
 bounds, the ratios of one run are what count. Then, finest-grained, ``--calls`` cold ``prepare`` calls of
@@ -33,19 +33,22 @@ FIGURES = [
     ("thick form, HGO, prepare + optimise (ms)", r"\| thick form, HGO, clamped data[^|]*\| ([\d.]+) ms"),
 ]
 
+#: run with the tree as working directory (``python -c`` puts it first on the path, before PYTHONPATH)
 COLD = """
 import logging, sys, time
-sys.path.insert(0, {bench!r})
 logging.disable(logging.CRITICAL)
 import numpy as np
-import bench_identification as b
-sim = b.simulate("fung")
+try:
+    from benchmarks._common import cold_prepare, simulate
+except ImportError:  # a tree from before benchmarks/_common.py (issue 29)
+    from benchmarks.bench_identification import _cold_prepare as cold_prepare, simulate
+sim = simulate("fung")
 for _ in range(3):
-    b._cold_prepare(sim)
+    cold_prepare(sim)
 times = []
 for _ in range({n}):
     t = time.process_time()
-    b._cold_prepare(sim)
+    cold_prepare(sim)
     times.append(time.process_time() - t)
 import identification
 print("FROM", identification.__file__)
@@ -55,13 +58,12 @@ print("COLD", np.median(times) * 1e3, np.min(times) * 1e3)
 
 def run(tree: Path, cold: int) -> dict:
     env = dict(os.environ, PYTHONPATH=str(tree), OMP_NUM_THREADS="1")
-    bench = tree / "benchmarks"  # each tree's own benchmark file: it puts its own tree first on the path
-    out = subprocess.run([sys.executable, str(bench / "bench_identification.py"), "--part", "timing", "--quick",
+    out = subprocess.run([sys.executable, "-m", "benchmarks.bench_identification", "--part", "timing", "--quick",
                           "--no-nelder-mead", "--in-process"], env=env, cwd=tree, capture_output=True, text=True,
                          check=True).stdout
     figures = {label: float(m.group(1)) for label, rx in FIGURES if (m := re.search(rx, out))}
     # cwd: ``python -c`` puts the working directory first on the path, before PYTHONPATH
-    cold_out = subprocess.run([sys.executable, "-c", COLD.format(bench=str(bench), n=cold)], env=env, cwd=tree,
+    cold_out = subprocess.run([sys.executable, "-c", COLD.format(n=cold)], env=env, cwd=tree,
                               capture_output=True, text=True, check=True).stdout
     source = Path(cold_out.split("FROM")[1].split()[0]).resolve()
     if tree.resolve() not in source.parents:
@@ -72,20 +74,22 @@ def run(tree: Path, cold: int) -> dict:
     return figures
 
 
+#: run from this tree's root; the old tree's ``identification`` package is loaded from its folder as
+#: ``identification_old`` (a module spec on the folder, not a path entry)
 INTERLEAVED = """
-import importlib, logging, shutil, sys, tempfile, time
+import importlib, importlib.util, logging, sys, time
 from pathlib import Path
-sys.path.insert(0, {bench!r})
 logging.disable(logging.CRITICAL)
 import numpy as np
-import bench_identification as b
+from benchmarks._common import simulate
 import identification.vfm as new
-tmp = Path(tempfile.mkdtemp())
-shutil.copytree(Path({old!r}) / "identification", tmp / "identification_old")
-sys.path.insert(0, str(tmp))
+folder = Path({old!r}) / "identification"
+spec = importlib.util.spec_from_file_location("identification_old", folder / "__init__.py",
+                                              submodule_search_locations=[str(folder)])
+sys.modules["identification_old"] = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(sys.modules["identification_old"])
 old = importlib.import_module("identification_old.vfm")
-shutil.rmtree(tmp)
-sim = b.simulate("fung")
+sim = simulate("fung")
 
 def cold(vfm):
     vfm._MESH_CACHE.clear()
@@ -107,7 +111,7 @@ print(f"INTERLEAVED {{o}} {{n}}")
 def interleaved(old: Path, calls: int) -> tuple[float, float]:
     """Median CPU times (ms) of the old and new tree's cold ``prepare``, alternated call by call in one process."""
     env = dict(os.environ, PYTHONPATH=str(HERE.parent), OMP_NUM_THREADS="1")
-    out = subprocess.run([sys.executable, "-c", INTERLEAVED.format(bench=str(HERE), old=str(old), n=calls)], env=env,
+    out = subprocess.run([sys.executable, "-c", INTERLEAVED.format(old=str(old), n=calls)], env=env,
                          cwd=HERE.parent, capture_output=True, text=True, check=True).stdout
     o, n = map(float, out.split("INTERLEAVED")[1].split())
     return o, n

@@ -1,6 +1,6 @@
 """Benchmarks of the simulated cameras and the joint calibration.
 
-Run: ``OMP_NUM_THREADS=1 PYTHONPATH=. python benchmarks/bench_calib.py [--quick]``
+Run: ``OMP_NUM_THREADS=1 python -m benchmarks.bench_calib [--quick]``
 
 Prints: marker-image render time (full 2448 x 2048 frames, 300 markers), ChArUco calibration of a
 6-camera ring on rendered images (intrinsic/extrinsic errors vs ground truth, 3-D error of points
@@ -13,22 +13,19 @@ import argparse
 import glob
 import os
 import statistics
-import sys
 import time
 
 import cv2
 import numpy as np
 
-sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
-
-from reconstruction.calibration import calibrate_from_detections  # noqa: E402
-from reconstruction.cameras import Camera, rotation_matrix  # noqa: E402
-from reconstruction.targets import BoardSpec, detect_board, detect_boards  # noqa: E402
-from reconstruction.triangulation import triangulate  # noqa: E402
-from rig_sim.board import board_poses, render_board_views  # noqa: E402
-from rig_sim.cameras import camera_ring, specimen_triangulation_error  # noqa: E402
-from rig_sim.render import render_markers  # noqa: E402
-from rig_sim.specimen_geometry import deform_cylinder, random_marker_layout  # noqa: E402
+from reconstruction.calibration import calibrate_from_detections
+from reconstruction.cameras import Camera, rotation_matrix
+from reconstruction.targets import BoardSpec, detect_board, detect_boards
+from reconstruction.triangulation import triangulate
+from rig_sim.board import board_poses, render_board_views
+from rig_sim.cameras import camera_ring, specimen_triangulation_error
+from rig_sim.render import render_markers
+from rig_sim.specimen_geometry import deform_cylinder, random_marker_layout
 
 
 def _timed(fn, repeat):

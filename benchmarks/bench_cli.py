@@ -1,6 +1,6 @@
 """Start-up and whole-command wall time of the ``vfmlab`` command line (issue 11: ``vfmlab identify`` <= 0.5 s).
 
-    PYTHONPATH=. python benchmarks/bench_cli.py [--session S.h5] [--work DIR] [--repeats 5]
+    python -m benchmarks.bench_cli [--session S.h5] [--work DIR] [--repeats 5]
                                                 [--compare-root OTHER_CHECKOUT] [--compare-python PYTHON]
                                                 [--commands-only]
 
@@ -193,7 +193,6 @@ def _fields(line: str) -> tuple[float, str]:
 
 def max_relative_difference(a: Path, b: Path) -> float:
     """Largest relative difference between the newest identification results of two session copies."""
-    sys.path.insert(0, str(ROOT))
     from acquisition.session import open_session
 
     arrays = []

@@ -1,6 +1,6 @@
 """Coverage on rendered coarse rigs: the paper protocol on the default simulated rig, repeated over seeds.
 
-    OMP_NUM_THREADS=1 PYTHONPATH=. python benchmarks/bench_coverage_rendered.py --seeds 0-9 \
+    OMP_NUM_THREADS=1 python -m benchmarks.bench_coverage_rendered --seeds 0-9 \
         --log rendered.jsonl --work /tmp/rendered
 
 For every seed: ``vfmlab run examples/paper-protocol.toml --specimen examples/specimen.toml --sim --sim-seed N
@@ -23,11 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
+from rig_sim.mechanics import PAPER_PARAMETERS
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from rig_sim.mechanics import PAPER_PARAMETERS  # noqa: E402
-
 TRUTH = PAPER_PARAMETERS["fung"]
 COVERED = ("beta", "alpha11", "alpha22")
 # notes that do not make a fit "flagged" (the same rule as bench_identification's coverage part)

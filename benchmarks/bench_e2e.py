@@ -1,23 +1,20 @@
 """Benchmark of the e2e layer: report build, ParaView export, reprocessing serial / process pool / Dask.
 
-Run: ``OMP_NUM_THREADS=1 PYTHONPATH=. python benchmarks/bench_e2e.py`` (from the repository root).
-Sessions are synthetic (tests/_e2e_data.py): 300 markers, 2 stretches x 3 pressures + reference.
+Run: ``OMP_NUM_THREADS=1 python -m benchmarks.bench_e2e`` (from the repository root).
+Sessions are synthetic (rig_sim/synthetic_session.py): 300 markers, 2 stretches x 3 pressures + reference.
 """
 
 from __future__ import annotations
 
 import logging
-import sys
 import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from tests._e2e_data import make_session  # noqa: E402
-from vfmlab.cli import main  # noqa: E402
-from vfmlab.report import build_report  # noqa: E402
-from vfmlab.reprocess import plan_runs, reprocess  # noqa: E402
+from rig_sim.synthetic_session import make_session
+from vfmlab.cli import main
+from vfmlab.report import build_report
+from vfmlab.reprocess import plan_runs, reprocess
 
 
 def timed(label, fn, *args, **kwargs):

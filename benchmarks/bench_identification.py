@@ -1,6 +1,6 @@
 """Benchmarks of the VFM identification (prints markdown tables; docs/validation/identification.md quotes them).
 
-    OMP_NUM_THREADS=1 PYTHONPATH=. python benchmarks/bench_identification.py [--quick] [--part timing|thick|noise|all]
+    OMP_NUM_THREADS=1 python -m benchmarks.bench_identification [--quick] [--part timing|thick|noise|all]
 
 clamped: exact clamped-tube data with and without the unmeasured-strip term.
 flat   : bias of flat chord triangles (the paper taken literally) vs cylindrical interpolation.
@@ -33,40 +33,19 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from identification import identify_prepared, prepare  # noqa: E402
-from rig_sim.mechanics import PAPER_PARAMETERS, simulate_test  # noqa: E402
+from benchmarks import _common
+from benchmarks._common import params_of
+from identification import identify_prepared, prepare
+from rig_sim.mechanics import PAPER_PARAMETERS, simulate_test
 
 MODELS = ("fung", "delfino", "hgo", "neohookean")
-NEOHOOKEAN = {"mu": 200e3}  # no paper value; stiff enough to pass 150 mmHg without a limit point
-
-
-def params_of(model):
-    return NEOHOOKEAN if model == "neohookean" else PAPER_PARAMETERS[model]
-
-
 CLAMPED = True
-SYNTH = False  # use the tests' independent clamped-tube solver (30-90 mmHg) instead of rig_sim's
-
-
-class _Synth:
-    """The fields of rig_sim's SimulatedTest that the benchmark uses, from tests/ident_clamped_synth.py."""
-
-    def __init__(self, model):
-        sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-        from ident_clamped_synth import clamped_tube
-
-        pos, p, f = clamped_tube(model, params_of(model), np.array([15.0, 30.0, 45.0, 60.0, 75.0, 90.0]) * 133.322387415)
-        self.positions = self.exact_positions = pos
-        self.pressure, self.axial_force, self.thickness = p, f, 1.3e-3
+SYNTH = False  # use the independent clamped-tube solver (rig_sim/clamped_reference.py) instead of rig_sim's mechanics
 
 
 def simulate(model, *, clamped=None, wall="membrane"):
-    clamped = CLAMPED if clamped is None else clamped
-    if clamped and SYNTH and wall == "membrane":
-        return _Synth(model)
-    return simulate_test(model, params_of(model), clamped=clamped, wall=wall, n_markers=300)
+    """:func:`benchmarks._common.simulate` with this run's ``--data`` (CLAMPED, SYNTH) unless ``clamped`` is given."""
+    return _common.simulate(model, clamped=CLAMPED if clamped is None else clamped, wall=wall, synth=SYNTH)
 
 
 def rel_errors(result, truth):
@@ -104,13 +83,8 @@ def _interleaved(fns, repeats):
 
 
 def _cold_prepare(sim, **options):
-    """``prepare`` without the in-process mesh and surface-state caches (what a first run pays)."""
-    import identification.vfm as vfm
-
-    getattr(vfm, "_MESH_CACHE", {}).clear()
-    getattr(vfm, "_STATE_CACHE", {}).clear()
-    return prepare(sim.positions, sim.pressure, sim.axial_force, thickness=sim.thickness,
-                   ends="clamped" if CLAMPED else "free", **options)
+    """:func:`benchmarks._common.cold_prepare` with this run's ends (CLAMPED)."""
+    return _common.cold_prepare(sim, clamped=CLAMPED, **options)
 
 
 def plain_vfm(positions, pressure, axial_force, thickness):

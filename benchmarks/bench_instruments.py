@@ -3,8 +3,8 @@
 Measures, per channel, the achieved sample rate and the timestamp jitter (spread of the intervals between
 consecutive samples around the nominal period), and checks the record is gapless (sequence numbers).
 
-    python benchmarks/bench_instruments.py                # 30 s at 50 Hz per instrument (100 Hz combined)
-    python benchmarks/bench_instruments.py --seconds 5 --rate 200 --transport socket
+    python -m benchmarks.bench_instruments                # 30 s at 50 Hz per instrument (100 Hz combined)
+    python -m benchmarks.bench_instruments --seconds 5 --rate 200 --transport socket
 """
 
 from __future__ import annotations
@@ -12,14 +12,11 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from acquisition import Sampler, open_load_cell, open_pressure  # noqa: E402
-from rig_sim.instruments import SimulatedRig  # noqa: E402
+from acquisition import Sampler, open_load_cell, open_pressure
+from rig_sim.instruments import SimulatedRig
 
 
 def run(seconds: float, rate: float, transport: str) -> dict:

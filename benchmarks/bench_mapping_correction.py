@@ -1,4 +1,4 @@
-"""Mapping correction in 3-D (reconstruction/mapping_correction.py) on OpenPTV's test_cavity, issue 14.
+"""Mapping correction in 3-D (benchmarks/research/mapping_correction.py) on OpenPTV's test_cavity, issue 14.
 
 1. Is the cameras' remaining inconsistency depth-dependent? The self-calibrated cameras (as bench_real_data's
    ``--selfcal-seed selected-ptvpar --body-weight 0.5``), the matching over time's first pass (TEMPORAL's loose
@@ -19,7 +19,7 @@
 The corrections are fitted on the matches of frames 0-4 and scored on the matching of frames 1-4 (the same
 particles: as the self-calibration and match_over_time's 2-D correction, the decoy is what checks it).
 
-    PYTHONPATH=$PWD python benchmarks/bench_mapping_correction.py [--json] [--cameras PICKLE]
+    python -m benchmarks.bench_mapping_correction [--json] [--cameras PICKLE]
         # --cameras: a pickle with key "cameras" (self-calibrated cameras) instead of the self-calibration (2-3 min)
 """
 
@@ -29,23 +29,19 @@ import argparse
 import json
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
 
-import bench_real_data as B  # noqa: E402
-from reconstruction.correspondence import match_views, observed_pixels  # noqa: E402
-from reconstruction.mapping_correction import (correction_at, correction_basis, corrected_cameras,  # noqa: E402
+from benchmarks import _common as B
+from reconstruction.correspondence import match_views, observed_pixels
+from benchmarks.research.mapping_correction import (correction_at, correction_basis, corrected_cameras,
                                                fit_mapping_correction, held_out_rms, polynomial_basis)
-from reconstruction.temporal_matching import (apply_pixel_correction, fit_pixel_correction,  # noqa: E402
+from benchmarks.research.temporal_matching import (apply_pixel_correction, fit_pixel_correction,
                                               temporal_match)
-from reconstruction.triangulation import triangulate  # noqa: E402
-from reconstruction.volume_selfcal import disparity_map, loose_candidates  # noqa: E402
-from vfmlab import openptv  # noqa: E402
+from reconstruction.triangulation import triangulate
+from reconstruction.volume_selfcal import disparity_map, loose_candidates
+from vfmlab import openptv
 
 FRAMES = (1, 2, 3, 4)
 OPTIONS = {k: B.TEMPORAL[k] for k in ("max_step_m", "max_accel_m", "max_residual_change_px", "min_motion_m")}

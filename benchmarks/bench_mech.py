@@ -1,6 +1,6 @@
 """Figures of the simulator's exact mechanics: thick-wall vs membrane bias, clamped-BVP cost and accuracy.
 
-Run: ``python benchmarks/bench_mech.py`` (about a minute on one core). Prints Markdown tables used in
+Run: ``python -m benchmarks.bench_mech`` (about a minute on one core). Prints Markdown tables used in
 docs/validation/mechanics.md.
 """
 

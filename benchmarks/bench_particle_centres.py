@@ -13,7 +13,7 @@
    by bench_real_data.DECOY_SHIFT_PX): over time (TEMPORAL, frames 0-4) and one frame at a time with OpenPTV's
    particle settings (SELFCAL_GATES and TIGHT_GATES). The cameras are self-calibrated on the centroids.
 
-    python benchmarks/bench_particle_centres.py [--json] [--parts synthetic residuals matching] [--cameras PKL]
+    python -m benchmarks.bench_particle_centres [--json] [--parts synthetic residuals matching] [--cameras PKL]
 
 ``--cameras``: a pickle of a dict with key ``cameras`` (the self-calibrated cameras of bench_real_data, seed
 selected-ptvpar, body weight 0.5); without it the self-calibration is run first (about 2 min).
@@ -24,22 +24,17 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
-sys.path.insert(0, str(ROOT / "tests"))
 
-import bench_real_data as B  # noqa: E402
-from reconstruction.correspondence import observed_pixels  # noqa: E402
-from reconstruction.particle_centres import CENTRE_ESTIMATORS  # noqa: E402
-from reconstruction.particles import detect_particles  # noqa: E402
-from reconstruction.triangulation import triangulate  # noqa: E402
-from vfmlab import openptv  # noqa: E402
+from benchmarks import _common as B
+from reconstruction.correspondence import observed_pixels
+from reconstruction.particle_centres import CENTRE_ESTIMATORS
+from reconstruction.particles import detect_particles
+from reconstruction.triangulation import triangulate
+from vfmlab import openptv
 
 #: synthetic images: (particles before partners, seed) per image, 512 x 512 px
 SYNTHETIC = [(150, 0), (400, 0), (150, 1), (400, 1), (400, 2)]
@@ -48,7 +43,7 @@ SYNTHETIC = [(150, 0), (400, 0), (150, 1), (400, 1), (400, 2)]
 def synthetic() -> dict:
     """Centre error (px) per estimator on the blobs of SYNTHETIC's images (DETECTION's settings), isolated
     particles (no true neighbour within 5 px) and touching ones; the true centre assigned by the centroid."""
-    from _synthetic_particles import particle_image
+    from rig_sim.particle_images import particle_image
 
     err = {c: {"isolated": [], "touching": []} for c in CENTRE_ESTIMATORS}
     for n, seed in SYNTHETIC:
@@ -81,7 +76,7 @@ def residuals(cams: list, dets: dict) -> dict:
     centres (the same detections in the same cameras: the same particles), re-triangulated per estimator:
     residual per camera, raw and after the estimator's own pixel correction, and its frame-to-frame change
     along tracks (links: mutual nearest 3-D points within TEMPORAL's step, the centroids' points)."""
-    from reconstruction.temporal_matching import apply_pixel_correction, fit_pixel_correction, match_over_time
+    from benchmarks.research.temporal_matching import apply_pixel_correction, fit_pixel_correction, match_over_time
 
     opts = {**B.TEMPORAL, "max_residual_change_px": float("inf"), "degree": 0}
     runs = {c: match_over_time(f, cams, B.selfcal_bounds(), **opts)[0].observations for c, f in dets.items()}
@@ -155,7 +150,7 @@ def _residual_figures(res: list, links: list) -> dict:
 def matching(cams: list, dense: dict, bright: dict, frames: list[int]) -> dict:
     """Real vs decoy per estimator: over time (TEMPORAL on ``dense``, frames 0-4) and one frame at a time
     (``bright``: OpenPTV's particle settings, frames ``frames``) with SELFCAL_GATES and TIGHT_GATES."""
-    from reconstruction.temporal_matching import match_over_time
+    from benchmarks.research.temporal_matching import match_over_time
 
     bounds = B.selfcal_bounds()
     out = {}
@@ -167,7 +162,7 @@ def matching(cams: list, dense: dict, bright: dict, frames: list[int]) -> dict:
         row = {"temporal": {}, "one_frame": {}, "one_frame_tight": {}}
         for f in frames:
             t = B.TEMPORAL_FRAMES.index(f)
-            row["temporal"][str(f)] = _keys(B._temporal_figures(f, tm, tm_decoy, t, corrected[t], cams))
+            row["temporal"][str(f)] = _keys(B.temporal_figures(f, tm, tm_decoy, t, corrected[t], cams))
             one = bright[c][frames.index(f)]
             row["one_frame"][str(f)] = _keys(B.frame_figures(f, one, cams, gates=B.SELFCAL_GATES, decoy=True))
             row["one_frame_tight"][str(f)] = _keys(B.frame_figures(f, one, cams, gates=B.TIGHT_GATES, decoy=True))

@@ -13,7 +13,7 @@
 3. ``--part accuracy``: 3-D error and completeness against ground truth versus sensor noise and
    defocus blur (true calibration, reference step + one inflated step).
 
-Run:  OMP_NUM_THREADS=1 PYTHONPATH=. python benchmarks/bench_reconstruction.py [--quick] [--repeats 5]
+Run:  OMP_NUM_THREADS=1 python -m benchmarks.bench_reconstruction [--quick] [--repeats 5]
       [--part timing|step|profile|rendered|accuracy|all]
 """
 
@@ -33,11 +33,9 @@ import h5py
 import numpy as np
 from scipy.spatial import cKDTree
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-
-from reconstruction.correspondence import observed_pixels  # noqa: E402
-from reconstruction.detection import detect_markers  # noqa: E402
-from reconstruction.pipeline import (  # noqa: E402
+from reconstruction.correspondence import observed_pixels
+from reconstruction.detection import detect_markers
+from reconstruction.pipeline import (
     ReconstructionSettings,
     SeriesTracker,
     convergence_point,
@@ -48,10 +46,10 @@ from reconstruction.pipeline import (  # noqa: E402
     reconstruct_series,
     track_series,
 )
-from reconstruction.surface import marker_surface_points, surface_normals  # noqa: E402
-from reconstruction.tracking import match_step  # noqa: E402
-from reconstruction.triangulation import triangulate  # noqa: E402
-from rig_sim import SensorModel, camera_ring, deform_cylinder, random_marker_layout, render_markers  # noqa: E402
+from reconstruction.surface import marker_surface_points, surface_normals
+from reconstruction.tracking import match_step
+from reconstruction.triangulation import triangulate
+from rig_sim import SensorModel, camera_ring, deform_cylinder, random_marker_layout, render_markers
 
 
 def _frames(cams, sensor=SensorModel(), n_steps=2, seed=0):
@@ -252,7 +250,7 @@ def step_only(size, repeats):
 def rendered(n_steps=8):
     """The end-to-end figures of tests/test_recon_rendered.py (estimated calibration, 1224 x 1024, glare,
     debris, a hidden marker, a missing camera), before (serial whole-image detection) and after."""
-    from _recon_rendered import rendered_scene
+    from rig_sim.rendered_scene import rendered_scene
 
     cams, calib, frames, images, (R, t) = rendered_scene(n_steps)
     print("\n## Rendered end to end (tests/test_recon_rendered.py: estimated calibration, 6 cameras 1224x1024, "

@@ -1,7 +1,7 @@
 """Benchmark of the regional (per-band / smooth-profile) identification: prints the markdown tables that
 docs/validation/identification.md ("Regional") quotes.
 
-    OMP_NUM_THREADS=1 PYTHONPATH=. python benchmarks/bench_regional.py [--quick] [--seeds N] [--only bands|auto|legendre]
+    OMP_NUM_THREADS=1 python -m benchmarks.bench_regional [--quick] [--seeds N] [--only bands|auto|legendre]
 
 Ground truth: rig_sim's clamped Fung tube (paper parameters, 300 markers 4 mm clear of the cannulae, 8 pressures to
 150 mmHg at stretch 1.1) with a 40 % weakening of beta over a quarter of the 35 mm length centred at Z = +9 mm
@@ -29,16 +29,13 @@ import logging
 import sys
 import time
 from collections import Counter
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from identification.regional import identify_regional, prepare_regional  # noqa: E402
-from identification.regional_uncertainty import choose_bands, with_bootstrap  # noqa: E402
-from rig_sim.mechanics import PAPER_PARAMETERS, simulate_test  # noqa: E402
-from rig_sim.regional import AxialProfile  # noqa: E402
+from identification.regional import identify_regional, prepare_regional
+from identification.regional_uncertainty import choose_bands, with_bootstrap
+from rig_sim.mechanics import PAPER_PARAMETERS, simulate_test
+from rig_sim.regional import AxialProfile
 
 FUNG = PAPER_PARAMETERS["fung"]
 WEAK = AxialProfile(depth=0.4, center=9e-3, width=35e-3 / 4)

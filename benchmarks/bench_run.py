@@ -1,6 +1,6 @@
 """Benchmark of an unattended simulated session (instruments over ptys, rendered cameras).
 
-    python benchmarks/bench_run.py [--speed 5] [--size 320x240] [--calibration 0] [--live fung]
+    python -m benchmarks.bench_run [--speed 5] [--size 320x240] [--calibration 0] [--live fung]
 
 Prints the wall time of the whole session, the time per step, the log rate and the capture
 spread (time between the first and the last camera's frame of a step). With ``--live MODELS``

@@ -20,7 +20,7 @@ particles split, 7 grey levels: about OpenPTV's chance share); and the matching 
 (``likelihood``, ``likelihood_over_time``, ``likelihood_inclusive``: ``bench_likelihood_matching.py``'s, frozen on
 frame 0).
 
-    python benchmarks/bench_same_yardstick.py [--json] [--frames 1 2 3 4]   # needs optv; 4-6 min
+    python -m benchmarks.bench_same_yardstick [--json] [--frames 1 2 3 4]   # needs optv; 4-6 min
 """
 
 from __future__ import annotations
@@ -28,17 +28,13 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
 
-import bench_real_data as B  # noqa: E402
-from reconstruction.correspondence import match_views  # noqa: E402
-from vfmlab import openptv  # noqa: E402
+from benchmarks import _common as B
+from reconstruction.correspondence import match_views
+from vfmlab import openptv
 
 #: our operating points: particle detection (on top of openptv.PARTICLE_SETTINGS) and correspondence gates
 OPERATING_POINTS = {
@@ -78,7 +74,7 @@ def ours(frame: int, cams: list, detection: dict, gates: dict) -> dict:
     cor = match_views(dets, cams, bounds=bounds, **gates)
     decoys = [match_views(_moved(dets, k), cams, bounds=bounds, **gates).observations for k in range(len(dets))]
     out = per_camera(cor.observations, decoys, [len(d) for d in dets])
-    fig = B._figures(cor.observations, cor.triangulation, P, tgt, dets, cams)
+    fig = B.match_figures(cor.observations, cor.triangulation, P, tgt, dets, cams)
     out.update({k: fig[k] for k in ("reprojection_rms_px_ours", "agree_within_0p3mm")})
     return out
 
@@ -86,7 +82,7 @@ def ours(frame: int, cams: list, detection: dict, gates: dict) -> dict:
 def over_time(frames: list[int], cams: list) -> dict:
     """The matching over time (``bench_real_data.TEMPORAL`` on its DETECTION's particles of frames 0-4), real
     and with each camera's detections moved in every frame in turn (the whole pipeline, correction included)."""
-    from reconstruction.temporal_matching import match_over_time
+    from benchmarks.research.temporal_matching import match_over_time
 
     bounds = B.selfcal_bounds()
     dets = [openptv.detect_frame(B.DATA, f, **B.DETECTION) for f in B.TEMPORAL_FRAMES]
@@ -104,23 +100,22 @@ def likelihood(frames: list[int], cams: list) -> dict:
     and persistence bonus chosen on frame 0 with camera 1's decoy, then frozen), one frame at a time
     (``likelihood``) and with the persistence bonus (``likelihood_over_time``); the decoy of each camera in turn
     through the same frozen model, threshold and bonus (moved in every frame)."""
-    import bench_likelihood_matching as BL
-    from reconstruction import likelihood_matching as L
-    from reconstruction.temporal_matching import persistence_support
+    from benchmarks.research import likelihood_matching as L
+    from benchmarks.research.temporal_matching import persistence_support
 
-    bounds, every = B.selfcal_bounds(), (BL.TRAIN_FRAME, *BL.FRAMES)
-    opts = {"gates": BL.GATES, "density_radius_px": BL.DENSITY_RADIUS_PX}
-    dets = {f: BL.detect("dense", f) for f in every}
-    model = L.fit_true_model(dets[BL.TRAIN_FRAME], cams, bounds, threshold=BL.TRAIN_THRESHOLD, degree=BL.DEGREE,
+    bounds, every = B.selfcal_bounds(), (B.TRAIN_FRAME, *B.FRAMES)
+    opts = B.likelihood_options()
+    dets = {f: B.detect("dense", f) for f in every}
+    model = L.fit_true_model(dets[B.TRAIN_FRAME], cams, bounds, threshold=B.TRAIN_THRESHOLD, degree=B.DEGREE,
                              **opts)
-    sc = BL.scored(dets, cams, bounds, model)
-    one, ot = BL.one_frame(sc), BL.over_time(sc)
-    inc = BL.over_time(sc, BL.INCLUSIVE_DECOY_FRACTION, (ot["bonus"],))
+    sc = B.scored(dets, cams, bounds, model)
+    one, ot = B.one_frame(sc), B.over_time(sc)
+    inc = B.over_time(sc, B.INCLUSIVE_DECOY_FRACTION, (ot["bonus"],))
 
     def selections(moved_camera: int | None) -> dict:
         runs = {f: sc[f][0] if moved_camera is None else
                 L.score_candidates(_moved(dets[f], moved_camera), cams, bounds, model, **opts)[:2] for f in every}
-        sup = persistence_support([runs[f][0] for f in every], **BL.PERSISTENCE)
+        sup = persistence_support([runs[f][0] for f in every], **B.PERSISTENCE)
         out = {}
         for i, f in enumerate(every):
             c, score = runs[f]

@@ -8,28 +8,23 @@ the disparity check at the first pass's tolerances (RMS / max, px; per camera) a
 the base variant: its body residuals per body depth, and a pose-only refit of each camera on the body alone
 (what it costs the particles).
 
-    python benchmarks/bench_selfcal_variants.py [--json]      # 7-12 min (18 self-calibrations of 16-45 s each)
+    python -m benchmarks.bench_selfcal_variants [--json]      # 7-12 min (18 self-calibrations of 16-45 s each)
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 from scipy.optimize import least_squares
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
 
-import bench_real_data as B  # noqa: E402
-from reconstruction import volume_selfcal as V  # noqa: E402
-from reconstruction.calibration_body import camera_parameters, camera_with_parameters  # noqa: E402
-from vfmlab import openptv  # noqa: E402
+from benchmarks import _common as B
+from reconstruction import volume_selfcal as V
+from reconstruction.calibration_body import camera_parameters, camera_with_parameters
+from vfmlab import openptv
 
 FREE = B.SELFCAL["free"]
 VARIANTS = {  # name: (self_calibrate options, use the cleaned dots, per-camera noise weights)

@@ -1,10 +1,10 @@
 """Issue 10 part A benchmarks: mesh hygiene, setting checks, finite-element ground truth (prints markdown tables).
 
-    OMP_NUM_THREADS=1 PYTHONPATH=. python benchmarks/bench_trust.py --part PART [--seeds N] [--fine]
+    OMP_NUM_THREADS=1 python -m benchmarks.bench_trust --part PART [--seeds N] [--fine]
 
 PART is hygiene, checks, fe, fe-convergence or all:
 
-hygiene : unsmoothed fits on independent closed-form tubes (tests/ident_synth.py, 300 uniformly random
+hygiene : unsmoothed fits on independent closed-form tubes (rig_sim/homogeneous_tube.py, 300 uniformly random
           markers, 0.01 mm noise on every marker of every step incl. the reference) for a grid of
           (near-duplicate fraction of the median spacing, sliver quality) thresholds; worst and median errors.
 checks  : detection rates of the setting checks (identification/checks.py) on rig_sim clamped / free membrane
@@ -28,12 +28,10 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests"))
 
-from identification import build_mesh, identify  # noqa: E402
-from identification.checks import check_setup  # noqa: E402
-from rig_sim.mechanics import MMHG, PAPER_PARAMETERS, simulate_test  # noqa: E402
+from identification import build_mesh, identify
+from identification.checks import check_setup
+from rig_sim.mechanics import MMHG, PAPER_PARAMETERS, simulate_test
 
 HYGIENE_GRID = [(0.05, 0.0), (0.2, 0.0), (0.35, 0.0), (0.05, 0.3), (0.2, 0.2), (0.35, 0.2), (0.35, 0.3), (0.5, 0.3),
                 (0.35, 0.4)]
@@ -41,7 +39,7 @@ JUDGED = {"fung": ("beta", "alpha11", "alpha22"), "hgo": ("k1", "k2", "phi"), "d
 
 
 def _closed_form(model, seed, noise):
-    from ident_synth import PAPER, homogeneous, lam_t_for_pressures
+    from rig_sim.homogeneous_tube import PAPER, homogeneous, lam_t_for_pressures
 
     ps = np.linspace(0, 20e3, 8)[1:]
     lt = np.concatenate([[1.0], lam_t_for_pressures(model, PAPER[model], ps, 1.1)])
@@ -51,7 +49,7 @@ def _closed_form(model, seed, noise):
 
 
 def bench_hygiene(n_seeds, noise=0.01e-3):
-    from ident_synth import E0
+    from rig_sim.homogeneous_tube import E0
 
     print(f"\n### Mesh hygiene: unsmoothed fits, {noise * 1e3:g} mm noise on every marker, {n_seeds} seeds\n")
     print("| duplicates < x spacing | slivers < quality | model | median error | worst error | fits off > 5 % "

@@ -1,7 +1,7 @@
 """The window refined in the board bundle adjustment, on rig_sim's renderings through a tank wall (issue 14).
 
 Three cameras look through one 6 mm glass wall (90 mm from camera 0, tilted 2 deg) into water at a ChArUco board
-at 170/200/230 mm with tilts up to 30 deg (``tests/_window_boards.py``); the views are rendered by rig_sim through
+at 170/200/230 mm with tilts up to 30 deg (``rig_sim/window_boards.py``); the views are rendered by rig_sim through
 the window, the board detected, the cameras calibrated jointly four ways:
 
 - ``nominal``: the true window, fixed;
@@ -14,8 +14,8 @@ into the true cameras and triangulated with each calibration; the 3-D error is a
 calibration's own gauge (camera 0's frame, no alignment: ``rms_3d_um``) and after the best rigid motion
 (``rms_3d_aligned_um``: the shape error). Prints a table, or one JSON object with ``--json``.
 
-    PYTHONPATH=$PWD python benchmarks/bench_window_ba.py [--views 18] [--json]
-    PYTHONPATH=$PWD python benchmarks/bench_window_ba.py --exact-noise 0.1   # exact projections + noise instead
+    python -m benchmarks.bench_window_ba [--views 18] [--json]
+    python -m benchmarks.bench_window_ba --exact-noise 0.1   # exact projections + noise instead
 """
 
 from __future__ import annotations
@@ -23,21 +23,16 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests"))
 
-from _calib_sim import rigid_fit  # noqa: E402
-from _window_boards import board_views, exact_views, render_views, specimen_points, wall_rig, wrong_window  # noqa: E402
-from reconstruction.calibration import calibrate_cameras, calibrate_from_detections  # noqa: E402
-from reconstruction.targets import BoardSpec, detect_boards  # noqa: E402
-from reconstruction.triangulation import triangulate  # noqa: E402
+from rig_sim.calibration_scene import rigid_fit
+from rig_sim.window_boards import board_views, exact_views, render_views, specimen_points, wall_rig, wrong_window
+from reconstruction.calibration import calibrate_cameras, calibrate_from_detections
+from reconstruction.targets import BoardSpec, detect_boards
+from reconstruction.triangulation import triangulate
 
 
 def _error_3d(est, truth, points) -> dict:

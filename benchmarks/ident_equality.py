@@ -1,12 +1,12 @@
 """Are two trees' identification results the same? Save the prepared data and fits of one tree, compare another's.
 
-    cp benchmarks/ident_equality.py <old tree>/benchmarks/   (it imports the tree it lies in)
-    cd <old tree> && python benchmarks/ident_equality.py save /tmp/before.pkl [--sessions 'dir/paper-seed*.h5']
-    cd <new tree> && python benchmarks/ident_equality.py compare /tmp/before.pkl [--sessions ...] [--v]
+    cp benchmarks/ident_equality.py <old tree>/benchmarks/   (it imports the tree it is run from)
+    cd <old tree> && python -m benchmarks.ident_equality save /tmp/before.pkl [--sessions 'dir/paper-seed*.h5']
+    cd <new tree> && python -m benchmarks.ident_equality compare /tmp/before.pkl [--sessions ...] [--v]
 
 Data: rig_sim's clamped Fung and HGO tubes (membrane, thick), the same with 0.03 mm noise, a 2 mm
 mis-tracked marker, a near-duplicate and a missing marker (with and without smoothing="auto"), free
-ends, and up to six rendered sessions (e.g. those of bench_coverage_rendered.py) with and without
+ends, and up to six rendered sessions (e.g. those of bench_coverage_rendered) with and without
 smoothing. Compared: mesh (triangles up to order, boundary loops, drop counts, axis), valid and
 outlier counts, noise estimate, EVW, scales, end and strip forces, IVW at the paper parameters and
 the fitted parameters (Fung and neo-Hookean, or HGO); prints every relative difference above 1e-6
@@ -16,14 +16,14 @@ import argparse
 import glob
 import logging
 import pickle
-import sys
 import warnings
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import bench_identification as B
+try:
+    from benchmarks import _common as B
+except ImportError:  # a tree from before benchmarks/_common.py (issue 29): the same functions lay in the script
+    from benchmarks import bench_identification as B
 from identification import identify_prepared, prepare
 from identification.vfm import internal_virtual_work
 import identification.vfm as vfm

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from _calib_sim import SPEC, align_cameras, board_corners_world, rendered_charuco, rigid_fit
+from rig_sim.calibration_scene import SPEC, align_cameras, board_corners_world, rendered_charuco, rigid_fit
 from reconstruction.calibration import CalibrationError, calibrate_cameras, calibrate_from_detections, detections_to_arrays
 from reconstruction.cameras import rotation_matrix
 from reconstruction.targets import BoardSpec, detect_board

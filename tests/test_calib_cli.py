@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from _calib_sim import rendered_charuco
+from rig_sim.calibration_scene import rendered_charuco
 from acquisition.session import CameraSpec, SessionWriter, SpecimenInfo, open_session
 from reconstruction.calibration_io import cameras_from_arrays, cameras_from_toml, cameras_from_yaml
 from vfmlab.cli import main

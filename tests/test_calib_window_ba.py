@@ -4,7 +4,7 @@ start (plane 2 mm off, normal 2 deg off) recovered; planes that the board views 
 import numpy as np
 import pytest
 
-from _window_boards import board_views, exact_views, wall_rig, wrong_window
+from rig_sim.window_boards import board_views, exact_views, wall_rig, wrong_window
 from reconstruction.calibration import CalibrationError, calibrate_cameras, reprojection_errors
 from vfmlab.cli import main
 
@@ -13,7 +13,7 @@ OBJ = np.array([[i * 5e-3, j * 5e-3, 0] for j in range(6) for i in range(8)])  #
 
 def window_scene(*, per_camera=False, n_views=9):
     """Three cameras through one wall (or one window each), board at 170/200/230 mm tilted up to 30 deg; exact
-    refracted projections (``tests/_window_boards.py``)."""
+    refracted projections (``rig_sim/window_boards.py``)."""
     cams = wall_rig(per_camera=per_camera)
     rv, tv = board_views(n_views, extent=(0.035, 0.025))
     return cams, OBJ, exact_views(cams, OBJ, rv, tv)

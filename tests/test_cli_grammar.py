@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from tests._e2e_data import make_session
+from rig_sim.synthetic_session import make_session
 from vfmlab.cli import COMMANDS, cli, main
 from vfmlab.cli._options_table import HEADER, option_rows
 

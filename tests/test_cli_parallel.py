@@ -75,7 +75,7 @@ def test_a_worker_that_dies_has_its_share_recomputed():
 def test_bootstrap_through_fork_map_is_identical():
     from identification import identify
     from identification.uncertainty import bootstrap
-    from ident_synth import PAPER, homogeneous
+    from rig_sim.homogeneous_tube import PAPER, homogeneous
 
     pos, p, f = homogeneous("fung", PAPER["fung"], [1.0, 1.1, 1.2, 1.3], [1.0, 1.1, 1.1, 1.1], n=120, seed=0)
     noisy = pos + np.random.default_rng(1).normal(0.0, 0.02e-3, pos.shape)

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from _e2e_data import make_session
+from rig_sim.synthetic_session import make_session
 from _run_fakes import FakeRig
 from acquisition.protocol import MMHG, ConfigError, SafetyLimits, parse_protocol
 from acquisition.runner import AutoOperator, SessionRunner

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from tests._e2e_data import make_session
+from rig_sim.synthetic_session import make_session
 from acquisition.session import open_session
 from vfmlab.cli import main
 from vfmlab.fields import compute_fields

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from tests._e2e_data import make_session
+from rig_sim.synthetic_session import make_session
 from vfmlab.cli import main
 from vfmlab.report import SECTION_FAILED, build_report
 

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from tests._e2e_data import make_session
+from rig_sim.synthetic_session import make_session
 from acquisition.session import open_session
 from vfmlab.cli import main
 from vfmlab.pipeline import STAGES, identify_session
@@ -122,7 +122,7 @@ def test_dask_local_cluster(batch, tmp_path, capsys):
 
 def test_reconstruct_failure_skips_identify(tmp_path, capsys):
     """Without a calibration the reconstruct stage fails; identify is then skipped, not run on stale tracks."""
-    from tests._e2e_data import make_session as make
+    from rig_sim.synthetic_session import make_session as make
 
     bare = make(tmp_path / "bare.h5", with_results=False)
     (out,) = reprocess([bare], plan_runs(["reconstruct", "identify"], models=["delfino"]))
@@ -134,7 +134,7 @@ def test_reconstruct_failure_skips_identify(tmp_path, capsys):
 
 def test_identify_stage_matches_identify_command(tmp_path, capsys):
     """The reprocess stage and 'vfmlab identify' store the same result (guards against the two drifting apart)."""
-    from tests._e2e_data import make_session as make
+    from rig_sim.synthetic_session import make_session as make
 
     session = make(tmp_path / "s.h5", n_markers=120)
     assert main(["identify", str(session), "--model", "delfino", "--json"]) == 0

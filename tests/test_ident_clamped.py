@@ -1,11 +1,11 @@
-"""Exact data from a clamped membrane tube (heterogeneous, solved independently in ident_clamped_synth)."""
+"""Exact data from a clamped membrane tube (heterogeneous, solved independently in rig_sim/clamped_reference.py)."""
 
 import numpy as np
 import pytest
 
 from identification import identify_prepared, prepare
-from ident_clamped_synth import clamped_tube
-from ident_synth import E0, PAPER
+from rig_sim.clamped_reference import clamped_tube
+from rig_sim.homogeneous_tube import E0, PAPER
 
 PRESSURES = np.array([30.0, 60.0, 90.0]) * 133.322387415
 GENERIC = {"fung": {"beta": 10e3, "alpha11": 1.0, "alpha22": 1.0, "alpha12": 0.0},

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from acquisition.session import SessionWriter, SpecimenInfo, StepRecord, open_session, write_result
-from ident_synth import E0, PAPER, R0, homogeneous, lam_t_for_pressures
+from rig_sim.homogeneous_tube import E0, PAPER, R0, homogeneous, lam_t_for_pressures
 from vfmlab.cli import main
 
 

@@ -9,7 +9,7 @@ from identification.mesh import build_mesh, fit_axis
 from identification.models import get_model
 from identification.step_axes import refit_axes
 from identification.vfm import virtual_work_basis
-from ident_synth import E0, PAPER, homogeneous
+from rig_sim.homogeneous_tube import E0, PAPER, homogeneous
 
 # away from the paper values, with an active and an inactive HGO fibre family in some triangles
 OTHER = {"fung": {"beta": 3e3, "alpha11": 2.0, "alpha22": 9.0, "alpha12": -1.5},

@@ -7,7 +7,7 @@ import pytest
 
 from identification import build_mesh, identify
 from identification.mesh import DUPLICATE_FRACTION, describe_dropped
-from ident_synth import E0, PAPER, homogeneous, lam_t_for_pressures
+from rig_sim.homogeneous_tube import E0, PAPER, homogeneous, lam_t_for_pressures
 
 NOISE = 0.01e-3  # m, on every marker at every step, the reference included
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from identification.models import available_models, cauchy_stress, get_model, pk2_stress, strain_energy
-from ident_synth import PAPER
+from rig_sim.homogeneous_tube import PAPER
 
 
 def _random_C(n, seed=0):

@@ -1,6 +1,6 @@
 """Noise regression at the seed paper's marker accuracy (0.17 mm; issue 10, "Robust at the paper's noise").
 
-Homogeneous closed-form tube (tests/ident_synth.py, independent of rig_sim), the paper's protocol:
+Homogeneous closed-form tube (rig_sim/homogeneous_tube.py, independent of rig_sim's mechanics), the paper's protocol:
 one axial stretch 1.1, 8 pressure levels 0-150 mmHg, 300 markers. Few fixed seeds, so these are
 regression tests of two measured levers, not the statistics (docs/validation/identification.md, "Noise").
 """
@@ -12,7 +12,7 @@ from identification import identify
 from identification import identify_noise_weighted
 from identification.noise_weights import weighted_data
 from identification.vfm import internal_virtual_work, prepare
-from ident_synth import E0, PAPER, homogeneous, lam_t_for_pressures
+from rig_sim.homogeneous_tube import E0, PAPER, homogeneous, lam_t_for_pressures
 
 LZ = 1.1
 NOISE = 0.17e-3

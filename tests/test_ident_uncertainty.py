@@ -2,7 +2,7 @@
 
 Closed-form homogeneous data of the paper's protocol (one stretch, 7 pressure levels to 150 mmHg,
 300 markers) with i.i.d. Gaussian noise on every coordinate of every marker, reference included.
-The full studies (50 seeds, 0.01 / 0.05 / 0.17 mm) are ``benchmarks/bench_identification.py
+The full studies (50 seeds, 0.01 / 0.05 / 0.17 mm) are ``python -m benchmarks.bench_identification
 --part coverage`` and ``--part noise``; here a reduced seed set with honest tolerances.
 """
 
@@ -11,7 +11,7 @@ import pytest
 
 from identification import identify, prepare
 from identification.uncertainty import bootstrap, remeasured_mesh
-from ident_synth import PAPER, homogeneous, lam_t_for_pressures
+from rig_sim.homogeneous_tube import PAPER, homogeneous, lam_t_for_pressures
 
 MMHG = 133.322387415
 TRUTH = PAPER["fung"]

@@ -5,7 +5,7 @@ import pytest
 
 from identification import (DegenerateDataError, MeshError, build_mesh, fit_axis, identify, identify_prepared,
                             membrane_kinematics, prepare, to_trimesh)
-from ident_synth import E0, PAPER, R0, homogeneous, lam_t_for_pressures
+from rig_sim.homogeneous_tube import E0, PAPER, R0, homogeneous, lam_t_for_pressures
 from identification.mesh import describe_dropped
 
 LZ = 1.1
@@ -191,7 +191,7 @@ def test_smoothing_tames_marker_noise():
 
 def test_laplace_curves_match_the_model_on_homogeneous_data():
     from identification import laplace_curves
-    from ident_synth import cauchy_hoop_axial
+    from rig_sim.homogeneous_tube import cauchy_hoop_axial
 
     pos, p, f = _single_stretch("fung")
     mesh = build_mesh(pos[0])

@@ -18,7 +18,7 @@ import pytest
 
 from acquisition.errors import DamagedFileError, ImplausibleInputError, InputError, OperationError
 from acquisition.session import DamagedSessionError, SessionError, SessionWriteError, open_session, write_result
-from tests._e2e_data import make_session
+from rig_sim.synthetic_session import make_session
 from tests.test_markers_csv import _write_inputs
 from vfmlab.cli import exit_code_for, main
 
@@ -45,7 +45,7 @@ def run(capsys, *argv) -> tuple[int, str]:
 
 @pytest.fixture(scope="module")
 def full_session(tmp_path_factory):
-    """A session with images, calibration, markers and identifications (tests/_e2e_data.py)."""
+    """A session with images, calibration, markers and identifications (rig_sim/synthetic_session.py)."""
     return make_session(tmp_path_factory.mktemp("full") / "s.h5", n_markers=60)
 
 
@@ -133,7 +133,7 @@ def test_identification_parameters_shorter_than_names_are_damage(tmp_path, capsy
 
 def test_short_model_parameters_give_a_warning_not_a_traceback(tmp_path, capsys, full_session):
     path = shutil.copy(full_session, tmp_path / "short.h5")
-    from tests._e2e_data import add_identification
+    from rig_sim.synthetic_session import add_identification
 
     add_identification(path, "fung", ["beta", "alpha11"], [5e3, 14.5], n_steps=7, cost=1e-3)
     rc, err = run(capsys, "report", path, "-o", tmp_path / "r")

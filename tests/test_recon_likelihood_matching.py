@@ -1,4 +1,4 @@
-"""Matching by likelihood ratio (reconstruction/likelihood_matching.py): dense particles rendered through glass and
+"""Matching by likelihood ratio (benchmarks/research/likelihood_matching.py): dense particles rendered through glass and
 water into 4 cameras whose calibration is off by a smooth bias of up to ~1 px, as the real data's after the
 self-calibration; the score keeps more true matches than the hard gates at no more chance ones."""
 
@@ -6,9 +6,9 @@ import numpy as np
 
 from _window_rig import window_rig
 from reconstruction.correspondence import match_views
-from reconstruction.likelihood_matching import (TrueModel, fit_true_model, likelihood_match, local_density,
+from benchmarks.research.likelihood_matching import (TrueModel, fit_true_model, likelihood_match, local_density,
                                                 log_likelihood_ratio, select_by_score, with_subsets)
-from reconstruction.temporal_matching import persistence_support
+from benchmarks.research.temporal_matching import persistence_support
 
 BOUNDS = (np.array([-0.03, -0.03, -0.02]), np.array([0.03, 0.03, 0.02]))
 #: per camera: constant bias (px) and its gradient over the image (px per half image), the calibration's error
@@ -80,7 +80,7 @@ def test_score_and_greedy_selection_on_hand_made_candidates():
 
 
 def test_persistence_support_counts_smooth_moving_triplets_only():
-    from reconstruction.temporal_matching import FrameCandidates
+    from benchmarks.research.temporal_matching import FrameCandidates
 
     def frame(t):
         pts = np.array([[0.0, 0.0, 3e-4 * t], [0.01, 0.0, 0.0], [0.02, 0.0, 3e-4 * t]])  # moving, static, moving

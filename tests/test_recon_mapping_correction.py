@@ -1,12 +1,12 @@
-"""Mapping correction in 3-D (reconstruction/mapping_correction.py): a camera whose error depends on the depth
+"""Mapping correction in 3-D (benchmarks/research/mapping_correction.py): a camera whose error depends on the depth
 along its line of sight, which a correction of the pixel alone cannot represent."""
 
 import numpy as np
 import pytest
 
 from _window_rig import window_rig
-from reconstruction.mapping_correction import MappingCorrection, corrected_cameras, fit_mapping_correction
-from reconstruction.temporal_matching import apply_pixel_correction, fit_pixel_correction
+from benchmarks.research.mapping_correction import MappingCorrection, corrected_cameras, fit_mapping_correction
+from benchmarks.research.temporal_matching import apply_pixel_correction, fit_pixel_correction
 from reconstruction.triangulation import triangulate
 
 BOUNDS = (np.array([-0.03, -0.03, -0.02]), np.array([0.03, 0.03, 0.02]))

@@ -95,7 +95,7 @@ def test_triangulation_through_the_window():
 
 def test_rendered_window_reconstruction():
     """rig_sim's window renderer -> detection -> triangulation with the window model vs straight rays."""
-    from _rendered_window import rendered_window_errors
+    from rig_sim.rendered_window import rendered_window_errors
 
     e = rendered_window_errors()
     assert e["window_n"] >= 80

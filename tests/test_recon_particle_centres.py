@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from _synthetic_particles import particle_image
+from rig_sim.particle_images import particle_image
 from reconstruction.particle_centres import CENTRE_ESTIMATORS, gauss3_centres, peak_pixels
 from reconstruction.particles import detect_particles
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from _recon_rendered import HIDDEN_MARKER, HIDDEN_STEP, MISSING_STEP, N_STEPS, rendered_scene
+from rig_sim.rendered_scene import HIDDEN_MARKER, HIDDEN_STEP, MISSING_STEP, N_STEPS, rendered_scene
 from reconstruction.pipeline import ReconstructionSettings, reconstruct_series
 from reconstruction.surface import fit_cylinder
 

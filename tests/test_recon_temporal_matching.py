@@ -1,11 +1,11 @@
-"""Multi-camera matching over time (reconstruction/temporal_matching.py): moving particles rendered through
+"""Multi-camera matching over time (benchmarks/research/temporal_matching.py): moving particles rendered through
 glass and water into 4 cameras, dense enough that one frame cannot tell true matches from chance ones."""
 
 import numpy as np
 import pytest
 
 from _window_rig import window_rig
-from reconstruction.temporal_matching import (apply_pixel_correction, fit_pixel_correction, frame_candidates,
+from benchmarks.research.temporal_matching import (apply_pixel_correction, fit_pixel_correction, frame_candidates,
                                               temporal_match)
 
 BOUNDS = (np.array([-0.03, -0.03, -0.02]), np.array([0.03, 0.03, 0.02]))

@@ -22,7 +22,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from _e2e_data import make_session, synthetic_tube
+from rig_sim.synthetic_session import make_session, synthetic_tube
 from acquisition import h5journal
 from acquisition.session import open_session
 from vfmlab.cli import main

@@ -1,4 +1,5 @@
-"""Independent clamped-tube ground truth for the identification tests (not a test module).
+"""Independent clamped-tube ground truth for the identification tests and benchmarks
+(moved from tests/ident_clamped_synth.py).
 
 An axisymmetric membrane tube tied on two cannulae of its reference radius R at Z = +-L/2, axial
 stretch imposed, pressurised. With the meridional stress resultant Q = R H S_s (r', z') (S_s the
@@ -20,7 +21,7 @@ from scipy.integrate import solve_bvp
 
 from rig_sim.mechanics import membrane_cauchy
 
-from ident_synth import E0, L0, R0, markers
+from rig_sim.homogeneous_tube import E0, L0, R0, markers
 
 
 def _stresses(model, params, lt, ls):

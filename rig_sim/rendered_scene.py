@@ -6,12 +6,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from _calib_sim import SPEC, board_corners_world, rigid_fit
 from reconstruction.calibration import calibrate_from_detections
 from reconstruction.cameras import rotation_matrix
 from reconstruction.targets import detect_boards
 from rig_sim import camera_ring, deform_cylinder, random_marker_layout, render_markers
 from rig_sim.board import board_poses, render_board_views
+from rig_sim.calibration_scene import SPEC, board_corners_world, rigid_fit
 
 N_STEPS = 8
 HIDDEN_MARKER, HIDDEN_STEP = 17, 3

@@ -1,4 +1,4 @@
-"""Small synthetic sessions for the e2e tests (report, export, results, reprocess).
+"""Small synthetic sessions for the e2e tests (report, export, results, reprocess) and benchmarks/bench_e2e.py.
 
 A tube of radius 10 mm inflated and stretched with a closed-form, slightly non-uniform deformation
 (r bulges at mid-span), markers on its surface, and stored results of the documented shapes:

@@ -1,4 +1,5 @@
-"""Shared fixtures for the calibration tests: rendered ChArUco views in a small camera ring."""
+"""Rendered ChArUco views in a small camera ring, for the calibration tests and benchmarks (moved from
+tests/_calib_sim.py)."""
 
 from __future__ import annotations
 

@@ -11,7 +11,7 @@ of its likelihood as a true match to its likelihood as a chance coincidence, pro
 
 - ``r_c``: the candidate's reprojection residual in camera c (projected minus detected, px) after its
   triangulation with all its views, on detections moved by the calibration's measured bias map
-  (:func:`reconstruction.temporal_matching.apply_pixel_correction`);
+  (:func:`benchmarks.research.temporal_matching.apply_pixel_correction`);
 - ``s_c``: the scatter of a true match's residual in camera c (per axis, px), measured (:func:`fit_true_model`);
 - ``rho_c``: the local density of detections around the candidate's detection in camera c (px^-2,
   :func:`local_density`): a chance detection within a small radius of the projection of an unrelated point
@@ -44,7 +44,7 @@ from scipy.spatial import cKDTree
 
 from reconstruction.cameras import Camera
 from reconstruction.correspondence import observed_pixels
-from reconstruction.temporal_matching import (FrameCandidates, apply_pixel_correction, fit_pixel_correction,
+from benchmarks.research.temporal_matching import (FrameCandidates, apply_pixel_correction, fit_pixel_correction,
                                               frame_candidates, persistence_support, select_greedy)
 from reconstruction.triangulation import triangulate
 
@@ -63,7 +63,7 @@ class TrueModel:
     sigma_px : ndarray, shape (n_cameras,)
         Scatter per axis of a true match's residual after the bias map, px.
     coefficients : ndarray, shape (n_cameras, n_terms, 2)
-        Bias map (:func:`reconstruction.temporal_matching.fit_pixel_correction`; zeros = no bias).
+        Bias map (:func:`benchmarks.research.temporal_matching.fit_pixel_correction`; zeros = no bias).
     """
 
     sigma_px: np.ndarray
@@ -202,7 +202,7 @@ def score_candidates(detections: list[np.ndarray], cameras: list[Camera], bounds
         World box of the measurement volume, m.
     model : TrueModel
     gates : tuple of 3 float
-        (epipolar_px, radius_px, max_residual_px) of :func:`reconstruction.temporal_matching.frame_candidates`.
+        (epipolar_px, radius_px, max_residual_px) of :func:`benchmarks.research.temporal_matching.frame_candidates`.
     min_views : int
     density_radius_px : float or None
         Radius of :func:`local_density`, px (None: one density for the whole image).

@@ -1,6 +1,5 @@
-"""Closed-form test data for the identification tests: homogeneous inflation/extension of a membrane tube.
-
-Not a test module (no ``test_`` prefix). For each step the circumferential and axial stretches are
+"""Closed-form data for the identification tests and benchmarks: homogeneous inflation/extension of a membrane
+tube (moved from tests/ident_synth.py). For each step the circumferential and axial stretches are
 chosen; the pressure and wall axial force follow from the Laplace law with the model's stresses.
 """
 
@@ -8,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from identification.models import pk2_stress
+from identification import pk2_stress
 
 PAPER = {
     "fung": {"beta": 5e3, "alpha11": 14.5, "alpha22": 7.0, "alpha12": 0.1},
