@@ -2,20 +2,20 @@
 
 import glob
 import os
-from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
 from rig_sim.calibration_scene import SPEC, align_cameras, board_corners_world, rendered_charuco, rigid_fit
+from _data import data_path
 from reconstruction.calibration import CalibrationError, calibrate_cameras, calibrate_from_detections, detections_to_arrays
 from reconstruction.cameras import rotation_matrix
 from reconstruction.targets import BoardSpec, detect_board
 from reconstruction.triangulation import triangulate
 from rig_sim.cameras import camera_ring, specimen_triangulation_error
 
-STEREO = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "opencv-stereo-chessboard"
+STEREO = data_path("opencv-stereo-chessboard")
 
 
 @pytest.fixture(scope="module")

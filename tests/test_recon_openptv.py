@@ -1,15 +1,14 @@
-"""OpenPTV test_cavity (../shared/data/openptv-test-cavity): import of its calibrations with refraction."""
+"""OpenPTV test_cavity (tests/data/openptv-test-cavity): import of its calibrations with refraction."""
 
-from pathlib import Path
 
 import numpy as np
 import pytest
 
+from _data import data_path
 from reconstruction.calibration_io import camera_from_openptv, camera_to_openptv, cameras_from_arrays, cameras_to_arrays, parse_ptv_par
 from vfmlab import openptv
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "openptv-test-cavity"
-pytestmark = pytest.mark.skipif(not (DATA / "parameters" / "ptv.par").is_file(), reason=f"{DATA} not present")
+DATA = data_path("openptv-test-cavity")
 
 
 def _volume(n=3000, seed=0):
@@ -109,12 +108,12 @@ def frame1():
     return cams, openptv.detect_frame(DATA, 1)
 
 
-def test_particles_frame1(frame1):
+def test_particles_frame1(frame1, monkeypatch):
     """Real particles, frame 1, imported calibration: detected, matched along epipolar curves, triangulated."""
-    import sys
+    from benchmarks import _common
+    from benchmarks._common import frame_figures
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-    from bench_real_data import frame_figures
+    monkeypatch.setattr(_common, "DATA", DATA)  # the benchmark's own copy is outside the repository
 
     cams, dets = frame1
     assert all(700 < len(d) < 2000 for d in dets)  # OpenPTV finds ~1,400 per image with its settings
@@ -437,15 +436,15 @@ def test_cli_body_selected_keeps_the_terms_the_dots_determine(tmp_path, capsys, 
     assert np.allclose(K[:, 0, 0], [c.K[0, 0] for c in imported])  # the focal length is never refined
 
 
-def test_same_yardstick_reproduces_openptv_and_measures_its_chance_share():
+def test_same_yardstick_reproduces_openptv_and_measures_its_chance_share(monkeypatch):
     """benchmarks/bench_same_yardstick.py runs OpenPTV's own correspondences (optv) and finds every row of its frame-1
     rt_is again; with camera 1's targets moved by 20, 13 px OpenPTV still matches most of its >= 3-view points
     with camera 1: what its count is made of. The estimate is the one our matchings are scored with."""
     pytest.importorskip("optv")
-    import sys
+    from benchmarks import _common
+    from benchmarks.bench_same_yardstick import OpenPTV, per_camera, true_estimate
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-    from bench_same_yardstick import OpenPTV, per_camera, true_estimate
+    monkeypatch.setattr(_common, "DATA", DATA)  # the benchmark's own copy is outside the repository
 
     peer = OpenPTV()
     real, n = peer.match(1)

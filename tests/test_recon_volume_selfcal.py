@@ -1,10 +1,10 @@
 """Volume self-calibration on particles (reconstruction/volume_selfcal.py): synthetic known answer."""
 
-from pathlib import Path
 
 import numpy as np
 import pytest
 
+from _data import data_path
 from _window_rig import window_rig
 from reconstruction.volume_selfcal import bundle_adjust, disparity_map, loose_candidates, self_calibrate
 
@@ -101,23 +101,22 @@ def test_bad_arguments_are_named():
         bundle_adjust(cams, np.zeros((4, 0, 2)), np.zeros((0, 3)), np.zeros((4, 3)), np.zeros((3, 4, 2)))
 
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "openptv-test-cavity"
+DATA = data_path("openptv-test-cavity")
 
 
-@pytest.mark.skipif(not (DATA / "parameters" / "ptv.par").is_file(), reason=f"{DATA} not present")
-def test_volume_self_calibration_on_real_particles():
+def test_volume_self_calibration_on_real_particles(monkeypatch):
     """OpenPTV test_cavity, frame 1, imported calibration, one pass: the disparity peaks of the same loose
     candidates move towards zero and the calibration body does not get worse. (What it does NOT do on this
     data: make the >= 3-view matches real; bench_real_data.py's decoy figures, docs/validation/reconstruction.md.)"""
-    import sys
-
     from reconstruction.calibration_body import match_body_points
     from reconstruction.particles import detect_particles
     from reconstruction.volume_selfcal import body_rms
     from vfmlab import openptv
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-    from bench_real_data import selfcal_bounds
+    from benchmarks import _common
+    from benchmarks._common import selfcal_bounds
+
+    monkeypatch.setattr(_common, "DATA", DATA)  # the benchmark's own copy is outside the repository
 
     cams = openptv.load_cameras(DATA)
     _, pts = openptv.read_target_file(DATA / "cal" / "target_on_a_side.txt")
