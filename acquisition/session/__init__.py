@@ -30,7 +30,8 @@ The package's modules, one concept each: ``_schema`` (version, tables, record ty
 validator), ``_writer`` (:class:`SessionWriter`), ``_reader`` (:func:`open_session`,
 :class:`Session`), ``_results`` (:func:`write_result`), ``_guards`` (writer liveness, read
 faults), ``_opening`` and ``_preflight`` (opening safely), ``_journal`` and ``_recovery``
-(crash safety). Code outside the package imports only the names below.
+(crash safety). Code outside the package imports only the names below (``PREFLIGHT_TIMEOUT`` and
+``QUIET_BEFORE_WALK`` are read from ``_preflight`` at each call: re-binding them here changes nothing).
 """
 
 from __future__ import annotations

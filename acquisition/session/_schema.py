@@ -7,6 +7,7 @@ The layout itself is described in the package docstring (:mod:`acquisition.sessi
 from __future__ import annotations
 
 import datetime as _dt
+import functools
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -107,10 +108,13 @@ def _now_iso() -> str:
     return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="milliseconds")
 
 
+@functools.cache
 def _software_version() -> str:
     """The installed vfmlab version (what sessions and results record), as ``vfmlab.__version__`` gives it.
 
     Read here rather than imported from :mod:`vfmlab`: the stage package does not import the layer above it.
+    Cached (as ``vfmlab.__version__`` is): the installed version does not change while the process runs,
+    and importlib.metadata takes milliseconds per look-up.
     """
     from importlib.metadata import PackageNotFoundError, version
 
