@@ -382,7 +382,7 @@ def test_a_reused_pid_or_a_reboot_does_not_keep_a_session_running(tmp_path):
     with open_session(path) as s:
         assert s.status == "interrupted"
     with h5py.File(path, "r+") as f:  # same live pid and start time, but another boot
-        from acquisition.session import _start_ticks
+        from acquisition.session._guards import _start_ticks
         f["entry"].attrs["writer_start_ticks"] = _start_ticks(os.getppid())
     with open_session(path) as s:
         assert s.status == "running"
@@ -427,7 +427,7 @@ def test_concurrent_result_writers_wait_for_each_other(session, tmp_path):
 def test_a_reader_waits_again_when_a_third_job_takes_the_lock_first(session, tmp_path, monkeypatch):
     # Between the wait for a writer and the open, another writer may lock the file again (1 open in
     # ~30 with 6 concurrent writers): the reader waits again instead of calling the file damaged.
-    import acquisition.session as sessions
+    import acquisition.session._opening as sessions
 
     path = tmp_path / "c.h5"
     path.write_bytes(session.read_bytes())

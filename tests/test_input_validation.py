@@ -141,11 +141,11 @@ def test_short_model_parameters_give_a_warning_not_a_traceback(tmp_path, capsys,
 
 
 def test_bit_flips_never_escape_as_tracebacks(tmp_path, capsys, monkeypatch):
-    import acquisition.session
+    import acquisition.session._preflight
 
     # a sound 20-marker session is walked in milliseconds; the flips that make HDF5 loop for ever
     # would otherwise each wait out the rig-sized 20 s limit
-    monkeypatch.setattr(acquisition.session, "PREFLIGHT_TIMEOUT", 3.0)
+    monkeypatch.setattr(acquisition.session._preflight, "PREFLIGHT_TIMEOUT", 3.0)
     markers, loads = _write_inputs(tmp_path, n_markers=20)
     assert _import(capsys, tmp_path, markers, loads)[0] == 0
     data = (tmp_path / "s.h5").read_bytes()
@@ -207,7 +207,7 @@ def test_huge_step_numbers(tmp_path, capsys, step):
 
 
 def test_output_on_a_read_only_file_system(tmp_path, capsys, monkeypatch):
-    import acquisition.session as session_module
+    import acquisition.session._writer as session_module
 
     def read_only(path, *args, **kwargs):
         raise OSError(f"Unable to synchronously create file (unable to open file: name = '{path}', errno = 30, "

@@ -140,7 +140,7 @@ def test_pause_abort_or_quit_always_vents(tmp_path, monkeypatch, answer, status,
         assert s.n_steps == 3 and s.recorded_status == recorded
     if answer == "quit":  # resumable: reopen and finish; every step exactly once
         # the quitting process normally exits; here it lives on, so tell the reader its writer is gone
-        import acquisition.session as session_mod
+        import acquisition.session._guards as session_mod
         monkeypatch.setattr(session_mod, "_writer_alive", lambda pid, host, *identity: False)
         w = SessionWriter.resume(tmp_path / "s.h5")
         rig2 = FakeRig()

@@ -187,7 +187,7 @@ def test_cli_reports_bad_files_before_anything_moves(tmp_path, capsys):
 
 
 def _interrupted_session(path, monkeypatch, pressure_identity):
-    import acquisition.session as session_mod
+    import acquisition.session._guards as session_mod
     from acquisition.session import CameraSpec, SessionWriter, SpecimenInfo
     from vfmlab.operate import DEFAULT_SIM_RIG
 

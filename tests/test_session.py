@@ -263,7 +263,7 @@ def test_results_can_be_added_to_an_interrupted_session(tmp_path):
 # -- the damaged-file check (structure walk in a child) ----------------------------------------
 
 def _count_walks(monkeypatch) -> list:
-    import acquisition.session as session_module
+    import acquisition.session._preflight as session_module
 
     forks = []
     original = session_module._fork_walk
@@ -272,7 +272,7 @@ def _count_walks(monkeypatch) -> list:
 
 
 def test_walk_not_repeated_while_a_quiet_file_is_unchanged(tmp_path, monkeypatch):
-    import acquisition.session as session_module
+    import acquisition.session._preflight as session_module
 
     path = tmp_path / "s.h5"
     SessionWriter.create(path, SPEC).close()
@@ -297,7 +297,7 @@ def test_a_recently_written_file_is_walked_at_every_open(tmp_path, monkeypatch):
 
 
 def test_walk_started_ahead_is_waited_for(tmp_path, monkeypatch):
-    import acquisition.session as session_module
+    import acquisition.session._preflight as session_module
 
     path = tmp_path / "s.h5"
     SessionWriter.create(path, SPEC).close()
@@ -309,7 +309,7 @@ def test_walk_started_ahead_is_waited_for(tmp_path, monkeypatch):
 
 
 def test_walk_started_ahead_that_hangs_is_a_damaged_file(tmp_path, monkeypatch):
-    import acquisition.session as session_module
+    import acquisition.session._preflight as session_module
 
     path = tmp_path / "s.h5"
     SessionWriter.create(path, SPEC).close()

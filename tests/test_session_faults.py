@@ -1,7 +1,7 @@
 """Result writes cannot damage a session: SIGKILL at every disk write and disk full at every write.
 
 ``identify``, ``reconstruct`` and ``calibrate`` run through the real CLI (``vfmlab.cli.main``) in a
-forked child whose journaled writer (``acquisition.h5journal._JournaledFile._io``, the one place
+forked child whose journaled writer (``acquisition.session._journal._JournaledFile._io``, the one place
 an append touches the disk) kills the process at its k-th write, for every k. The parent then
 opens the session as ``info`` does (which rolls an unfinished write back) and checks that the
 file is byte-identical to the one before the command. The heavy computation of each command is
@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 
 from rig_sim.synthetic_session import make_session, synthetic_tube
-from acquisition import h5journal
+from acquisition.session import _journal as h5journal
 from acquisition.session import open_session
 from vfmlab.cli import main
 

@@ -5,11 +5,17 @@ that a writer has it open. If that writer is killed, the flag stays set and HDF5
 open the file for writing again ("file is already open for write"). Readers can still open
 it with ``swmr=True``. To append to it again (resume a session) we reset the flag byte and
 rewrite the superblock checksum (Jenkins lookup3, as HDF5's ``H5_checksum_metadata``).
+
+Also :func:`_trim_partial_records`: what resume cuts back after a kill (a table half-appended).
 """
 
 from __future__ import annotations
 
 import os
+
+import h5py
+
+from acquisition.session._schema import _LOG_CHANNELS, _STEP_COLUMNS
 
 __all__ = ["clear_consistency_flags", "lookup3"]
 
@@ -84,3 +90,36 @@ def clear_consistency_flags(path: str | os.PathLike) -> bool:
         fh.flush()
         os.fsync(fh.fileno())
     return True
+
+
+def _trim_partial_records(entry: h5py.Group) -> list[str]:
+    """Cut every table a killed writer may have left half-appended back to its complete rows.
+
+    Log and event columns are appended one after another, and a step's frames are written before
+    its table row, so after a kill the datasets of one table can differ in length by one append.
+    Returns a description of what was dropped (empty if nothing).
+    """
+    dropped = []
+    tables = [entry["log"][channel] for channel in _LOG_CHANNELS] + [entry["events"]]
+    for group in tables:
+        n = min(ds.shape[0] for ds in group.values())
+        for ds in group.values():
+            if ds.shape[0] > n:
+                dropped.append(f"{ds.name}[{n}:{ds.shape[0]}]")
+                ds.resize((n,) + ds.shape[1:])
+    calib = entry["calibration/images"] if "calibration/images" in entry else {}
+    n_views = min((ds.shape[0] for ds in calib.values()), default=0)
+    for ds in calib.values():  # a view is complete once every camera has its frame
+        if ds.shape[0] > n_views:
+            dropped.append(f"{ds.name}[{n_views}:{ds.shape[0]}]")
+            ds.resize((n_views,) + ds.shape[1:])
+    steps = entry["steps"]
+    n_rows = min(steps[name].shape[0] for name in _STEP_COLUMNS)
+    for ds in [steps[name] for name in _STEP_COLUMNS] + list(steps["images"].values()):
+        if ds.shape[0] > n_rows:
+            dropped.append(f"{ds.name}[{n_rows}:{ds.shape[0]}]")
+            ds.resize((n_rows,) + ds.shape[1:])
+    return dropped
+
+
+# -- reading ---------------------------------------------------------------------------------

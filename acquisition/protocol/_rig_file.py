@@ -1,0 +1,170 @@
+"""Rig-configuration and specimen files: TOML -> :class:`RigConfig`, :class:`SpecimenFile`."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+from acquisition.protocol._rig_model import (
+    END_CONDITIONS,
+    MAX_CAMERAS,
+    SIMULATED_MATERIALS,
+    CameraConfig,
+    PortConfig,
+    RigConfig,
+    SafetyLimits,
+    SimulationConfig,
+    SpecimenFile,
+    WindowConfig,
+)
+from acquisition.protocol._toml import _is, _loads, _read, _Table
+
+# ----------------------------------------------------------------------------- rig
+_BACKENDS = ("sim", "folder", "opencv", "basler")
+
+
+def load_rig(path: str | Path) -> RigConfig:
+    """Read and validate a rig configuration file."""
+    data, text, source = _read(path)
+    return parse_rig(data, text=text, source=source)
+
+
+def parse_rig(data: dict | str, text: str = "", source: str = "<rig>") -> RigConfig:
+    if isinstance(data, str):
+        text = data
+        data = _loads(data, source)
+    top = _Table(data, source, "")
+    meta = top.table("rig")
+    name = Path(source).stem
+    ends = ""
+    if meta is not None:
+        name = meta.get("name", name, str)
+        ends = _ends(meta)
+        meta.done()
+    pressure = _port(top.table("pressure", required=True), is_load_cell=False)
+    load_cell = _port(top.table("load_cell", required=True), is_load_cell=True)
+    cams: list[CameraConfig] = []
+    raw_cams = top.get("camera", [], list)
+    if len(raw_cams) > MAX_CAMERAS:
+        top.fail("camera", f"{len(raw_cams)} [[camera]] entries: expected at most {MAX_CAMERAS}")
+    for i, raw in enumerate(raw_cams):
+        c = _Table(raw, source, f"[[camera]] #{i + 1} ")
+        cname = c.get("name", kind=str)
+        backend = c.get("backend", kind=str)
+        if backend not in _BACKENDS:
+            c.fail("backend", f"expected one of {list(_BACKENDS)}; got {backend!r}")
+        settings = c.get("settings", {}, dict)
+        c.done()
+        _check_referenced_paths(c, settings)
+        if any(x.name == cname for x in cams):
+            c.fail("name", f"duplicate camera name {cname!r}")
+        cams.append(CameraConfig(cname, backend, dict(settings)))
+    if not cams:
+        top.fail("camera", "no cameras: add [[camera]] entries (name, backend)")
+    safety = SafetyLimits()
+    t = top.table("safety")
+    if t is not None:
+        limits = (t.pressure("max_pressure", safety.max_pressure), t.number("max_stretch", safety.max_stretch, lo=1.0),
+                  t.number("max_force_N", safety.max_force, lo=0.0, lo_open=True))
+        if limits[0] <= 0:
+            t.fail("max_pressure_mmHg", "expected a limit > 0")
+        if limits[1] <= 1.0:
+            t.fail("max_stretch", f"expected a limit > 1 (L/L0 = 1 is the unstretched length); got {limits[1]:g}")
+        safety = SafetyLimits(*limits)
+        t.done()
+    simulation = SimulationConfig()
+    t = top.table("simulation")
+    if t is not None:
+        material = t.get("material", simulation.material, str)
+        if material not in SIMULATED_MATERIALS:
+            t.fail("material", f"expected one of {list(SIMULATED_MATERIALS)}; got {material!r}")
+        simulation = SimulationConfig(material, t.integer("n_markers", simulation.n_markers, lo=10),
+                                      t.get("clamped", simulation.clamped, bool),
+                                      t.integer("seed", simulation.seed))
+        t.done()
+    window = _window(top.table("window"))
+    top.done()
+    return RigConfig(name, pressure, load_cell, tuple(cams), safety, simulation, text, source, ends, window)
+
+
+def _window(t: _Table | None) -> WindowConfig | None:
+    """The rig's ``[window]`` table: lengths in mm in the file, m in the result."""
+    if t is None:
+        return None
+    thickness = t.number("glass_thickness_mm", lo=0.0) * 1e-3
+    indices = [t.number(k, default, lo=1.0) for k, default in (("glass_index", ...), ("bath_index", ...),
+                                                               ("air_index", 1.0))]
+    distance = t.number("plane_distance_mm") * 1e-3
+    normal = t.get("normal", kind=list)
+    if len(normal) != 3 or not all(_is(v, (int, float)) and math.isfinite(float(v)) for v in normal):
+        t.fail("normal", f"expected 3 finite numbers (world frame, from the cameras into the bath); got {normal!r}")
+    norm = math.sqrt(sum(float(v) ** 2 for v in normal))
+    if norm == 0:
+        t.fail("normal", f"expected a non-zero vector; got {normal!r}")
+    t.done()
+    return WindowConfig(thickness, indices[0], indices[1], distance, tuple(float(v) / norm for v in normal), indices[2])
+
+
+def _ends(t: _Table) -> str:
+    """The optional ``ends`` key of a table: "clamped", "free" or "" when absent."""
+    ends = t.get("ends", "", str)
+    if ends and ends not in END_CONDITIONS:
+        t.fail("ends", f"expected one of {list(END_CONDITIONS)}; got {ends!r}")
+    return ends
+
+
+_PATH_KEYS = ("path", "file", "folder", "directory")
+
+
+def _check_referenced_paths(t: _Table, settings: dict) -> None:
+    """A file or folder a camera's settings name must exist (checked now, before anything moves)."""
+    for key, value in settings.items():
+        if isinstance(value, str) and (key in _PATH_KEYS or key.endswith(("_path", "_file", "_dir"))):
+            if not Path(value).expanduser().exists():
+                t.fail(f"settings.{key}", f"{value!r} does not exist (paths are relative to the folder vfmlab "
+                                          f"runs in: {Path.cwd()})")
+
+
+def _port(t: _Table, is_load_cell: bool) -> PortConfig:
+    port = t.get("port", kind=str)
+    serial = t.get("serial_number", "", str)
+    mode = "manual"
+    measures = "wall"
+    if is_load_cell:
+        measures = t.get("measures", kind=str)
+        if measures not in ("wall", "total"):
+            t.fail("measures", f"expected 'wall' or 'total'; got {measures!r}")
+    else:
+        mode = t.get("mode", "manual", str)
+        if mode not in ("controller", "manual"):
+            t.fail("mode", f"expected 'controller' or 'manual'; got {mode!r}")
+    baud = t.integer("baudrate", 0, lo=1)
+    settings = t.get("settings", {}, dict)
+    t.done()
+    return PortConfig(port, serial, mode, baud, measures, dict(settings))
+
+
+# ----------------------------------------------------------------------------- specimen
+def load_specimen(path: str | Path) -> SpecimenFile:
+    """Read and validate a specimen file (lengths in mm in the file, m in the result)."""
+    data, _, source = _read(path)
+    return parse_specimen(data, source=source)
+
+
+def parse_specimen(data: dict | str, source: str = "<specimen>") -> SpecimenFile:
+    if isinstance(data, str):
+        data = _loads(data, source)
+    top = _Table(data, source, "")
+    t = top.table("specimen", required=True)
+    sid = t.get("id", kind=str)
+    if not sid.strip():
+        t.fail("id", "expected a non-empty specimen id")
+    dims = [t.number(k, lo=0.0, lo_open=True) * 1e-3 for k in ("radius_mm", "length_mm", "thickness_mm")]
+    if dims[2] >= dims[0]:
+        t.fail("thickness_mm", f"wall thickness {dims[2] * 1e3:g} mm must be smaller than the radius "
+                               f"{dims[0] * 1e3:g} mm")
+    notes = t.get("notes", "", str)
+    ends = _ends(t)
+    t.done()
+    top.done()
+    return SpecimenFile(sid, dims[0], dims[1], dims[2], notes, ends)
