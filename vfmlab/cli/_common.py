@@ -22,12 +22,9 @@ from typing import Any
 
 import click
 
-from vfmlab.display import display_quantity, fixed, num, quantity  # noqa: F401 - re-exported for the commands
-
-#: Width a non-terminal console renders at: wide enough that no table or line ever folds.
-UNLIMITED_WIDTH = 100_000
-#: ISO 8601 time stamps in every log line (never the locale's month/day order).
-LOG_TIME_FORMAT = "%Y-%m-%d %H:%M:%S"
+# re-exported for the commands; the two constants live with the number formats so that _console (which
+# needs them too) does not import this module back
+from vfmlab.display import LOG_TIME_FORMAT, UNLIMITED_WIDTH, display_quantity, fixed, num, quantity  # noqa: F401
 
 
 def __getattr__(name: str) -> Any:
