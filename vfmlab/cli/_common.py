@@ -143,3 +143,31 @@ def to_jsonable(obj: Any) -> Any:
 def print_json(obj: Any) -> None:
     """Print ``obj`` as JSON on stdout (no colour, no wrapping), for scripts."""
     click.echo(json.dumps(to_jsonable(obj), indent=2, sort_keys=False))
+
+
+class ModelChoice(click.Choice):
+    """``click.Choice`` of the registered constitutive models (:func:`vfmlab.stages.models.model_names`), listed
+    on first use: importing a command (``vfmlab identify --help``) does not import the identification package."""
+
+    def __init__(self) -> None:
+        super().__init__((), case_sensitive=True)
+
+    @property
+    def choices(self) -> tuple[str, ...]:
+        from vfmlab.stages.models import model_names
+
+        return tuple(model_names())
+
+    @choices.setter
+    def choices(self, value) -> None:  # click.Choice.__init__ assigns it; the registry decides
+        pass
+
+
+def check_model_list(names, option: str, none_ok: bool = False) -> None:
+    """A CliInputError naming ``option`` when ``names`` holds a name that is not a registered model."""
+    from vfmlab.stages.models import check_models, model_names
+
+    unknown = check_models(names)
+    if unknown:
+        raise CliInputError(f"{option} must be among {', '.join(model_names())}{' or ' + repr('none') if none_ok else ''}; "
+                            f"got {unknown}")

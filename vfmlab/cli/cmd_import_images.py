@@ -10,7 +10,7 @@ from rich.progress import Progress
 
 from vfmlab.cli._common import CliError, CliInputError, console, err_console, esc, print_json
 from vfmlab.cli._outputs import check_output_path
-from vfmlab.cli.cmd_reconstruct import load_calibration_file
+from vfmlab.stages.reconstruct import load_calibration_file
 
 _IMAGE_SUFFIXES = {".png", ".tif", ".tiff", ".bmp", ".pgm", ".jpg", ".jpeg"}
 
