@@ -15,7 +15,7 @@ import numpy as np
 
 from vfmlab.stages.errors import StageError, StageFailed
 from vfmlab.stages.feedback import Notify, ProgressFactory, log_notes, no_progress
-from vfmlab.stages.settings import CalibrateSettings
+from vfmlab.stages.settings import CalibrateSettings, settings_with
 
 log = logging.getLogger(__name__)
 
@@ -41,10 +41,11 @@ class CalibrationOutcome:
 
 
 def calibrate(session: str | Path | None, settings: CalibrateSettings | None = None, *, notify: Notify = log_notes,
-              progress: ProgressFactory = no_progress) -> CalibrationOutcome:
+              progress: ProgressFactory = no_progress, **overrides: Any) -> CalibrationOutcome:
     """Calibrate (or import) the cameras and store them as a new "calibration" result of ``session``
-    (``settings.store``) and/or write ``settings.out`` (.toml aniposelib, .yaml/.yml OpenCV)."""
-    s = settings or CalibrateSettings()
+    (``settings.store``) and/or write ``settings.out`` (.toml aniposelib, .yaml/.yml OpenCV): ``vfmlab calibrate``,
+    its defaults :class:`CalibrateSettings`. An existing ``out`` is overwritten."""
+    s = settings_with(CalibrateSettings, settings, overrides)
     session = None if session is None else Path(session)
     if s.import_file is not None:
         if s.images_dir is not None:
