@@ -68,13 +68,14 @@ def command(session, marker_diameter_mm, calibration, calibration_units, frame, 
     result; markers not seen in a step are NaN there.
     """
     from vfmlab.cli._common import show_warning
-    from vfmlab.stages.reconstruct import reconstruct
+    from vfmlab.stages.reconstruct import reconstruct, resolve_cameras
     from vfmlab.stages.settings import ReconstructSettings
 
     settings = ReconstructSettings(marker_diameter_mm=marker_diameter_mm, calibration=calibration,
                                    calibration_units=calibration_units, frame=frame, flip_axis=flip_axis,
                                    normals=normals, epipolar_px=epipolar_px, max_reprojection_px=max_reprojection_px,
                                    include_superseded=include_superseded, store=store)
+    cameras = resolve_cameras(session, settings, show_warning)  # before the progress bars, as its messages
     with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total} steps"),
                   TimeElapsedColumn(), console=err_console, transient=True, disable=as_json) as progress:
         tasks = {}
@@ -84,7 +85,7 @@ def command(session, marker_diameter_mm, calibration, calibration_units, frame, 
                 tasks[stage] = progress.add_task(stage, total=n)
             progress.update(tasks[stage], completed=step + 1)
 
-        outcome = reconstruct(session, settings, progress=report, warn=show_warning, invoked_by="reconstruct")
+        outcome = reconstruct(session, settings, progress=report, cameras=cameras, invoked_by="reconstruct")
     summary = outcome.to_dict()
     if as_json:
         print_json(summary)

@@ -16,7 +16,7 @@ from vfmlab.stages.errors import StageError, StageFailed
 from vfmlab.stages.feedback import Notify, log_notes
 from vfmlab.stages.settings import ReconstructSettings, settings_with
 
-__all__ = ["ReconstructOutcome", "load_calibration_file", "reconstruct", "session_cameras"]
+__all__ = ["ReconstructOutcome", "load_calibration_file", "reconstruct", "resolve_cameras", "session_cameras"]
 
 
 def load_calibration_file(path: Path, units: str | None = None) -> list:
@@ -99,18 +99,26 @@ class ReconstructOutcome:
         }
 
 
+def resolve_cameras(session_path: str | os.PathLike, s: ReconstructSettings, warn: Notify = log_notes) -> tuple[list, str]:
+    """The cameras :func:`reconstruct` uses and their source (:func:`session_cameras` on the open session)."""
+    from acquisition.session import open_session
+
+    with open_session(session_path) as session:
+        return session_cameras(session, None if s.calibration is None else Path(s.calibration), s.calibration_units,
+                               warn)
+
+
 def reconstruct(session_path: str | os.PathLike, settings: ReconstructSettings | None = None, *,
                 progress: Callable[[int, int, str], None] | None = None, warn: Notify = log_notes,
-                invoked_by: str = "python", **overrides: Any) -> ReconstructOutcome:
+                cameras: tuple[list, str] | None = None, invoked_by: str = "python",
+                **overrides: Any) -> ReconstructOutcome:
     """Reconstruct the 3-D marker positions of every step of the session and track their identities
-    (``vfmlab reconstruct``; defaults: :class:`ReconstructSettings`). ``progress(step, n_steps, stage)``."""
-    from acquisition.session import open_session
+    (``vfmlab reconstruct``; defaults: :class:`ReconstructSettings`). ``progress(step, n_steps, stage)``;
+    ``cameras``: (cameras, source) of :func:`resolve_cameras` when already resolved."""
     from vfmlab.pipeline import reconstruct_stored
 
     s = settings_with(ReconstructSettings, settings, overrides)
-    with open_session(session_path) as session:
-        cams, source = session_cameras(session, None if s.calibration is None else Path(s.calibration),
-                                       s.calibration_units, warn)
+    cams, source = resolve_cameras(session_path, s, warn) if cameras is None else cameras
     stored, res, rows, names, source = reconstruct_stored(
         session_path, cameras=cams, calibration_source=source, marker_diameter_mm=s.marker_diameter_mm,
         normals=s.normals, epipolar_px=s.epipolar_px, max_reprojection_px=s.max_reprojection_px,
