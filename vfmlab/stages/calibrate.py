@@ -7,12 +7,12 @@ Lengths in the settings in mm as on the command line (``vfmlab calibrate``), SI 
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from vfmlab.stages.calibration_files import CalibrationOutcome, write_cameras
 from vfmlab.stages.errors import StageError, StageFailed
 from vfmlab.stages.feedback import Notify, ProgressFactory, log_notes, no_progress
 from vfmlab.stages.settings import CalibrateSettings, settings_with
@@ -22,24 +22,6 @@ log = logging.getLogger(__name__)
 __all__ = ["CalibrationOutcome", "calibrate", "window_rows"]
 
 _IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm"}
-#: Units of the arrays of a stored "calibration" result.
-CALIBRATION_UNITS = {"K": "px", "tvec": "m", "rvec": "rad", "rms": "px", "image_size": "px", "window_offset": "m",
-                     "window_thickness": "m", "window_normal": "1", "window_index": "1"}
-
-
-@dataclass
-class CalibrationOutcome:
-    """What :func:`calibrate` did: ``summary`` is the command's ``--json`` (SI, px, mm as the keys say);
-    ``result`` the board calibration (``reconstruction.calibration``), None for an import; ``cameras``
-    the calibrated cameras; ``meta`` what an import read (``body_rms_px``, ``self_calibration``, ...)."""
-
-    summary: dict[str, Any]
-    cameras: list
-    stored: str | None
-    result: Any = None
-    meta: dict[str, Any] = field(default_factory=dict)
-
-
 def calibrate(session: str | Path | None, settings: CalibrateSettings | None = None, *, notify: Notify = log_notes,
               progress: ProgressFactory = no_progress, **overrides: Any) -> CalibrationOutcome:
     """Calibrate (or import) the cameras and store them as a new "calibration" result of ``session``
@@ -214,14 +196,6 @@ def reference_index(names: list[str], reference: str | None) -> int:
     if reference not in names:
         raise StageError(f"--reference must be one of {names}; got {reference!r}")
     return names.index(reference)
-
-
-def write_cameras(out: Path, cameras: list, units: str, meta: dict) -> None:
-    """Write ``cameras`` to ``out``: .toml (aniposelib) or .yaml/.yml (OpenCV FileStorage), translations in ``units``."""
-    from reconstruction.calibration_io import cameras_to_toml, cameras_to_yaml
-
-    text = (cameras_to_toml if out.suffix.lower() == ".toml" else cameras_to_yaml)(cameras, units=units, metadata=meta)
-    out.write_text(text)
 
 
 def _store_board(session: Path, result, params: dict) -> str:

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vfmlab.stages.calibrate import CALIBRATION_UNITS, CalibrationOutcome, write_cameras
+from vfmlab.stages.calibration_files import CALIBRATION_UNITS, CalibrationOutcome, write_cameras
 from vfmlab.stages.errors import StageError, StageFailed
 from vfmlab.stages.feedback import Notify, ProgressFactory, log_notes, no_progress
 from vfmlab.stages.settings import CalibrateSettings
