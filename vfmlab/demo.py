@@ -33,6 +33,7 @@ from rich.table import Table
 
 from acquisition.session import open_session
 from vfmlab.display import parameter_unit
+from vfmlab.stages.models import check_models, model_names
 
 __all__ = ["DemoError", "DemoOutcome", "DemoSettings", "run_demo", "truth_table"]
 
@@ -114,9 +115,9 @@ def run_demo(out_dir: str | Path, *, console: Console, settings: DemoSettings = 
     """Run the complete simulated test into ``out_dir``; returns where the session and report are."""
     from vfmlab.operate import OperateError, run_session
 
-    unknown = [m for m in settings.models if m not in ("fung", "delfino", "hgo", "neohookean")]
+    unknown = check_models(settings.models)
     if unknown:
-        raise DemoError(f"models must be among fung, delfino, hgo, neohookean; got {unknown}")
+        raise DemoError(f"models must be among {', '.join(model_names())}; got {unknown}")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")

@@ -9,7 +9,12 @@ from __future__ import annotations
 import math
 from typing import Any
 
-__all__ = ["num", "fixed", "display_quantity", "quantity", "settings_text"]
+__all__ = ["LOG_TIME_FORMAT", "UNLIMITED_WIDTH", "num", "fixed", "display_quantity", "quantity", "settings_text"]
+
+#: ISO 8601 time stamps in every log line (never the locale's month/day order).
+LOG_TIME_FORMAT = "%Y-%m-%d %H:%M:%S"
+#: Width a non-terminal console renders at: wide enough that no table or line ever folds.
+UNLIMITED_WIDTH = 100_000
 
 
 def num(value: Any, digits: int = 4) -> str:

@@ -20,10 +20,11 @@ from typing import Any
 
 import numpy as np
 
-from acquisition.errors import ImplausibleInputError, InputError
+from acquisition.errors import ImplausibleInputError
 from acquisition.plausibility import check_identifiable
 from acquisition.session import SessionError, SessionWriteError, open_session, write_result
 from vfmlab.parallel import fork_map
+from vfmlab.stages.errors import StageError, StageUnavailable
 
 log = logging.getLogger(__name__)
 
@@ -36,14 +37,6 @@ FORCE_NOISE = 0.002
 __all__ = ["STAGES", "StageError", "StageUnavailable", "identification_arrays", "identify_session", "identify_stored",
            "load_identification_inputs", "read_identification_inputs", "reconstruct_session", "reconstruct_stored",
            "resolve_ends", "session_calibrated_cameras", "session_step_rows"]
-
-
-class StageError(InputError):
-    """A stage could not run on a session's contents (missing or unusable input): exit code 2 (decision 0007)."""
-
-
-class StageUnavailable(StageError):
-    """The stage's implementation is not installed in this build."""
 
 
 def load_identification_inputs(session, markers: str | None = None) -> dict[str, Any]:

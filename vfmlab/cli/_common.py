@@ -22,12 +22,9 @@ from typing import Any
 
 import click
 
-from vfmlab.display import display_quantity, fixed, num, quantity  # noqa: F401 - re-exported for the commands
-
-#: Width a non-terminal console renders at: wide enough that no table or line ever folds.
-UNLIMITED_WIDTH = 100_000
-#: ISO 8601 time stamps in every log line (never the locale's month/day order).
-LOG_TIME_FORMAT = "%Y-%m-%d %H:%M:%S"
+# re-exported for the commands; the two constants live with the number formats so that _console (which
+# needs them too) does not import this module back
+from vfmlab.display import LOG_TIME_FORMAT, UNLIMITED_WIDTH, display_quantity, fixed, num, quantity  # noqa: F401
 
 
 def __getattr__(name: str) -> Any:
@@ -146,3 +143,31 @@ def to_jsonable(obj: Any) -> Any:
 def print_json(obj: Any) -> None:
     """Print ``obj`` as JSON on stdout (no colour, no wrapping), for scripts."""
     click.echo(json.dumps(to_jsonable(obj), indent=2, sort_keys=False))
+
+
+class ModelChoice(click.Choice):
+    """``click.Choice`` of the registered constitutive models (:func:`vfmlab.stages.models.model_names`), listed
+    on first use: importing a command (``vfmlab identify --help``) does not import the identification package."""
+
+    def __init__(self) -> None:
+        super().__init__((), case_sensitive=True)
+
+    @property
+    def choices(self) -> tuple[str, ...]:
+        from vfmlab.stages.models import model_names
+
+        return tuple(model_names())
+
+    @choices.setter
+    def choices(self, value) -> None:  # click.Choice.__init__ assigns it; the registry decides
+        pass
+
+
+def check_model_list(names, option: str, none_ok: bool = False) -> None:
+    """A CliInputError naming ``option`` when ``names`` holds a name that is not a registered model."""
+    from vfmlab.stages.models import check_models, model_names
+
+    unknown = check_models(names)
+    if unknown:
+        raise CliInputError(f"{option} must be among {', '.join(model_names())}{' or ' + repr('none') if none_ok else ''}; "
+                            f"got {unknown}")

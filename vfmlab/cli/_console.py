@@ -6,7 +6,7 @@ from typing import Any, Iterable
 
 from rich.console import Console, ConsoleDimensions
 
-from vfmlab.cli._common import LOG_TIME_FORMAT, UNLIMITED_WIDTH
+from vfmlab.display import LOG_TIME_FORMAT, UNLIMITED_WIDTH
 
 
 class CliConsole(Console):

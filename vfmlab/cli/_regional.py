@@ -1,24 +1,8 @@
-"""``vfmlab identify --regions N|auto|legendre:K``: parameter profiles along the axis (output of ``vfmlab.regional``)."""
+"""``vfmlab identify --regions N|auto|legendre:K``: the printout of a regional outcome (:mod:`vfmlab.stages.identify`)."""
 
 from __future__ import annotations
 
-from vfmlab.cli._common import CliError, CliInputError, console, display_quantity, esc, num, print_json
-
-
-def _json(group, result, model_units, choice):
-    print_json({
-        "model": result.model, "regional": list(result.regional), "profile_kind": result.kind,
-        "band_edges_m": result.edges.tolist(), "band_centres_m": result.centres.tolist(),
-        "profiles": {n: v.tolist() for n, v in result.profiles.items()},
-        "stderr": {n: v.tolist() for n, v in result.stderr.items()},
-        "interval_95": {n: v.tolist() for n, v in result.interval.items()}, "uncertainty": result.uncertainty,
-        "z_score": {n: v.tolist() for n, v in result.z_score.items()},
-        "differs": result.differs.tolist(), "parameters": result.parameters,
-        "parameter_stderr": result.parameter_stderr,
-        "homogeneous": result.homogeneous.parameters, "units": model_units, "cost": result.cost,
-        "auto": None if choice is None else {"n_bands": choice.n_bands, "candidates": choice.candidates.tolist(),
-                                             "chi2": choice.chi2.tolist(), "criterion": choice.criterion.tolist()},
-        "converged": result.converged, "flags": list(result.flags), "result_group": group})
+from vfmlab.cli._common import console, display_quantity, esc, num, print_json
 
 
 def _table(result, model_units):
@@ -51,27 +35,12 @@ def _print_choice(choice) -> None:
                   f"{rows})")
 
 
-def run_regional(session_path, model, wall, ends, smoothing, regions, uncertainty, as_json) -> None:
-    """Identify, store and print a regional result (``--regions``)."""
-    from identification import get_model
-    from vfmlab.pipeline import StageError
-    from vfmlab.regional import identify_regional_stored, parse_regions
-
-    try:
-        spec = parse_regions(regions)
-    except ValueError as exc:
-        raise CliInputError(str(exc)) from None
-    try:
-        group, result, data = identify_regional_stored(session_path, regions=spec, model=model, wall=wall, ends=ends,
-                                                       smoothing=smoothing, uncertainty=uncertainty,
-                                                       invoked_by="identify")
-    except StageError as exc:
-        raise CliError(str(exc)) from None
-    m = get_model(model)
-    model_units = dict(zip(m.parameter_names, m.units))
+def print_regional(outcome, as_json: bool) -> None:
+    """Print a stored regional result (``--regions``): JSON, or the table and its notes."""
     if as_json:
-        _json(group, result, model_units, data.get("choice"))
+        print_json(outcome.to_dict())
         return
+    result, data, model_units = outcome.result, outcome.data, outcome.units
     if data.get("choice") is not None:
         _print_choice(data["choice"])
     console.print(_table(result, model_units))
@@ -88,4 +57,4 @@ def run_regional(session_path, model, wall, ends, smoothing, regions, uncertaint
         console.print(f"[dim]{esc(note)}[/]")
     for flag in result.flags:
         console.print(f"[yellow]warning:[/] {esc(flag)}")
-    console.print(f"stored as {esc(group)}")
+    console.print(f"stored as {esc(outcome.group)}")

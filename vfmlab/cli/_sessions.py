@@ -9,8 +9,9 @@ from __future__ import annotations
 from contextlib import contextmanager
 from pathlib import Path
 
-from acquisition.session import Session, SessionError, open_session
+from acquisition.session import SessionError, open_session
 from vfmlab.cli._common import CliInputError
+from vfmlab.stages.outputs import latest_markers  # noqa: F401 - for the commands
 
 
 @contextmanager
@@ -27,14 +28,3 @@ def cli_session(path: str | Path):
         raise CliInputError(str(exc)) from exc
     finally:
         session.close()
-
-
-def latest_markers(session: Session) -> dict:
-    """The newest "markers" result, or a CliInputError saying how to make one."""
-    result = session.latest("markers")
-    if result is None:
-        raise CliInputError(
-            f"{session.path}: no marker tracks yet; run 'vfmlab reconstruct {session.path}' "
-            "or build the session with 'vfmlab import-markers'"
-        )
-    return result

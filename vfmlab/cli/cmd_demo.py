@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from vfmlab.cli._common import CliError, console, print_json
+from vfmlab.cli._common import CliError, ModelChoice, console, print_json
 from vfmlab.cli._outputs import check_output_dir
 
 EPILOG = """
@@ -24,7 +24,7 @@ Examples:
 @click.option("-o", "--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("demo-output"),
               show_default=True, help="Folder for the session, the report and the files the demo used (its parent "
                                       "folder must exist; every run adds a new time-stamped session).")
-@click.option("--material", type=click.Choice(["fung", "delfino", "hgo", "neohookean"]), default="fung",
+@click.option("--material", type=ModelChoice(), default="fung",
               show_default=True, help="Law of the simulated specimen (seed paper's Table-1 parameters).")
 @click.option("--models", default="fung,delfino,hgo", show_default=True, help="Models to identify, comma-separated.")
 @click.option("--cameras", "n_cameras", type=click.IntRange(3, 12), default=6, show_default=True,

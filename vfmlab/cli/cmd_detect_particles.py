@@ -5,10 +5,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
-import numpy as np
 from rich.table import Table
 
-from vfmlab.cli._common import CliInputError, console, esc, print_json
+from vfmlab.cli._common import console, esc, print_json
 from vfmlab.cli._outputs import check_output_path
 
 EPILOG = """
@@ -18,36 +17,6 @@ Examples:
   vfmlab detect-particles img_1/cam*.10001 --threshold 6 --min-pixels 3 --max-pixels 500 --min-sum 100 \\
       --split-touching -o particles.csv
 """
-
-
-def _read(path: Path) -> np.ndarray:
-    from vfmlab import openptv
-
-    try:
-        return openptv.read_image(path)
-    except FileNotFoundError:
-        raise CliInputError(f"IMAGES: cannot read {path} as a grey image") from None
-
-
-def _settings(polarity, threshold, min_pixels, max_pixels, min_sum, background_px, split_touching,
-              centre="centroid") -> dict:
-    """Keyword arguments of :func:`reconstruction.particles.detect_particles`; checked here to name the option."""
-    if not 1 <= min_pixels <= max_pixels:
-        raise CliInputError(f"--min-pixels/--max-pixels must satisfy 1 <= min <= max; got {min_pixels}, {max_pixels}")
-    if threshold is not None and not threshold > 0:
-        raise CliInputError(f"--threshold must be > 0 grey levels; got {threshold}")
-    if not background_px >= 3:
-        raise CliInputError(f"--background-px must be >= 3 px (larger than a particle); got {background_px}")
-    return {"polarity": polarity, "threshold": threshold, "pixels_range": (min_pixels, max_pixels),
-            "min_sum": min_sum, "background_px": background_px, "split_touching": split_touching, "centre": centre}
-
-
-def _write_csv(out: Path, rows: list) -> None:
-    lines = ["image,u_px,v_px,diameter_px,contrast"]
-    for path, det in rows:
-        lines += [f"{path},{u:.4f},{v:.4f},{d:.3f},{c:.4f}"
-                  for (u, v), d, c in zip(det.centres, det.diameter, det.contrast)]
-    out.write_text("\n".join(lines) + "\n")
 
 
 @click.command("detect-particles", epilog=EPILOG)
@@ -82,14 +51,15 @@ def command(images, polarity, threshold, min_pixels, max_pixels, min_sum, backgr
             force, as_json):
     """Detect small particles in IMAGES (grey images; OpenPTV's extension-less TIFFs too): threshold over the
     local background, sub-pixel centres (--centre); prints how many were found and rejected, and why."""
-    from reconstruction.particles import detect_particles
+    from vfmlab.stages.particles import detect_in_images, particle_settings, write_particles_csv
 
-    settings = _settings(polarity, threshold, min_pixels, max_pixels, min_sum, background_px, split_touching, centre)
+    settings = particle_settings(polarity, threshold, min_pixels, max_pixels, min_sum, background_px, split_touching,
+                                 centre)
     if out is not None:
         check_output_path(out, force=force, inputs=list(images))
-    rows = [(path, detect_particles(_read(path), **settings)) for path in images]
+    rows = detect_in_images(images, settings)
     if out is not None:
-        _write_csv(out, rows)
+        write_particles_csv(out, rows)
     summary = {"settings": {k: (list(v) if isinstance(v, tuple) else v) for k, v in settings.items()},
                "images": [{"image": str(p), "particles": len(d), "rejected": d.reject_counts(),
                            "noise_grey": d.noise} for p, d in rows],

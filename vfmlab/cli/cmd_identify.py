@@ -1,4 +1,5 @@
-"""``vfmlab identify``: constitutive parameters from a session's marker tracks (Virtual Fields Method)."""
+"""``vfmlab identify``: constitutive parameters from a session's marker tracks (Virtual Fields Method); the
+stage is :mod:`vfmlab.stages.identify`, this module parses the options and prints the outcome."""
 
 from __future__ import annotations
 
@@ -6,7 +7,7 @@ import importlib
 
 import click
 
-from vfmlab.cli._common import CliInputError, display_quantity, esc, num, print_json
+from vfmlab.cli._common import ModelChoice, display_quantity, esc, num, print_json
 
 WALL_NOTE = {
     "membrane": "paper's plain membrane form (pressure on the marker surface)",
@@ -28,7 +29,7 @@ Examples:
 
 @click.command(name="identify", epilog=EPILOG)
 @click.argument("session_path", metavar="SESSION", type=click.Path(exists=True, dir_okay=False))
-@click.option("--model", type=click.Choice(["fung", "delfino", "hgo", "neohookean"]), default="fung",
+@click.option("--model", type=ModelChoice(), default="fung",
               show_default=True, help="Constitutive model.")
 @click.option("--wall", type=click.Choice(["membrane", "thick"]), default="membrane", show_default=True,
               help="membrane: the paper's plain form; thick: markers on the outer surface, pressure on the lumen.")
@@ -73,36 +74,32 @@ def command(session_path, model, wall, ends, optimizer, smooth, uncertainty, wei
             importlib.import_module(module)
 
         loaded()
-        return _identify(session_path, model, wall, ends, optimizer, smooth, uncertainty, weighting, regions, as_json)
+        return _identify(session_path, as_json, model=model, wall=wall, ends=ends, optimizer=optimizer, smooth=smooth,
+                         uncertainty=uncertainty, weighting=weighting, regions=regions)
 
 
-def _identify(session_path, model, wall, ends, optimizer, smooth, uncertainty, weighting, regions, as_json):
+def _identify(session_path, as_json, **options):
     """The command's work once its modules are loaded: identify, store, print."""
-    from vfmlab.pipeline import identify_stored
+    from vfmlab.stages.identify import RegionalOutcome, identify
+    from vfmlab.stages.settings import IdentifySettings
 
-    smoothing = parse_smooth_option(smooth)
-    if regions is not None:
-        from vfmlab.cli._regional import run_regional
+    outcome = identify(session_path, IdentifySettings(**options), invoked_by="identify")
+    if isinstance(outcome, RegionalOutcome):
+        from vfmlab.cli._regional import print_regional
 
-        return run_regional(session_path, model, wall, ends, smoothing, regions, uncertainty, as_json)
-    group, result, data = identify_stored(session_path, model=model, wall=wall, ends=ends, optimizer=optimizer,
-                                          smoothing=smoothing, uncertainty=uncertainty, weighting=weighting,
-                                          invoked_by="identify")
-    names = list(result.parameters)
+        return print_regional(outcome, as_json)
     if as_json:
-        settings = data.get("settings", {})
-        print_json({"model": model, "wall": wall, "ends": settings.get("ends"),
-                    "ends_source": settings.get("ends_source"), "parameters": result.parameters, "stderr": result.stderr,
-                    "interval_95": (None if result.uncertainty is None else
-                                    {k: list(v) for k, v in result.uncertainty.interval.items()}),
-                    "units": {n: get_unit(model, n) for n in names},
-                    "cost": result.cost, "converged": result.converged, "flags": list(result.flags),
-                    "result_group": group})
+        print_json(outcome.to_dict())
         return
+    _print(outcome)
+
+
+def _print(outcome) -> None:
     from rich.table import Table
 
     from vfmlab.cli._common import console  # rich: only for the table (not for --json)
 
+    result, model, wall, units = outcome.result, outcome.settings.model, outcome.settings.wall, outcome.units
     table = Table(title=f"{model} ({WALL_NOTE[wall]})")
     table.add_column("parameter")
     table.add_column("value", justify="right")
@@ -111,44 +108,21 @@ def _identify(session_path, model, wall, ends, optimizer, smooth, uncertainty, w
     if unc is not None:
         table.add_column("95 % interval", justify="right")
     table.add_column("unit")
-    for n in names:
-        v, unit = display_quantity(result.parameters[n], get_unit(model, n))
-        s, _ = display_quantity(result.stderr[n], get_unit(model, n))
+    for n in result.parameters:
+        v, unit = display_quantity(result.parameters[n], units[n])
+        s, _ = display_quantity(result.stderr[n], units[n])
         interval = []
         if unc is not None:
-            lo, _ = display_quantity(unc.interval[n][0], get_unit(model, n))
-            hi, _ = display_quantity(unc.interval[n][1], get_unit(model, n))
+            lo, _ = display_quantity(unc.interval[n][0], units[n])
+            hi, _ = display_quantity(unc.interval[n][1], units[n])
             interval = [f"{num(lo, 4)} to {num(hi, 4)}"]
         table.add_row(esc(n), num(v, 4), num(s, 2), *interval, unit or "–")
     console.print(table)
     console.print(f"cost {num(result.cost, 3)}, RMS gap per field "
                   + ", ".join(f"{esc(f)}: {g:.2%}" for f, g in zip(result.field_names, result.residual_per_field))
                   + f", {result.n_evaluations} evaluations, converged: {result.converged}")
-    for note in data["notes"]:
+    for note in outcome.data["notes"]:
         console.print(f"[dim]{esc(note)}[/]")
     for flag in result.flags:
         console.print(f"[yellow]warning:[/] {esc(flag)}")
-    console.print(f"stored as {esc(group)}")
-
-
-def parse_smooth_option(text: str | None):
-    """``--smooth`` text -> "auto", None ("none") or (axial degree, harmonics); CliInputError otherwise."""
-    if text is None or text.strip().lower() == "auto":
-        return "auto"
-    if text.strip().lower() == "none":
-        return None
-    try:
-        smoothing = tuple(int(v) for v in text.split(","))
-        if len(smoothing) != 2 or min(smoothing) < 0:
-            raise ValueError
-    except ValueError:
-        raise CliInputError(f"--smooth must be 'auto', 'none' or two non-negative integers AXIAL,HARMONICS like 4,2; "
-                       f"got {text!r}") from None
-    return smoothing
-
-
-def get_unit(model: str, name: str) -> str:
-    from identification import get_model
-
-    m = get_model(model)
-    return m.units[m.parameter_names.index(name)]
+    console.print(f"stored as {esc(outcome.group)}")

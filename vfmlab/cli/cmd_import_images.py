@@ -10,71 +10,9 @@ from rich.progress import Progress
 
 from vfmlab.cli._common import CliError, CliInputError, console, err_console, esc, print_json
 from vfmlab.cli._outputs import check_output_path
-from vfmlab.cli.cmd_reconstruct import load_calibration_file
-
-_IMAGE_SUFFIXES = {".png", ".tif", ".tiff", ".bmp", ".pgm", ".jpg", ".jpeg"}
-
-
-def _scan(images_dir: Path, camera_names: list[str]) -> tuple[np.ndarray, dict[str, dict[int, Path]]]:
-    """Step numbers present and ``{camera: {step: path}}`` from ``DIR/<camera>/<step>.<ext>``."""
-    if not images_dir.is_dir():
-        raise CliInputError(f"IMAGES_DIR: {images_dir} is not a folder (expected IMAGES_DIR/<camera>/<step>.png)")
-    folders = sorted(p.name for p in images_dir.iterdir() if p.is_dir())
-    missing = [c for c in camera_names if c not in folders]
-    if missing:
-        raise CliInputError(
-            f"IMAGES_DIR: no folder for calibrated camera(s) {missing} in {images_dir} "
-            f"(found {folders}; folder names must be the camera names of the calibration file)"
-        )
-    files: dict[str, dict[int, Path]] = {}
-    for cam in camera_names:
-        files[cam] = {}
-        for p in sorted((images_dir / cam).iterdir()):
-            if p.suffix.lower() not in _IMAGE_SUFFIXES:
-                continue
-            try:
-                step = int(p.stem)
-            except ValueError:
-                raise CliInputError(f"{p}: image names must be step numbers (0.png, 1.png, ...); got {p.name!r}") from None
-            if step in files[cam]:
-                raise CliInputError(f"{images_dir / cam}: two images for step {step}")
-            files[cam][step] = p
-    steps = np.array(sorted(set().union(*[set(f) for f in files.values()])), dtype=int)
-    if steps.size == 0:
-        raise CliInputError(f"IMAGES_DIR: no images under {images_dir}/<camera>/ ({', '.join(sorted(_IMAGE_SUFFIXES))})")
-    if steps[0] != 0:
-        raise CliInputError(f"IMAGES_DIR: no images for step 0 (the reference configuration); first step is {steps[0]}")
-    return steps, files
-
-
-def _read(path: Path) -> np.ndarray:
-    import cv2
-
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise CliInputError(f"{path}: cannot read the image")
-    if img.ndim == 3:
-        img = cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY)
-    if img.dtype not in (np.uint8, np.uint16):
-        raise CliInputError(f"{path}: expected an 8- or 16-bit grey image; got {img.dtype}")
-    return img
-
-
-def _first_images(cams: list, files: dict) -> tuple[dict, str]:
-    """The step-0 image of every camera that has one (at least two, of the calibration's size) and the session's
-    pixel type ("uint16" when any image is 16-bit)."""
-    first = {c.name: _read(files[c.name][0]) for c in cams if 0 in files[c.name]}
-    if len(first) < 2:
-        raise CliInputError(f"IMAGES_DIR: step 0 needs images from at least two cameras; found {sorted(first)}")
-    for c in cams:
-        if c.name in first and first[c.name].shape != (c.image_size[1], c.image_size[0]):
-            raise CliInputError(
-                f"{files[c.name][0]}: image is {first[c.name].shape[1]}x{first[c.name].shape[0]} px but the "
-                f"calibration of {c.name} is for {c.image_size[0]}x{c.image_size[1]}"
-            )
-    dtypes = {c: str(first[c].dtype) for c in first}
-    return first, "uint16" if "uint16" in dtypes.values() else "uint8"
-
+from vfmlab.stages.errors import StageError
+from vfmlab.stages.imports import first_images, read_image, scan_images
+from vfmlab.stages.reconstruct import load_calibration_file
 
 def _measure_tube(first: dict, cams: list, marker_diameter_mm: float, polarity: str, radius_mm, length_mm,
                   notes: list) -> tuple[float, float]:
@@ -166,13 +104,13 @@ def command(images_dir, calibration, polarity, calibration_units, loads_csv, out
             raise CliInputError(f"{name} must be positive; got {value}")
     cams = load_calibration_file(calibration, calibration_units)
     names = [c.name for c in cams]
-    steps, files = _scan(images_dir, names)
+    steps, files = scan_images(images_dir, names)
     loads = read_loads_csv(loads_csv)
     missing = sorted(set(steps.tolist()) - set(loads["step"].tolist()))
     if missing:
         raise CliInputError(f"{loads_csv}: no loads for step(s) {missing} that have images in {images_dir}")
     rows = np.searchsorted(loads["step"], steps)
-    first, dtype = _first_images(cams, files)
+    first, dtype = first_images(cams, files)
     notes_extra = []
     if radius_mm is None or length_mm is None:
         radius_mm, length_mm = _measure_tube(first, cams, marker_diameter_mm, polarity, radius_mm, length_mm,
@@ -203,7 +141,7 @@ def command(images_dir, calibration, polarity, calibration_units, loads_csv, out
                                               "stored blank.")
                             img = np.zeros((c.image_size[1], c.image_size[0]), dtype)
                         else:
-                            img = first[c.name] if s == 0 else _read(path)
+                            img = first[c.name] if s == 0 else read_image(path)
                             if img.shape != (c.image_size[1], c.image_size[0]):
                                 raise CliInputError(f"{path}: image size {img.shape[::-1]} differs from the calibration")
                         imgs[c.name] = img.astype(dtype, copy=False)
@@ -213,6 +151,8 @@ def command(images_dir, calibration, polarity, calibration_units, loads_csv, out
                         t_monotonic=float("nan"), t_wall=float("nan")), images=imgs)
                     progress.advance(task)
         name = write_result(out, "calibration", cameras_to_arrays(cams), {"source": str(calibration)})
+    except StageError:  # an unreadable image: bad input (exit 2), not a failed write
+        raise
     except (SessionError, ValueError) as exc:
         raise CliError(str(exc)) from None
     if as_json:

@@ -6,71 +6,11 @@ from pathlib import Path
 
 import click
 import numpy as np
-from scipy.optimize import least_squares
-
 from acquisition.markers_csv import read_loads_csv, read_markers_csv
 from acquisition.session import SessionError, SessionWriter, SpecimenInfo, StepRecord, write_result
-from acquisition.errors import ImplausibleInputError
-from acquisition.plausibility import (check_cloud_scale, check_geometry, check_identifiable, check_loads,
-                                      check_marker_cloud)
 from vfmlab.cli._common import CliError, CliInputError, console, esc, print_json, show_warning
 from vfmlab.cli._outputs import check_output_path
-
-
-def estimate_geometry(reference: np.ndarray) -> tuple[float, float]:
-    """Radius and axial extent (m) of a reference marker cloud ``(n_markers, 3)``.
-
-    Least-squares cylinder fit (axis point, axis direction, radius), started from each of the
-    cloud's principal directions; the best fit wins.
-    """
-    points = reference[~np.isnan(reference).any(axis=1)]
-    centre = points.mean(axis=0)
-    centred = points - centre
-    _, _, vt = np.linalg.svd(centred, full_matrices=False)
-
-    def radial(params):
-        direction = np.array([np.sin(params[0]) * np.cos(params[1]), np.sin(params[0]) * np.sin(params[1]),
-                              np.cos(params[0])])
-        rel = centred - params[2:5]
-        return np.linalg.norm(rel - (rel @ direction)[:, None] * direction, axis=1), direction
-
-    best = None
-    for axis in vt:
-        theta0, phi0 = np.arccos(np.clip(axis[2], -1, 1)), np.arctan2(axis[1], axis[0])
-        fit = least_squares(lambda q: radial(q)[0] - q[5], [theta0, phi0, 0, 0, 0, radial([theta0, phi0, 0, 0, 0])[0].mean()])
-        if best is None or fit.cost < best.cost:
-            best = fit
-    _, direction = radial(best.x)
-    axial = (centred - best.x[2:5]) @ direction
-    return float(abs(best.x[5])), float(axial.max() - axial.min())
-
-
-def check_inputs(table, loads, rows, markers_csv, loads_csv, thickness_mm, radius_mm, length_mm
-                 ) -> tuple[float, float, list[str]]:
-    """Plausibility of the imported data (decision 0007): the reference radius and length (m) to record and
-    the warnings to store in the session (also shown now); ImplausibleInputError for refused values."""
-    for name, value in (("--thickness-mm", thickness_mm), ("--radius-mm", radius_mm), ("--length-mm", length_mm)):
-        if value is not None and not (np.isfinite(value) and value > 0):
-            raise CliInputError(f"{name} must be a positive length in mm; got {value}")
-    warnings = check_loads(loads["pressure"][rows], loads["axial_force"][rows], loads["stretch"][rows],
-                           source=str(loads_csv), steps=table.steps)
-    reference = table.positions[0]
-    check_marker_cloud(reference, source=str(markers_csv))
-    fitted_radius, fitted_length = estimate_geometry(reference)
-    if radius_mm:
-        check_marker_cloud(reference, source=str(markers_csv), radius=radius_mm * 1e-3, fitted_radius=fitted_radius)
-    else:
-        check_cloud_scale(fitted_radius, source=str(markers_csv))
-    radius = radius_mm * 1e-3 if radius_mm else fitted_radius
-    length = length_mm * 1e-3 if length_mm else fitted_length
-    warnings += check_geometry(radius, thickness_mm * 1e-3, length, source=str(markers_csv))
-    try:
-        warnings += check_identifiable(table.positions, source=str(markers_csv), steps=table.steps)
-    except ImplausibleInputError as exc:  # importing is fine; identifying will refuse
-        warnings.append(f"{exc}; 'vfmlab identify' will refuse this session")
-    for message in warnings:
-        show_warning(message)
-    return radius, length, warnings
+from vfmlab.stages.imports import check_marker_inputs
 
 
 EPILOG = """
@@ -110,8 +50,8 @@ def command(markers_csv, loads_csv, out, thickness_mm, radius_mm, length_mm, spe
     if missing:
         raise CliInputError(f"{loads_csv}: no loads for step(s) {missing} that appear in {markers_csv}")
     rows = np.searchsorted(loads["step"], table.steps)
-    radius, length, warnings = check_inputs(table, loads, rows, markers_csv, loads_csv, thickness_mm, radius_mm,
-                                            length_mm)
+    radius, length, warnings = check_marker_inputs(table, loads, rows, markers_csv, loads_csv, thickness_mm,
+                                                   radius_mm, length_mm, show_warning)
     try:
         specimen = SpecimenInfo(specimen_id or Path(markers_csv).stem, radius, length, thickness_mm * 1e-3, notes,
                                 ends or "", "import option --ends" if ends else "")

@@ -10,60 +10,9 @@ import numpy as np
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from vfmlab.cli._common import CliError, CliInputError, console, err_console, esc, print_json
+from vfmlab.cli._common import console, err_console, esc, print_json
 
 log = logging.getLogger(__name__)
-
-def load_calibration_file(path: Path, units: str | None = None) -> list:
-    """Cameras from an aniposelib ``.toml`` or OpenCV ``.yaml``/``.yml`` calibration file, or an OpenPTV
-    working folder (``parameters/ptv.par`` + ``cal/*.ori``/``.addpar``: cameras with their window)."""
-    from reconstruction import CalibrationFileError, cameras_from_toml, cameras_from_yaml
-    from vfmlab import openptv
-
-    if path.is_dir():
-        try:
-            return openptv.load_cameras(path)
-        except (CalibrationFileError, OSError) as exc:
-            raise CliError(f"--calibration {path}: {exc}") from None
-    suffix = path.suffix.lower()
-    if suffix not in (".toml", ".yaml", ".yml"):
-        raise CliInputError(f"--calibration must be a .toml (aniposelib) or .yaml/.yml (OpenCV) file or an OpenPTV folder; "
-                       f"got {path.name!r}")
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise CliInputError(f"--calibration: cannot read {path} ({exc.strerror})") from None
-    try:
-        cams, _ = (cameras_from_toml if suffix == ".toml" else cameras_from_yaml)(text, units=units)
-    except (CalibrationFileError, ValueError) as exc:
-        raise CliInputError(f"--calibration {path}: {exc}") from None
-    return cams
-
-
-def session_cameras(session, calibration: Path | None, units: str | None) -> tuple[list, str]:
-    """Calibrated cameras (ordered as the session's cameras) and a description of their source:
-    the ``--calibration`` file if given, else the session's latest calibration result."""
-    from vfmlab.pipeline import StageError, session_calibrated_cameras
-
-    if calibration is None:
-        try:
-            return session_calibrated_cameras(session)
-        except StageError as exc:
-            raise StageError(f"{exc} (or pass --calibration FILE)") from None
-    cams, source = load_calibration_file(calibration, units), str(calibration)
-    by_name = {c.name: c for c in cams}
-    names = session.camera_names
-    missing = [n for n in names if n not in by_name]
-    used = [by_name[n] for n in names if n in by_name]
-    if len(used) < 2:
-        raise CliInputError(
-            f"the calibration ({source}) covers cameras {sorted(by_name)} but the session has {names}: "
-            "at least two session cameras must be calibrated"
-        )
-    if missing:
-        err_console.print(f"[yellow]Warning:[/] no calibration for camera(s) {esc(', '.join(missing))}; "
-                          "they are ignored.")
-    return used, source
 
 
 def _summary_table(res, step_numbers, camera_names) -> Table:
@@ -118,11 +67,15 @@ def command(session, marker_diameter_mm, calibration, calibration_units, frame, 
     wall. Writes positions (n_steps, n_markers, 3), visibility and uncertainty as a new "markers"
     result; markers not seen in a step are NaN there.
     """
-    from vfmlab.cli._sessions import cli_session
-    from vfmlab.pipeline import reconstruct_stored
+    from vfmlab.cli._common import show_warning
+    from vfmlab.stages.reconstruct import reconstruct, resolve_cameras
+    from vfmlab.stages.settings import ReconstructSettings
 
-    with cli_session(session) as s:
-        cams, source = session_cameras(s, calibration, calibration_units)
+    settings = ReconstructSettings(marker_diameter_mm=marker_diameter_mm, calibration=calibration,
+                                   calibration_units=calibration_units, frame=frame, flip_axis=flip_axis,
+                                   normals=normals, epipolar_px=epipolar_px, max_reprojection_px=max_reprojection_px,
+                                   include_superseded=include_superseded, store=store)
+    cameras = resolve_cameras(session, settings, show_warning)  # before the progress bars, as its messages
     with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total} steps"),
                   TimeElapsedColumn(), console=err_console, transient=True, disable=as_json) as progress:
         tasks = {}
@@ -132,26 +85,13 @@ def command(session, marker_diameter_mm, calibration, calibration_units, frame, 
                 tasks[stage] = progress.add_task(stage, total=n)
             progress.update(tasks[stage], completed=step + 1)
 
-        stored, res, rows, names, source = reconstruct_stored(
-            session, cameras=cams, calibration_source=source, marker_diameter_mm=marker_diameter_mm,
-            normals=normals, epipolar_px=epipolar_px, max_reprojection_px=max_reprojection_px,
-            include_superseded=include_superseded, frame=frame, flip_axis=flip_axis, store=store,
-            progress=report, invoked_by="reconstruct")
-    step_numbers = rows
-    d = res.diagnostics
-    summary = {
-        "session": str(session), "n_steps": int(rows.size), "n_markers": int(res.visible.shape[1]),
-        "tracked_per_step": d["tracked"], "lost_per_step": d["lost"], "detected_per_camera": d["detected"].sum(0),
-        "rejects": dict(zip(d["reject_reasons"].tolist(), d["rejects"].sum(axis=(0, 1)).tolist())),
-        "reprojection_rms_median_px": d["reprojection_rms_median"], "median_uncertainty_m":
-            float(np.nanmedian(res.uncertainty)) if res.visible.any() else None,
-        "swaps_detected": int(d["swaps"].sum()), "calibration": source, "stored_as": stored,
-    }
+        outcome = reconstruct(session, settings, progress=report, cameras=cameras, invoked_by="reconstruct")
+    summary = outcome.to_dict()
     if as_json:
         print_json(summary)
         return
-    console.print(_summary_table(res, step_numbers, names))
+    console.print(_summary_table(outcome.result, outcome.rows, outcome.names))
     rej = ", ".join(f"{k} {v}" for k, v in summary["rejects"].items() if v)
-    console.print(f"Rejected blobs: {esc(rej or 'none')}. Calibration: {esc(source)}.")
-    if stored:
-        console.print(f"Stored as [bold]{esc(stored)}[/] in {esc(session)}.")
+    console.print(f"Rejected blobs: {esc(rej or 'none')}. Calibration: {esc(outcome.source)}.")
+    if outcome.stored:
+        console.print(f"Stored as [bold]{esc(outcome.stored)}[/] in {esc(session)}.")

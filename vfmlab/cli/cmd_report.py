@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import click
@@ -29,18 +28,16 @@ Examples:
 @click.option("--json", "as_json", is_flag=True, help="Print the files written as JSON.")
 def command(session, out, strain_scale, force, as_json):
     """Write a self-contained HTML report of SESSION (figures embedded) and the figures as PNG files."""
-    from vfmlab.report import build_report
+    from vfmlab.stages.outputs import default_out, report
+    from vfmlab.stages.settings import ReportSettings
 
-    path = Path(session)
-    out_dir = Path(out) if out else path.with_name(path.stem + "_report")
-    check_output_dir(out_dir, force=force, inputs=[path])
-    t0 = time.perf_counter()
+    out_dir = default_out(session, out, "report")
+    check_output_dir(out_dir, force=force, inputs=[Path(session)])
     with (err_console if as_json else console).status("Building the report..."):
-        html = build_report(session, out_dir, strain_scale=strain_scale)
-    figures = sorted(Path(html).parent.glob("fig*.png"))
+        o = report(session, ReportSettings(out=out_dir, strain_scale=strain_scale))
     if as_json:
-        print_json({"report": str(html), "url": html.resolve().as_uri(), "figures": [str(f) for f in figures],
-                    "seconds": time.perf_counter() - t0})
+        print_json(o.to_dict())
         return
-    console.print(f"Report written to [bold]{esc(html)}[/] ({len(figures)} figures in {esc(html.parent)}, "
-                  f"{time.perf_counter() - t0:.1f} s). Open it in a browser: {esc(html.resolve().as_uri())}")
+    html = o.html
+    console.print(f"Report written to [bold]{esc(html)}[/] ({len(o.figures)} figures in {esc(html.parent)}, "
+                  f"{o.seconds:.1f} s). Open it in a browser: {esc(html.resolve().as_uri())}")

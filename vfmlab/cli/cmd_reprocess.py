@@ -2,38 +2,14 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import click
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 from vfmlab.cli._common import CliError, console, err_console, esc, print_json
 from vfmlab.cli._outputs import check_output_path
-
-
-def _split(value: str, name: str, allowed: tuple[str, ...] | None = None) -> list[str]:
-    items = [v.strip() for v in value.split(",") if v.strip()]
-    if not items:
-        raise CliError(f"{name} must list at least one value; got {value!r}")
-    if allowed is not None:
-        bad = [v for v in items if v not in allowed]
-        if bad:
-            raise CliError(f"{name} must be among {', '.join(allowed)}; got {', '.join(bad)}")
-    return items
-
-
-def _parse_set(pairs: tuple[str, ...]) -> dict:
-    import json
-
-    out = {}
-    for pair in pairs:
-        key, sep, value = pair.partition("=")
-        if not sep or not key.isidentifier():
-            raise CliError(f"--set expects KEY=VALUE with KEY an identifier; got {pair!r}")
-        try:
-            out[key] = json.loads(value)
-        except json.JSONDecodeError:
-            out[key] = value
-    return out
 
 
 EPILOG = """
@@ -83,22 +59,17 @@ def command(sessions, stages, models, walls, ends, optimizer, smooth, weighting,
     A session that fails (corrupt file, missing markers, failed fit) is reported and the others go on;
     the exit code is 1 if any failed.
     """
-    from vfmlab.cli.cmd_identify import parse_smooth_option
     from vfmlab.pipeline import STAGES
-    from vfmlab.reprocess import plan_runs, reprocess, write_summary
+    from vfmlab.stages.batch import plan, reprocess, split_list
+    from vfmlab.stages.settings import ReprocessSettings
 
-    stage_list = _split(stages, "--stages", tuple(STAGES))
+    split_list(stages, "--stages", tuple(STAGES))
     if summary:
         check_output_path(summary, force=force, inputs=sessions, option="--summary")
-    smoothing = parse_smooth_option(smooth)
-    try:
-        runs = plan_runs(stage_list, models=_split(models, "--model", ("fung", "delfino", "hgo", "neohookean")),
-                         walls=_split(walls, "--wall", ("membrane", "thick")),
-                         identify_settings={"ends": ends, "optimizer": optimizer, "smoothing": smoothing,
-                                            "weighting": weighting},
-                         reconstruct_settings=_parse_set(set_pairs))
-    except ValueError as exc:
-        raise CliError(f"--set: {exc}" if set_pairs else str(exc)) from None
+    settings = ReprocessSettings(stages=stages, models=models, walls=walls, ends=ends, optimizer=optimizer,
+                                 smooth=smooth, weighting=weighting, set_pairs=set_pairs, workers=workers,
+                                 scheduler=scheduler, summary=summary)
+    runs = plan(settings)
     where = f"Dask scheduler {scheduler}" if scheduler else (f"{workers} worker processes" if workers > 1 else "serially")
     if not as_json:
         console.print(f"Reprocessing {len(sessions)} session(s) {esc(where)}: " + esc("; ".join(r.label() for r in runs)))
@@ -112,12 +83,8 @@ def command(sessions, stages, models, walls, ends, optimizer, smooth, weighting,
                 for err in outcome.errors:
                     err_console.print(f"[red]failed:[/] {esc(err)}")
 
-        try:
-            outcomes = reprocess(sessions, runs, workers=workers, scheduler=scheduler, on_done=on_done)
-        except (OSError, RuntimeError, ValueError, TimeoutError) as exc:
-            raise CliError(f"cannot run the batch: {exc}") from None
-    if summary:
-        path = write_summary(outcomes, summary)
+        outcomes = reprocess(sessions, settings, runs=runs, on_done=on_done)
+    path = Path(summary) if summary else None  # as vfmlab.reprocess.write_summary names it
     if as_json:
         print_json({"outcomes": [o.to_dict() for o in outcomes], "summary": summary})
     else:

@@ -6,7 +6,7 @@ import sys
 
 import click
 
-from vfmlab.cli._common import CliError, CliInputError, console, err_console
+from vfmlab.cli._common import CliError, console, err_console
 from vfmlab.cli._outputs import check_output_path
 
 EPILOG = """
@@ -63,22 +63,15 @@ def require_answers(yes: bool) -> None:
 def command(protocol: str, specimen: str, out: str, rig: str | None, sim: bool, sim_speed: float,
             sim_seed: int | None, old_speed: float | None, yes: bool, detect: bool, live_models: str, as_json: bool) -> None:
     """Run PROTOCOL (TOML) on the rig, writing every step to the session file --out as it happens."""
-    from vfmlab.operate import detector_from_reconstruction, run_session
+    from vfmlab.stages.batch import check_sim_seed, run
+    from vfmlab.stages.settings import RunSettings
 
     require_answers(yes)
-    if sim_seed is not None and not sim:
-        raise CliInputError(f"--sim-seed sets the simulated rig's seed and needs --sim; got --sim-seed {sim_seed} "
-                            "without --sim")
+    settings = RunSettings(rig=rig, sim=sim, sim_speed=old_speed if old_speed is not None else sim_speed,
+                           sim_seed=sim_seed, yes=yes, detect=detect, live_models=live_models)
+    check_sim_seed(settings)
     check_output_path(out, force=False, inputs=[protocol, specimen, rig], can_force=False, leftover_ok=True)
-    models = tuple(m.strip() for m in live_models.split(",") if m.strip() and m.strip() != "none")
-    unknown = [m for m in models if m not in ("fung", "delfino", "hgo", "neohookean")]
-    if unknown:
-        raise CliInputError(f"--live-models must be among fung, delfino, hgo, neohookean or 'none'; got {unknown}")
-    finish_session(lambda: run_session(protocol, specimen, out, rig_path=rig, sim=sim, yes=yes,
-                                       sim_speed=old_speed if old_speed is not None else sim_speed,
-                                       console=err_console if as_json else console, sim_seed=sim_seed,
-                                       detector=detector_from_reconstruction() if detect else None,
-                                       live_models=models), as_json)
+    finish_session(lambda: run(protocol, specimen, out, settings, console=err_console if as_json else console), as_json)
 
 
 def finish_session(operate, as_json: bool) -> None:

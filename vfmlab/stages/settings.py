@@ -1,0 +1,167 @@
+"""The settings of each stage: frozen dataclasses whose defaults are the command line's defaults.
+
+``vfmlab identify S.h5`` and ``vfmlab.identify("S.h5")`` run with ``IdentifySettings()``; an option of
+the command is a field of the same name (``--model hgo`` is ``IdentifySettings(model="hgo")``). This
+module imports nothing heavy: ``vfmlab --help`` and ``import vfmlab`` stay fast.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields, replace
+from pathlib import Path
+from typing import Any, TypeVar
+
+__all__ = ["CalibrateSettings", "ExportSettings", "IdentifySettings", "ReconstructSettings", "RegionalSettings",
+           "ReportSettings", "ReprocessSettings", "RunSettings", "SelfCalibrationSettings", "settings_with"]
+
+S = TypeVar("S")
+
+
+def settings_with(cls: type[S], settings: S | None, overrides: dict[str, Any]) -> S:
+    """``settings`` (default: ``cls()``) with ``overrides`` replaced; a TypeError names an unknown field."""
+    base = cls() if settings is None else settings
+    if not isinstance(base, cls):
+        raise TypeError(f"settings must be a {cls.__name__}; got {type(base).__name__}")
+    unknown = sorted(set(overrides) - {f.name for f in fields(cls)})
+    if unknown:
+        raise TypeError(f"{cls.__name__} has no field(s) {unknown}; its fields are {[f.name for f in fields(cls)]}")
+    return replace(base, **overrides) if overrides else base
+
+
+@dataclass(frozen=True)
+class IdentifySettings:
+    """``vfmlab identify``: the model identified from the latest marker tracks (see ``vfmlab identify --help``).
+
+    ``smooth``: "auto", "none" or "AXIAL,HARMONICS" text as on the command line, or a pair of ints.
+    ``regions``: None (one homogeneous fit) or "N", "auto", "legendre:K" (a "regional" result).
+    """
+
+    model: str = "fung"
+    wall: str = "membrane"
+    ends: str | None = None
+    optimizer: str = "lsq"
+    smooth: str | tuple[int, int] | None = "auto"
+    uncertainty: str = "bootstrap"
+    weighting: str = "paper"
+    regions: str | int | None = None
+
+
+@dataclass(frozen=True)
+class RegionalSettings:
+    """``vfmlab identify --regions``: the stress-like parameter along the axis, the others shared."""
+
+    regions: str | int = "auto"
+    model: str = "fung"
+    wall: str = "membrane"
+    ends: str | None = None
+    smooth: str | tuple[int, int] | None = "auto"
+    uncertainty: str = "bootstrap"
+
+
+@dataclass(frozen=True)
+class ReconstructSettings:
+    """``vfmlab reconstruct``: detect, match, triangulate and track the markers (mm and px as on the command line)."""
+
+    marker_diameter_mm: float | None = None
+    calibration: Path | None = None
+    calibration_units: str | None = None
+    frame: str = "specimen"
+    flip_axis: bool = False
+    normals: str = "local"
+    epipolar_px: float = 2.0
+    max_reprojection_px: float = 1.5
+    include_superseded: bool = False
+    store: bool = True
+
+
+@dataclass(frozen=True)
+class SelfCalibrationSettings:
+    """``vfmlab calibrate --import FOLDER --self-calibrate FRAMES``: refine on the particles of ``frames``."""
+
+    frames: str
+    images: str = "img_1/cam{camera}.{frame}"
+    body_weight: float = 0.5
+    volume: str | None = None
+    body_sides: bool = True
+
+
+@dataclass(frozen=True)
+class CalibrateSettings:
+    """``vfmlab calibrate``: board images (a folder or the session's) or an imported calibration."""
+
+    images_dir: Path | None = None
+    board: str = "charuco"
+    squares: str = "8x6"
+    square_size_mm: float = 4.5
+    marker_size_mm: float = 3.4
+    dictionary: str = "DICT_4X4_50"
+    subpix_window: int = 5
+    reference: str | None = None
+    world_view: int | None = None
+    fix_k3: bool = False
+    out: Path | None = None
+    units: str = "mm"
+    store: bool = True
+    import_file: Path | None = None
+    selfcal_frames: str | None = None
+    particle_images: str = "img_1/cam{camera}.{frame}"
+    body_weight: float = 0.5
+    body_sides: bool = True
+    volume_mm: str | None = None
+    import_units: str = "mm"
+    body: str | None = None
+    refine_window: bool = False
+
+    def self_calibration(self) -> SelfCalibrationSettings | None:
+        """The ``--self-calibrate`` part, or None."""
+        if self.selfcal_frames is None:
+            return None
+        return SelfCalibrationSettings(self.selfcal_frames, self.particle_images, self.body_weight, self.volume_mm,
+                                       self.body_sides)
+
+
+@dataclass(frozen=True)
+class ReportSettings:
+    """``vfmlab report``: ``out`` default <SESSION stem>_report next to the session."""
+
+    out: Path | None = None
+    strain_scale: str = "shared"
+
+
+@dataclass(frozen=True)
+class ExportSettings:
+    """``vfmlab export``: ``out`` default <SESSION stem>_export next to the session; ``markers_name`` default the latest."""
+
+    out: Path | None = None
+    fmt: str = "vtk"
+    markers_name: str | None = None
+
+
+@dataclass(frozen=True)
+class ReprocessSettings:
+    """``vfmlab reprocess``: stages re-run on stored sessions (comma-separated lists as on the command line)."""
+
+    stages: str = "identify"
+    models: str = "fung"
+    walls: str = "membrane"
+    ends: str | None = None
+    optimizer: str = "lsq"
+    smooth: str | tuple[int, int] | None = "auto"
+    weighting: str = "paper"
+    set_pairs: tuple[str, ...] = ()
+    workers: int = 1
+    scheduler: str | None = None
+    summary: Path | None = None
+
+
+@dataclass(frozen=True)
+class RunSettings:
+    """``vfmlab run``: a protocol on the rig (or the simulated rig) into a new session file."""
+
+    rig: str | None = None
+    sim: bool = False
+    sim_speed: float = 1.0
+    sim_seed: int | None = None
+    yes: bool = False
+    detect: bool = True
+    live_models: str = "fung"
