@@ -62,6 +62,11 @@ class StageFault(DeviceError):
     :meth:`ZaberStage.clear_warnings` acknowledges it."""
 
 
+class StageTravelError(DeviceError, ValueError):
+    """The soft limits do not lie within the travel the device reports (at open, or after a reconnect to a
+    reconfigured or different device)."""
+
+
 class StageNotHomed(DeviceError):
     """A move was asked for while the axis has no reference position (flag ``WR``): home it first."""
 
@@ -343,8 +348,9 @@ class ZaberStage(RetryingDriver):
         self.travel_m = (lo, hi)
         half = 0.5 * s.microstep_m
         if s.min_m < lo - half or s.max_m > hi + half:
-            raise ValueError(f"soft limits [min_m, max_m] = [{s.min_m:.6g}, {s.max_m:.6g}] m must lie within the "
-                             f"stage travel [{lo:.6g}, {hi:.6g}] m (limit.min/limit.max x microstep_m)")
+            raise StageTravelError(f"{self.name}: soft limits [min_m, max_m] = [{s.min_m:.6g}, {s.max_m:.6g}] m must lie within the "
+                             f"stage travel [{lo:.6g}, {hi:.6g}] m (limit.min/limit.max x microstep_m)",
+                                   code="travel")
         log.info("%s: travel %.6g..%.6g m, soft limits %.6g..%.6g m, %s", self.name, lo, hi, s.min_m, s.max_m,
                  describe_flag(self.last.warning if self.last else None))
 
