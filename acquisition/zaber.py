@@ -170,7 +170,7 @@ class ZaberReply:
     @property
     def fault(self) -> bool:
         """A fault flag (``F?``) is active."""
-        return bool(self.warning) and self.warning[0] == "F"
+        return self.warning is not None and self.warning.startswith("F")
 
     @property
     def needs_homing(self) -> bool:
@@ -343,14 +343,15 @@ class ZaberStage(RetryingDriver):
     # -- low level -----------------------------------------------------------------------------
     def _refresh(self) -> None:
         s = self.config
-        lo = to_metres(parse_int(self.request("get limit.min")), s.microstep_m)
-        hi = to_metres(parse_int(self.request("get limit.max")), s.microstep_m)
+        # faults=False: a stage with a latched fault must still open, so that clear_warnings() can be called
+        lo = to_metres(parse_int(self.request("get limit.min", faults=False)), s.microstep_m)
+        hi = to_metres(parse_int(self.request("get limit.max", faults=False)), s.microstep_m)
         self.travel_m = (lo, hi)
         half = 0.5 * s.microstep_m
         if s.min_m < lo - half or s.max_m > hi + half:
-            raise StageTravelError(f"{self.name}: soft limits [min_m, max_m] = [{s.min_m:.6g}, {s.max_m:.6g}] m must lie within the "
-                             f"stage travel [{lo:.6g}, {hi:.6g}] m (limit.min/limit.max x microstep_m)",
-                                   code="travel")
+            raise StageTravelError(f"{self.name}: soft limits [min_m, max_m] = [{s.min_m:.6g}, {s.max_m:.6g}] m "
+                                   f"must lie within the stage travel [{lo:.6g}, {hi:.6g}] m "
+                                   f"(limit.min/limit.max x microstep_m)", code="travel")
         log.info("%s: travel %.6g..%.6g m, soft limits %.6g..%.6g m, %s", self.name, lo, hi, s.min_m, s.max_m,
                  describe_flag(self.last.warning if self.last else None))
 
@@ -430,9 +431,10 @@ class ZaberStage(RetryingDriver):
         self.wait_idle(timeout)
         got = self.position()
         if abs(got - position_m) > s.tolerance + 0.5 * s.microstep_m:
-            raise DeviceError(f"{self.name}: stopped at {got:.6g} m, target {position_m:.6g} m "
-                              f"(tolerance {s.tolerance:.3g} m; {describe_flag(self.last.warning if self.last else None)})",
-                              raw=self.last.raw if self.last else None, value=got)
+            last = self.last
+            raise DeviceError(f"{self.name}: stopped at {got:.6g} m, target {position_m:.6g} m (tolerance "
+                              f"{s.tolerance:.3g} m; {describe_flag(last.warning if last else None)})",
+                              raw=last.raw if last else None, value=got)
 
     def wait_idle(self, timeout: float = 60.0) -> float:
         """Poll until the axis is idle; returns the position (m).

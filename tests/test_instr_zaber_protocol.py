@@ -137,6 +137,14 @@ def test_open_reads_the_travel_and_never_moves():
     assert stage.homed is False  # the last reply carried WR
 
 
+def test_a_latched_fault_does_not_prevent_opening():
+    port = ScriptedPort([(b"/1 1 get limit.min\n", b"@01 1 OK IDLE FS 0\r\n"),
+                         (b"/1 1 get limit.max\n", b"@01 1 OK IDLE FS 1066667\r\n"),
+                         (b"/1 1 warnings clear\n", b"@01 1 OK IDLE FS 01 FS\r\n")])
+    stage = ZaberStage(SerialLink(port, name="stage", timeout=0.05), SETTINGS, retries=0)
+    assert stage.last.fault and stage.clear_warnings() == ["FS"] and port.done
+
+
 def test_soft_limits_outside_the_travel_are_refused_at_open():
     with pytest.raises(ValueError, match=r"max_m\].*travel"):
         make([], StageSettings(microstep_m=USTEP, min_m=0.0, max_m=0.06))
@@ -197,6 +205,16 @@ def test_rejected_move_and_fault_during_motion():
     with pytest.raises(StageFault) as info:
         stage.move_to(0.010)
     assert info.value.code == "FS"
+
+
+def test_move_ending_short_of_its_target_is_a_device_error():
+    stage, port = make([(b"/1 1\n", b"@01 1 OK IDLE -- 0\r\n"),
+                        (b"/1 1 move abs 209974\n", b"@01 1 OK BUSY -- 0\r\n"),
+                        (b"/1 1 get pos\n", b"@01 1 OK IDLE WL 100000\r\n"),
+                        (b"/1 1 get pos\n", b"@01 1 OK IDLE WL 100000\r\n")])
+    with pytest.raises(DeviceError, match="unexpected limit trigger") as info:
+        stage.move_to(0.010)
+    assert info.value.value == pytest.approx(100000 * USTEP) and port.done
 
 
 def test_wait_timeout_sends_stop():
