@@ -31,6 +31,14 @@ _LAZY = {
     "SamplerEvent": "acquisition.sampler",
     "SerialLink": "acquisition.serial_link",
     "find_port_by_serial": "acquisition.serial_link",
+    "StretchStage": "acquisition.stage",
+    "StageFault": "acquisition.zaber",
+    "StageNotHomed": "acquisition.zaber",
+    "StageRejected": "acquisition.zaber",
+    "StageSettings": "acquisition.zaber",
+    "StageTravelError": "acquisition.zaber",
+    "ZaberStage": "acquisition.zaber",
+    "open_zaber": "acquisition.zaber",
 }
 
 __all__ = sorted(_LAZY)
