@@ -20,6 +20,7 @@ MATLAB's own, 0.572 / 0.602 px, ``tests/test_acq_dic_matlab.py``):
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -145,7 +146,9 @@ def read_matlab_calibration_session(path) -> MatlabStereoCalibration:
     if not path.is_file():
         raise DICImportError(f"{path}: no such file")
     try:
-        import matio
+        with warnings.catch_warnings():  # mat-io imports pandas, whose import warns about its own options
+            warnings.simplefilter("ignore")
+            import matio
     except ImportError:
         raise DICImportError(f"{path}: reading MATLAB calibration sessions needs the 'mat-io' package "
                              f"(pip install mat-io)") from None
