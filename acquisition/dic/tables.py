@@ -151,7 +151,7 @@ def points_from_columns(cols: dict[str, np.ndarray], mapping: dict[str, str], un
         quality = np.full((len(steps), len(ids)), np.nan)
         quality[si, pi] = np.asarray(cols[mapping["quality"]], float)
     return DICPoints(points=pts, quality=quality, quality_name=mapping.get("quality", ""), source=where,
-                     step_names=tuple(str(s) for s in steps))
+                     step_names=tuple(f"{s:g}" if isinstance(s, np.floating) else str(s) for s in steps))
 
 
 def read_point_table(path, columns: str, unit: str = "mm") -> DICPoints:
