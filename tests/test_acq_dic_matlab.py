@@ -45,8 +45,9 @@ def test_matlab_conventions_reproduce_matlab_rms(calib):
     """K transposed, principal point and corners 1-based, rotation of camera 2 transposed: reprojecting the corners
     with the imported cameras and MATLAB's board poses gives MATLAB's own RMS (0.572 / 0.602 px)."""
     cams = cameras_from_arrays(calib.camera_arrays)
-    world = np.einsum("vij,pj->vpi", rotation_matrix(calib.board_rvecs), calib.object_points) + calib.board_tvecs[:, None]
-    rms = [np.sqrt(np.mean(np.sum((cam.project(world) - calib.board_points[k]) ** 2, -1))) for k, cam in enumerate(cams)]
+    R = rotation_matrix(calib.board_rvecs)
+    world = np.einsum("vij,pj->vpi", R, calib.object_points) + calib.board_tvecs[:, None]
+    rms = [np.sqrt(np.mean(np.sum((c.project(world) - calib.board_points[k]) ** 2, -1))) for k, c in enumerate(cams)]
     np.testing.assert_allclose(rms, calib.matlab_rms, rtol=1e-9)
     np.testing.assert_allclose(rms, [0.572, 0.602], atol=5e-4)
 
@@ -113,3 +114,21 @@ def test_vfmlab_joint_calibration_from_corner_lists(calib):
     X = np.stack([triangulate(pairs.pixels[:, s], res.cameras, covariance=False).points for s in range(15)])
     err = (np.linalg.norm(X - X[0], axis=-1) - stage[:, None])[1:]
     assert np.nanmean(np.abs(err)) <= 2e-6
+
+
+def test_multidic_v5_struct(tmp_path):
+    """A MultiDIC-style ``DIC3DPPresults`` saved as MATLAB v5 (scipy.io writes it as MATLAB would): same reader."""
+    import scipy.io
+
+    pts = [np.array([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0], [7.0, 8.0, 9.0]]),
+           np.array([[1.5, 2, 3], [np.nan] * 3, [7, 8, 9.5]])]
+    cells = np.empty((2, 1), dtype=object)
+    cells[0, 0], cells[1, 0] = pts
+    corr = np.empty((2, 1), dtype=object)
+    corr[0, 0], corr[1, 0] = np.array([[0.01], [0.02], [0.03]]), np.array([[0.04], [np.nan], [0.06]])
+    path = tmp_path / "DIC3DPPresults.mat"
+    scipy.io.savemat(path, {"DIC3DPPresults": {"Points3D": cells, "corrComb": corr, "Faces": np.array([[1, 2, 3]])}})
+    res = read_duodic_points(path)
+    np.testing.assert_allclose(res.points, np.stack(pts) * 1e-3)
+    np.testing.assert_allclose(res.quality[0], [0.01, 0.02, 0.03])
+    assert res.triangles.tolist() == [[0, 1, 2]]

@@ -46,7 +46,8 @@ def _h5_value(f, obj):
     cls = obj.attrs.get("MATLAB_class", b"")
     cls = cls.decode() if isinstance(cls, bytes) else str(cls)
     if cls == "cell":
-        return [_h5_value(f, f[ref]) for ref in np.asarray(obj[()]).T.ravel()]
+        # h5py holds the transpose of MATLAB's shape, so its C order is MATLAB's column-major order
+        return [_h5_value(f, f[ref]) for ref in np.asarray(obj[()]).ravel()]
     if cls == "char":
         return "".join(map(chr, np.asarray(obj[()]).ravel()))
     if obj.attrs.get("MATLAB_empty", 0):

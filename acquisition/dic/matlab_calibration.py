@@ -158,7 +158,8 @@ def read_matlab_calibration_session(path) -> MatlabStereoCalibration:
         raise DICImportError(f"{path}: not a readable MATLAB file ({type(exc).__name__}: {exc})") from None
     session = data.get("calibrationSession") if isinstance(data, dict) else None
     if session is None:
-        raise DICImportError(f"{path}: no 'calibrationSession' variable (has {sorted(data) if isinstance(data, dict) else '?'})")
+        have = sorted(data) if isinstance(data, dict) else type(data).__name__
+        raise DICImportError(f"{path}: no 'calibrationSession' variable (has {have})")
     s = _props(session)
     try:
         stereo = _props(_one(s["cameraParams"]))
