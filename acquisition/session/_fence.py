@@ -13,10 +13,12 @@ it, so a write cut short at the end of the file is never referenced.)
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import errno
 import logging
 import os
 import re
+from collections.abc import Iterator
 
 import h5py
 
@@ -40,18 +42,82 @@ def failure_errno(exc: BaseException) -> int:
     return int(found.group(1)) if found else errno.ENOSPC
 
 
-def fence(f: h5py.File) -> None:
-    """Close ``f`` without writing another byte to its file (see the module docstring)."""
-    fd = None
-    with contextlib.suppress(Exception):
-        fd = int(f.id.get_vfd_handle())
-    if fd is not None and fd >= 0:
+def vfd_handle(f: h5py.File) -> int:
+    """HDF5's file descriptor of ``f`` (-1 if unknown); read it while the file is sound."""
+    try:
+        return int(f.id.get_vfd_handle())
+    except Exception:  # noqa: BLE001 - another driver
+        return -1
+
+
+def fence(f: h5py.File, fd: int, close: bool = True) -> None:
+    """Close ``f`` without writing another byte to its file (see the module docstring).
+
+    ``close=False`` when closing it is what failed: h5py must not close it twice (that crashes);
+    HDF5 closes it at exit, its writes then going nowhere.
+    """
+    if fd >= 0:
         null = os.open(os.devnull, os.O_RDWR)
         try:
             os.dup2(null, fd)
         finally:
             os.close(null)
+    if not close:
+        return
     try:
         f.close()
     except Exception as exc:  # noqa: BLE001 - nothing reaches the file any more
         log.debug("closing a fenced file: %s", exc)
+
+
+@contextlib.contextmanager
+def fenced(f: h5py.File) -> Iterator[h5py.File]:
+    """Use and close ``f``; a failed disk write on the way fences it and raises OSError (ENOSPC, EIO...)."""
+    closing, fd = False, vfd_handle(f)
+    try:
+        yield f
+        closing = True
+        f.close()
+    except Exception as exc:
+        if not is_write_failure(exc):
+            with contextlib.suppress(Exception):
+                f.close()
+            raise
+        fence(f, fd, close=not closing)
+        code = failure_errno(exc)
+        raise OSError(code, os.strerror(code)) from None
+
+
+#: Space allocated ahead of the writes beyond what they are estimated to need (HDF5 metadata), bytes.
+MARGIN = 1 << 20
+
+
+def _fallocate_keep_size(fd: int, offset: int, length: int) -> None:
+    """Linux ``fallocate(FALLOC_FL_KEEP_SIZE)``: blocks reserved past the end, the file's size unchanged."""
+    global _libc
+    if _libc is None:
+        _libc = ctypes.CDLL(None, use_errno=True)
+        _libc.fallocate.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.c_longlong, ctypes.c_longlong]
+    if _libc.fallocate(fd, 1, offset, length) != 0:
+        code = ctypes.get_errno()
+        raise OSError(code, os.strerror(code))
+
+
+_libc = None
+
+
+def reserve(fd: int, nbytes: int) -> None:
+    """Reserve the disk blocks for ``nbytes`` + :data:`MARGIN` past the file's end before HDF5 writes there.
+
+    HDF5 then never meets a full disk (its error paths crash the process at exit): the disk-full
+    error is raised here, before any write, as OSError(ENOSPC). The file's size is unchanged.
+    """
+    if fd < 0:
+        return
+    try:
+        _fallocate_keep_size(fd, os.fstat(fd).st_size, int(nbytes) + MARGIN)
+    except (OSError, AttributeError) as exc:
+        code = getattr(exc, "errno", None)
+        if code in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG):
+            raise OSError(code, os.strerror(code)) from None
+        # EOPNOTSUPP, no fallocate (not Linux): a file system that cannot reserve; the fence still guards

@@ -19,8 +19,10 @@ from pathlib import Path
 from typing import Any
 
 import h5py
+import numpy as np
 
 from acquisition.session import _guards, _store
+from acquisition.session._fence import fenced, reserve
 from acquisition.session._results import write_result_group
 from acquisition.session._schema import SessionError
 from acquisition.session._writer import _refuse_live_session
@@ -43,7 +45,9 @@ class StagedSession:
         """
         if not kind.isidentifier():
             raise ValueError(f"kind must be an identifier like 'markers'; got {kind!r}")
-        with h5py.File(self.path, "r+") as f:
+        with open(self.path, "r+b") as fh:  # the space first: HDF5 must not meet a full disk
+            reserve(fh.fileno(), sum(np.asarray(v).nbytes for v in arrays.values()) + 65536)
+        with fenced(h5py.File(self.path, "r+")) as f:
             return write_result_group(f, kind, arrays, parameters, attrs, units)
 
 

@@ -9,6 +9,7 @@ import json
 import logging
 import os
 import re
+import shutil
 import time
 import uuid
 from collections.abc import Iterator, Mapping, Sequence
@@ -18,7 +19,7 @@ from typing import Any
 import h5py
 import numpy as np
 
-from acquisition.session._fence import failure_errno, fence, is_write_failure
+from acquisition.session._fence import MARGIN, failure_errno, fence, is_write_failure, reserve, vfd_handle
 from acquisition.session._guards import _stamp_writer
 from acquisition.session._reader import incomplete_leftover, open_session
 from acquisition.session._recovery import _partial_records, clear_consistency_flags
@@ -83,9 +84,10 @@ class SessionWriter:
         self._entry = h5file["entry"]
         self._closed = False
         self._failed: OSError | None = None  # the failed disk write that stopped this writer
+        self._fd = vfd_handle(h5file)
 
     @contextlib.contextmanager
-    def _disk(self, what: str) -> Iterator[None]:
+    def _disk(self, what: str, nbytes: int = 0) -> Iterator[None]:
         """Run HDF5 writes; a failed disk write stops the writer as a kill at that write would.
 
         The file is fenced (``_fence``): it keeps every record completed before, opens, reads as
@@ -95,12 +97,18 @@ class SessionWriter:
             raise OSError(self._failed.errno, f"{self.path}: the writer stopped at an earlier failed write "
                                               f"({self._failed.strerror})")
         try:
+            reserve(self._fd, nbytes)  # a full disk is found here, before HDF5 writes a byte
+        except OSError as exc:
+            raise OSError(exc.errno, f"{exc.strerror} while writing {what} ({nbytes / 1e6:.1f} MB and a margin "
+                                     f"needed); nothing of it was written and the session keeps every step "
+                                     f"completed before", str(self.path)) from None
+        try:
             yield
         except Exception as exc:
             if not is_write_failure(exc):
                 raise
             code = failure_errno(exc)
-            fence(self._f)
+            fence(self._f, self._fd)
             self._closed = True
             self._failed = OSError(code, f"{os.strerror(code)} while writing {what}; the session keeps every "
                                          f"step completed before and can be resumed once the disk has room")
@@ -148,14 +156,22 @@ class SessionWriter:
         # Built under a temporary name and renamed into place: a kill during creation never
         # leaves a partial file at ``path`` that would block run and resume.
         tmp = path.with_name(f".{path.name}.creating-{os.getpid()}")
+        free = shutil.disk_usage(path.parent).free
+        if free < 2 * MARGIN:  # HDF5 must not meet a full disk while it lays the file out
+            raise OSError(errno.ENOSPC, f"cannot create the file: disk full ({free / 1e6:.1f} MB free)", str(path))
         f = _create_h5(tmp, path)
+        fd = vfd_handle(f)
         try:
             cls._build(f, specimen, cameras, protocol_text, rig or {}, instruments or {}, load_cell_measures)
             f.flush()
             f.swmr_mode = True
+            reserve(fd, 0)
             os.replace(tmp, path)
-        except BaseException:
-            f.close()
+        except BaseException as exc:
+            if isinstance(exc, Exception) and is_write_failure(exc):
+                fence(f, fd)
+            else:
+                f.close()
             tmp.unlink(missing_ok=True)
             raise
         writer = cls(f, path)
@@ -327,7 +343,7 @@ class SessionWriter:
             raise ValueError(f"append_log: raw and seq must have {n} entries")
         if n == 0:
             return
-        with self._disk(f"the {channel} log"):
+        with self._disk(f"the {channel} log", 128 * n):
             g = self._entry["log"][channel]
             row = min(ds.shape[0] for ds in g.values())  # past the last complete sample (a kill may leave more)
             for name, data in (("time", t_wall), ("monotonic_time", t_monotonic), ("value", value),
@@ -356,7 +372,7 @@ class SessionWriter:
                 raise ValueError(f"add_step: camera {name!r} frame must have shape {ds.shape[1:]}; got {frame.shape}")
             frames[name] = frame[None].astype(ds.dtype, copy=False)
         row = self.n_rows_complete()
-        with self._disk(f"step row {row}"):
+        with self._disk(f"step row {row}", sum(f.nbytes for f in frames.values()) + 4096):
             # Frames first, written at the row's index (a frame a killed writer left there is replaced),
             # the table row last: a row exists only once its frames are written.
             for name, frame in frames.items():
@@ -380,7 +396,8 @@ class SessionWriter:
         if unknown:
             raise ValueError(f"add_calibration_view: unknown cameras {sorted(unknown)}; known {sorted(calib.keys())}")
         index = self.n_calibration_views
-        with self._disk(f"calibration view {index}"):
+        nbytes = sum(int(np.prod(ds.shape[1:])) * ds.dtype.itemsize for ds in calib.values())
+        with self._disk(f"calibration view {index}", nbytes):
             for name in calib:
                 ds = calib[name]
                 frame = images.get(name)
