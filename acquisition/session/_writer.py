@@ -157,7 +157,7 @@ class SessionWriter:
         # leaves a partial file at ``path`` that would block run and resume.
         tmp = path.with_name(f".{path.name}.creating-{os.getpid()}")
         free = shutil.disk_usage(path.parent).free
-        if free < 2 * MARGIN:  # HDF5 must not meet a full disk while it lays the file out
+        if free < MARGIN:  # HDF5 must not meet a full disk while it lays the file out
             raise OSError(errno.ENOSPC, f"cannot create the file: disk full ({free / 1e6:.1f} MB free)", str(path))
         f = _create_h5(tmp, path)
         fd = vfd_handle(f)
