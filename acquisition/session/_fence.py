@@ -92,18 +92,20 @@ def fenced(f: h5py.File) -> Iterator[h5py.File]:
 MARGIN = 1 << 20
 
 
+_libc: ctypes.CDLL | None = None
+
+
 def _fallocate_keep_size(fd: int, offset: int, length: int) -> None:
     """Linux ``fallocate(FALLOC_FL_KEEP_SIZE)``: blocks reserved past the end, the file's size unchanged."""
     global _libc
     if _libc is None:
         _libc = ctypes.CDLL(None, use_errno=True)
         _libc.fallocate.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.c_longlong, ctypes.c_longlong]
-    if _libc.fallocate(fd, 1, offset, length) != 0:
+    libc = _libc
+    if libc.fallocate(fd, 1, offset, length) != 0:
         code = ctypes.get_errno()
         raise OSError(code, os.strerror(code))
 
-
-_libc = None
 
 
 def reserve(fd: int, nbytes: int) -> None:
