@@ -70,7 +70,8 @@ def _sim_bench(rig: RigConfig, specimen: SpecimenFile, protocol: Protocol, sim_s
     return SimBench(rig, specimen, protocol, time_scale=sim_speed)
 
 
-def _load_rig(rig_path: str | None, sim: bool, sim_seed: int | None = None) -> RigConfig:
+def load_rig_config(rig_path: str | None, sim: bool, sim_seed: int | None = None) -> RigConfig:
+    """The rig file (or with ``sim`` and no file the built-in simulated rig), ``sim_seed`` written in."""
     if rig_path:
         rig = load_rig(rig_path)
     elif sim:
@@ -195,7 +196,8 @@ def run_session(protocol_path: str, specimen_path: str, out: str, *, rig_path: s
                 sim: bool = False, yes: bool = False, sim_speed: float = 1.0, console: Console,
                 detector: Callable[[np.ndarray], int] | None = None, sim_seed: int | None = None,
                 observer: Callable[[RunnerState, Bench], None] | None = None, live_models: tuple[str, ...] = (),
-                live_options: dict[str, Any] | None = None, **runner_kwargs: Any) -> Outcome:
+                live_options: dict[str, Any] | None = None, check_seconds: float = 0.0,
+                **runner_kwargs: Any) -> Outcome:
     """``vfmlab run``: validate, assemble the rig, create the session file and run the protocol.
 
     ``observer(state, bench)`` is called at every runner update (tests inject faults with it).
@@ -203,10 +205,11 @@ def run_session(protocol_path: str, specimen_path: str, out: str, *, rig_path: s
     imperfections, image and instrument noise of the simulated rig); None keeps the file's.
     ``live_models``: models identified while the test runs (:mod:`vfmlab.live_results`; keyword
     arguments of :class:`~vfmlab.live_results.LiveResults` in ``live_options``); their final
-    estimates are stored as "identification" results.
+    estimates are stored as "identification" results. ``check_seconds`` > 0: the pre-flight check
+    (:mod:`vfmlab.stages.check`) with that many seconds of readings, kept in the session.
     """
     try:
-        rig = _load_rig(rig_path, sim, sim_seed if sim else None)
+        rig = load_rig_config(rig_path, sim, sim_seed if sim else None)
         protocol = load_protocol(protocol_path, rig)
         specimen = load_specimen(specimen_path)
     except ConfigError as exc:
@@ -237,9 +240,12 @@ def run_session(protocol_path: str, specimen_path: str, out: str, *, rig_path: s
         names = protocol.camera_names(rig)
         specs = [s for s in specs if s.name in names]
         bench.cameras = [c for c in bench.cameras if c.name in names]
+        _stage_for_run(bench, specimen, protocol, console, yes, home=False)
+        check = _preflight(bench, rig, console, yes, check_seconds)
         if not yes and not TerminalOperator(console).choose("Start the test? Nothing has moved yet.",
                                                            ["start", "cancel"]) == "start":
             raise OperateError("cancelled by the operator before the start; no file written")
+        _stage_for_run(bench, specimen, protocol, console, yes, home=True)
         try:
             ends, ends_source = specimen_ends(rig, specimen, sim, console)
             writer = SessionWriter.create(
@@ -249,6 +255,8 @@ def run_session(protocol_path: str, specimen_path: str, out: str, *, rig_path: s
                 load_cell_measures=rig.load_cell.measures, overwrite=replace_leftover)
         except (SessionError, OSError) as exc:
             raise OperateError(str(exc)) from None
+        for line in check.lines() if check is not None else []:
+            writer.add_event("check", line)
         results = _live_results(out_path, specimen, rig, live_models, live_options, protocol, console)
         try:
             runner = _execute(runner_kwargs, protocol, writer, bench, console, yes, 0, True, True, detector,
@@ -258,9 +266,70 @@ def run_session(protocol_path: str, specimen_path: str, out: str, *, rig_path: s
                 results.close(cancel=True)
             raise
     outcome = _report(runner, out_path, console)
+    if check is not None:
+        _keep_check(check, out_path, console)
     if results is not None:
         _finish_live_results(results, out_path, console, cancel=outcome.status != "complete")
     return outcome
+
+
+def _stage_for_run(bench: Bench, specimen: SpecimenFile, protocol: Protocol, console: Console, yes: bool,
+                   home: bool) -> None:
+    """With a motorised stage: check every protocol stretch against its soft limits (``home=False``), or home
+    it with the operator's consent (``home=True``); the runner then drives it (``bench.stage``)."""
+    if bench.motor is None:
+        return
+    from vfmlab.axial import StageSetupError, home_if_needed, stretch_stage
+
+    try:
+        if not home:
+            bench.stage = stretch_stage(bench.motor, bench.config.stage, specimen, protocol)
+        elif home_if_needed(bench.motor, bench.config.stage, TerminalOperator(console).choose, yes=yes):
+            console.print(f"stage homed; stretch 1 at {bench.config.stage.x0_m * 1e3:.3f} mm")
+    except StageSetupError as exc:
+        raise OperateError(str(exc), exit_code=exc.exit_code) from None
+
+
+def _preflight(bench: Bench, rig: RigConfig, console: Console, yes: bool, seconds: float):
+    """The pre-flight check (:mod:`vfmlab.stages.check`) before anything moves; None when ``seconds`` is 0."""
+    if not seconds > 0:
+        return None
+    from vfmlab.stages.check import check_bench, rig_calibration
+    from vfmlab.stages.errors import StageError
+
+    try:
+        calibration = rig_calibration(rig, bench)
+    except StageError as exc:
+        calibration = (None, f"the rig's calibration cannot be read: {exc}")
+    check = check_bench(bench, seconds=seconds, calibration=calibration)
+    style = {"OK": "green", "CHECK": "yellow", "FAULT": "bold red"}
+    console.print("[bold]Pre-flight check[/]")
+    for d in check.devices:
+        console.print(f"  [{style[d.verdict]}]{esc(d.line)}[/]")
+    console.print(f"  {esc(check.views_line)}")
+    if not check.passed:
+        if yes:
+            console.print("[yellow]the pre-flight check found faults; running anyway (--yes)[/]")
+        elif TerminalOperator(console).choose("The pre-flight check found faults. Start anyway?",
+                                              ["cancel", "continue"]) != "continue":
+            raise OperateError("cancelled by the operator after the pre-flight check; no file written")
+    return check
+
+
+def _keep_check(check, path: Path, console: Console) -> None:
+    """Store the pre-flight check (images with detections) in the session, else next to it as PNG files."""
+    from vfmlab.stages.check import save_check, store_check
+
+    try:
+        console.print(f"pre-flight check stored as {store_check(check, path)} in {esc(str(path))}")
+    except (SessionError, OSError, ValueError) as exc:
+        folder = path.with_name(path.stem + "-check")
+        log.info("pre-flight check not stored in the session (%s); writing %s", exc, folder)
+        try:
+            save_check(check, folder)
+            console.print(f"pre-flight check images written to {esc(str(folder))}")
+        except OSError as err:
+            console.print(f"[yellow]the pre-flight check images could not be kept: {esc(str(err))}[/]")
 
 
 def _live_results(path: Path, specimen: SpecimenFile, rig: RigConfig, models: tuple[str, ...],
@@ -355,6 +424,8 @@ def resume_session(path: str, *, rig_path: str | None = None, sim: bool = False,
         if missing:
             raise OperateError(f"cameras {missing} of the session are not in the rig file")
         _camera_specs(bench)
+        _stage_for_run(bench, specimen, protocol, console, yes, home=False)
+        _stage_for_run(bench, specimen, protocol, console, yes, home=True)
         try:
             writer = SessionWriter.resume(path)
         except SessionError as exc:
