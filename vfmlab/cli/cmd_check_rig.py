@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from vfmlab.cli._common import console, esc, print_json
+from vfmlab.cli._common import console, err_console, esc, print_json
 
 EPILOG = """
 \b
@@ -28,7 +28,7 @@ def command(rig, sim, sim_seed, seconds, out, as_json):
     """Grab a frame from every camera and read every instrument for a few seconds; say what is wrong."""
     from vfmlab.stages.check import check_rig
 
-    check = check_rig(rig=rig, sim=sim, sim_seed=sim_seed, seconds=seconds, out=out, notify=console.print)
+    check = check_rig(rig=rig, sim=sim, sim_seed=sim_seed, seconds=seconds, out=out, notify=(err_console if as_json else console).print)
     if as_json:
         print_json(check.to_dict())
     else:
