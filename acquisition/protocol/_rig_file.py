@@ -111,7 +111,7 @@ def _sim_faults(t: _Table | None, cameras: list[str]) -> SimFaults:
     drift = t.number("force_drift_N_per_s", 0.0)
     blur = t.number("defocus_px", SimFaults.defocus_px, lo=0.0, lo_open=True)
     t.done()
-    return SimFaults(*lists, force_drift=drift, defocus_px=blur)
+    return SimFaults(lists[0], lists[1], lists[2], force_drift=drift, defocus_px=blur)
 
 
 def _stage(t: _Table | None) -> StageConfig | None:

@@ -296,8 +296,9 @@ class SessionRunner(_Preparation, _SafetyChecks, _Recording):
             raise SessionAborted(f"aborted after a stage fault: {exc}")
         if choice == "quit":
             raise SessionQuit("stopped after a stage fault; continue with `vfmlab resume`")
+        clear: Any = getattr(self.stage, "clear_fault", list)
         try:
-            flags = self.stage.clear_fault()
+            flags = clear()
         except InstrumentError as err:
             self._warn(f"stage: clearing the fault failed ({err}); retrying the move")
             flags = []
