@@ -25,7 +25,7 @@ from acquisition.cameras import FunctionCamera
 from acquisition.errors import InputError
 from acquisition.protocol import MMHG, Protocol, RigConfig, SimFaults, SpecimenFile
 
-__all__ = ["SimScene", "SimBench"]
+__all__ = ["SimScene", "SimBench", "serve_until", "simulated_instruments"]
 
 log = logging.getLogger(__name__)
 
@@ -343,3 +343,34 @@ class SimBench:
             return self.scene.images(self.rig.true_pressure(), self.stretch)[index]
 
         return FunctionCamera(name, render, settings, identity=f"simulated camera {name} (rig_sim ring)")
+
+
+def simulated_instruments(use_socket: bool, manual: bool, load_cell_measures: str, seed: int):
+    """``vfmlab sim-rig``'s instruments (not started): a Mensor CPC controller (``manual``: a CPG2500 indicator)
+    and a Mark-10 load cell on pseudo-terminals (``use_socket``: localhost sockets)."""
+    from rig_sim.instruments import SimulatedRig
+
+    return SimulatedRig(transport="socket" if use_socket else "pty",
+                        pressure_source="manual" if manual else "controller", rng=np.random.default_rng(seed),
+                        load_cell_measures=load_cell_measures)
+
+
+def serve_until(duration: float | None) -> None:
+    """Return after ``duration`` s (None: at Ctrl-C or SIGTERM), the simulators serving meanwhile."""
+    import signal
+
+    t_end = None if duration is None else time.monotonic() + duration
+    previous = None
+    if threading.current_thread() is threading.main_thread():
+        def handler(signum, frame):
+            raise KeyboardInterrupt
+
+        previous = signal.signal(signal.SIGTERM, handler)  # SIGTERM stops the simulators cleanly, as Ctrl-C
+    try:
+        while t_end is None or time.monotonic() < t_end:
+            time.sleep(0.05 if t_end is not None else 0.5)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
