@@ -10,7 +10,8 @@ from acquisition.protocol import ConfigError, parse_rig
 from reconstruction import detect_markers, image_quality
 from vfmlab.cli import main
 from vfmlab.operate import DEFAULT_SIM_RIG
-from vfmlab.stages.check import check_rig, judge_channel
+from vfmlab.preflight import judge_channel
+from vfmlab.stages.check import check_rig
 
 FAULTS = """
 [simulation.faults]

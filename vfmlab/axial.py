@@ -9,12 +9,13 @@ the specimen file's length is that gauge length ``L0``: stretch ``lambda`` is th
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from typing import Any
 
 from acquisition import InstrumentError, StretchStage
 from acquisition.protocol import Protocol, SpecimenFile
 
-__all__ = ["protocol_stretches", "stretch_stage", "home_if_needed"]
+__all__ = ["StageSetupError", "home_if_needed", "prepare_stage", "protocol_stretches", "stretch_stage"]
 
 log = logging.getLogger(__name__)
 
@@ -74,3 +75,16 @@ def home_if_needed(motor: Any, config: Any, ask: Any, *, yes: bool) -> bool:
         raise StageSetupError(f"stage: homing failed: {exc}") from None
     log.info("stage homed; at %.6g m", motor.position())
     return True
+
+
+def prepare_stage(bench: Any, specimen: SpecimenFile, protocol: Protocol, ask: Callable[[str, list[str]], str], *,
+                  yes: bool, home: bool, say: Callable[[str], None] = log.info) -> None:
+    """With a motorised stage (``bench.motor``): check every protocol stretch against its soft limits and set
+    ``bench.stage`` (``home=False``, nothing moves), or home it with the operator's consent (``home=True``)."""
+    if bench.motor is None:
+        return
+    config = bench.config.stage
+    if not home:
+        bench.stage = stretch_stage(bench.motor, config, specimen, protocol)
+    elif home_if_needed(bench.motor, config, ask, yes=yes):
+        say(f"stage homed; stretch 1 at {config.x0_m * 1e3:.3f} mm")

@@ -30,6 +30,7 @@ from acquisition.session import (CameraSpec, SessionError, SessionWriter, Specim
 from vfmlab.bench import Bench, BenchError, open_bench
 from vfmlab.display import fixed
 from vfmlab.live import LiveView, TerminalOperator, format_duration
+from vfmlab.preflight import keep_check, preflight
 
 __all__ = ["OperateError", "Outcome", "run_session", "resume_session", "DEFAULT_SIM_RIG"]
 
@@ -206,7 +207,7 @@ def run_session(protocol_path: str, specimen_path: str, out: str, *, rig_path: s
     ``live_models``: models identified while the test runs (:mod:`vfmlab.live_results`; keyword
     arguments of :class:`~vfmlab.live_results.LiveResults` in ``live_options``); their final
     estimates are stored as "identification" results. ``check_seconds`` > 0: the pre-flight check
-    (:mod:`vfmlab.stages.check`) with that many seconds of readings, kept in the session.
+    (:mod:`vfmlab.preflight`) with that many seconds of readings, kept in the session.
     """
     try:
         rig = load_rig_config(rig_path, sim, sim_seed if sim else None)
@@ -241,7 +242,7 @@ def run_session(protocol_path: str, specimen_path: str, out: str, *, rig_path: s
         specs = [s for s in specs if s.name in names]
         bench.cameras = [c for c in bench.cameras if c.name in names]
         _stage_for_run(bench, specimen, protocol, console, yes, home=False)
-        check = _preflight(bench, rig, console, yes, check_seconds)
+        check = preflight(bench, rig, console, yes, check_seconds)
         if not yes and not TerminalOperator(console).choose("Start the test? Nothing has moved yet.",
                                                            ["start", "cancel"]) == "start":
             raise OperateError("cancelled by the operator before the start; no file written")
@@ -267,69 +268,10 @@ def run_session(protocol_path: str, specimen_path: str, out: str, *, rig_path: s
             raise
     outcome = _report(runner, out_path, console)
     if check is not None:
-        _keep_check(check, out_path, console)
+        keep_check(check, out_path, console)
     if results is not None:
         _finish_live_results(results, out_path, console, cancel=outcome.status != "complete")
     return outcome
-
-
-def _stage_for_run(bench: Bench, specimen: SpecimenFile, protocol: Protocol, console: Console, yes: bool,
-                   home: bool) -> None:
-    """With a motorised stage: check every protocol stretch against its soft limits (``home=False``), or home
-    it with the operator's consent (``home=True``); the runner then drives it (``bench.stage``)."""
-    if bench.motor is None:
-        return
-    from vfmlab.axial import StageSetupError, home_if_needed, stretch_stage
-
-    try:
-        if not home:
-            bench.stage = stretch_stage(bench.motor, bench.config.stage, specimen, protocol)
-        elif home_if_needed(bench.motor, bench.config.stage, TerminalOperator(console).choose, yes=yes):
-            console.print(f"stage homed; stretch 1 at {bench.config.stage.x0_m * 1e3:.3f} mm")
-    except StageSetupError as exc:
-        raise OperateError(str(exc), exit_code=exc.exit_code) from None
-
-
-def _preflight(bench: Bench, rig: RigConfig, console: Console, yes: bool, seconds: float):
-    """The pre-flight check (:mod:`vfmlab.stages.check`) before anything moves; None when ``seconds`` is 0."""
-    if not seconds > 0:
-        return None
-    from vfmlab.stages.check import check_bench, rig_calibration
-    from vfmlab.stages.errors import StageError
-
-    try:
-        calibration = rig_calibration(rig, bench)
-    except StageError as exc:
-        calibration = (None, f"the rig's calibration cannot be read: {exc}")
-    check = check_bench(bench, seconds=seconds, calibration=calibration)
-    style = {"OK": "green", "CHECK": "yellow", "FAULT": "bold red"}
-    console.print("[bold]Pre-flight check[/]")
-    for d in check.devices:
-        console.print(f"  [{style[d.verdict]}]{esc(d.line)}[/]")
-    console.print(f"  {esc(check.views_line)}")
-    if not check.passed:
-        if yes:
-            console.print("[yellow]the pre-flight check found faults; running anyway (--yes)[/]")
-        elif TerminalOperator(console).choose("The pre-flight check found faults. Start anyway?",
-                                              ["cancel", "continue"]) != "continue":
-            raise OperateError("cancelled by the operator after the pre-flight check; no file written")
-    return check
-
-
-def _keep_check(check, path: Path, console: Console) -> None:
-    """Store the pre-flight check (images with detections) in the session, else next to it as PNG files."""
-    from vfmlab.stages.check import save_check, store_check
-
-    try:
-        console.print(f"pre-flight check stored as {store_check(check, path)} in {esc(str(path))}")
-    except (SessionError, OSError, ValueError) as exc:
-        folder = path.with_name(path.stem + "-check")
-        log.info("pre-flight check not stored in the session (%s); writing %s", exc, folder)
-        try:
-            save_check(check, folder)
-            console.print(f"pre-flight check images written to {esc(str(folder))}")
-        except OSError as err:
-            console.print(f"[yellow]the pre-flight check images could not be kept: {esc(str(err))}[/]")
 
 
 def _live_results(path: Path, specimen: SpecimenFile, rig: RigConfig, models: tuple[str, ...],
@@ -463,6 +405,18 @@ def _confirm_stored_devices(rig: RigConfig, path: str, yes: bool, console: Conso
                   "They come from the session file, not from a rig file of this machine.")
     if TerminalOperator(console).choose("Use these devices?", ["no", "yes"]) != "yes":
         raise OperateError("resume cancelled: give --rig RIG.toml (this machine's rig file)", exit_code=2)
+
+
+def _stage_for_run(bench: Bench, specimen: SpecimenFile, protocol: Protocol, console: Console, yes: bool,
+                   home: bool) -> None:
+    """:func:`vfmlab.axial.prepare_stage`, its errors as OperateError."""
+    from vfmlab.axial import StageSetupError, prepare_stage
+
+    try:
+        prepare_stage(bench, specimen, protocol, TerminalOperator(console).choose, yes=yes, home=home,
+                      say=console.print)
+    except StageSetupError as exc:
+        raise OperateError(str(exc), exit_code=exc.exit_code) from None
 
 
 def _report(runner: SessionRunner, path: Path, console: Console) -> Outcome:
