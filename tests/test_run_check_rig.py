@@ -99,3 +99,9 @@ def test_run_checks_the_rig_first_and_keeps_the_check_in_the_session(tmp_path):
     assert len(checks) == 7 and checks[0].startswith("camera cam0: OK")
     assert result["arrays"]["image_cam0"].shape == (480, 640)
     assert result["arrays"]["centres_cam0"].shape[1] == 2 and result["attrs"]["passed"]
+
+
+def test_a_rig_calibration_that_does_not_exist_is_refused():
+    text = DEFAULT_SIM_RIG.replace('name = "simulated rig"', 'name = "simulated rig"\ncalibration = "nowhere.toml"')
+    with pytest.raises(ConfigError, match="calibration"):
+        parse_rig(text)
