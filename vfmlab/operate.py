@@ -195,7 +195,8 @@ def run_session(protocol_path: str, specimen_path: str, out: str, *, rig_path: s
                 sim: bool = False, yes: bool = False, sim_speed: float = 1.0, console: Console,
                 detector: Callable[[np.ndarray], int] | None = None, sim_seed: int | None = None,
                 observer: Callable[[RunnerState, Bench], None] | None = None, live_models: tuple[str, ...] = (),
-                live_options: dict[str, Any] | None = None, **runner_kwargs: Any) -> Outcome:
+                live_options: dict[str, Any] | None = None, on_live_results: Callable[[Any], None] | None = None,
+                **runner_kwargs: Any) -> Outcome:
     """``vfmlab run``: validate, assemble the rig, create the session file and run the protocol.
 
     ``observer(state, bench)`` is called at every runner update (tests inject faults with it).
@@ -203,7 +204,8 @@ def run_session(protocol_path: str, specimen_path: str, out: str, *, rig_path: s
     imperfections, image and instrument noise of the simulated rig); None keeps the file's.
     ``live_models``: models identified while the test runs (:mod:`vfmlab.live_results`; keyword
     arguments of :class:`~vfmlab.live_results.LiveResults` in ``live_options``); their final
-    estimates are stored as "identification" results.
+    estimates are stored as "identification" results. ``on_live_results(results)`` is called with the
+    :class:`~vfmlab.live_results.LiveResults` once they start (the browser view, :mod:`vfmlab.web`).
     """
     try:
         rig = _load_rig(rig_path, sim, sim_seed if sim else None)
@@ -250,6 +252,8 @@ def run_session(protocol_path: str, specimen_path: str, out: str, *, rig_path: s
         except (SessionError, OSError) as exc:
             raise OperateError(str(exc)) from None
         results = _live_results(out_path, specimen, rig, live_models, live_options, protocol, console)
+        if results is not None and on_live_results is not None:
+            on_live_results(results)
         try:
             runner = _execute(runner_kwargs, protocol, writer, bench, console, yes, 0, True, True, detector,
                               observer, results)
