@@ -22,7 +22,7 @@ import sys
 import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 
@@ -109,20 +109,30 @@ class WebProcess:
             if line == last:
                 continue
             try:
-                self.proc.stdin.write(line + "\n")
-                self.proc.stdin.flush()
+                self._send(line)
             except (OSError, ValueError):  # the server has gone: the test goes on without it
                 log.info("web view: the server process has stopped; the page no longer updates")
                 return
             last = line
+
+    @staticmethod
+    def _pipe(stream: IO[str] | None) -> IO[str]:
+        if stream is None:  # pragma: no cover - start_web always opens both pipes
+            raise ValueError("the server process has no pipe")
+        return stream
+
+    def _send(self, line: str) -> None:
+        stdin = self._pipe(self.proc.stdin)
+        stdin.write(line + "\n")
+        stdin.flush()
 
     def close(self, timeout: float = 5.0) -> None:
         """Send the last state, close the feed (the server then stops) and wait for the process."""
         self._stop.set()
         self._thread.join(timeout)
         try:
-            self.proc.stdin.write(json.dumps(self._snapshot(), allow_nan=False) + "\n")
-            self.proc.stdin.close()
+            self._send(json.dumps(self._snapshot(), allow_nan=False))
+            self._pipe(self.proc.stdin).close()
         except (OSError, ValueError):
             pass
         try:
@@ -147,8 +157,9 @@ def start_web(session: str | Path, port: int, *, timeout: float = 30.0, interval
            "--feed"]
     proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
                             text=True, bufsize=1)
-    ready, _, _ = select.select([proc.stdout], [], [], timeout)
-    line = proc.stdout.readline().strip() if ready else ""
+    stdout = WebProcess._pipe(proc.stdout)
+    ready, _, _ = select.select([stdout], [], [], timeout)
+    line = stdout.readline().strip() if ready else ""
     if not line.startswith("http://"):
         proc.kill()
         proc.communicate()

@@ -64,10 +64,9 @@ class WebState:
         return json.dumps(snapshot.read_state(self.path, self.live), allow_nan=False).encode()
 
     def camera(self, camera: int, row: int | None) -> bytes:
-        key = None if row is None else (camera, row)
         with self._lock:
-            if key in self._images:
-                return self._images[key]
+            if row is not None and (camera, row) in self._images:
+                return self._images[(camera, row)]
         png, row = snapshot.camera_png(self.path, camera, row)
         with self._lock:
             self._images[(camera, row)] = png
@@ -169,7 +168,7 @@ def make_app(state: WebState, port: list[int]) -> tornado.web.Application:
     """The tornado application; ``port`` is a one-item list holding the bound port (known after binding)."""
     executor = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="web-read")
     common = {"state": state, "executor": executor, "port": port}
-    routes = [(route, AssetHandler, {**common, "body": _asset(name), "content_type": kind})
+    routes: list[tuple[str, type[tornado.web.RequestHandler], dict[str, Any]]] = [(route, AssetHandler, {**common, "body": _asset(name), "content_type": kind})
               for route, (name, kind) in _ASSETS.items()]
     routes += [(r"/api/state", StateHandler, common), (r"/api/camera/([0-9]{1,3})\.png", CameraHandler, common),
                (r"/api/strain\.png", StrainHandler, common)]

@@ -126,17 +126,16 @@ def _live_summary(live: dict[str, Any] | None) -> dict[str, Any] | None:
 
 def _session_state(s) -> dict[str, Any]:
     steps = s.steps
-    t0 = None
+    t0: float | None = None  # time zero of the curves: the first logged reading (POSIX s)
     series = {}
     for channel in ("pressure", "force"):
         lg = s.log(channel)
         t, v = _decimate(lg["t_wall"], lg["value"])
-        if len(lg["t_wall"]) and t0 is None:
-            t0 = float(lg["t_wall"][0])
-        series[channel] = {"t": t, "v": v}
+        if len(lg["t_wall"]):
+            t0 = float(lg["t_wall"][0]) if t0 is None else min(t0, float(lg["t_wall"][0]))
+        series[channel] = (t, v)
     t0 = t0 if t0 is not None else (float(steps["t_wall"][0]) if len(steps["t_wall"]) else 0.0)
-    for channel in series:
-        series[channel] = {"t": _list(series[channel]["t"] - t0), "v": _list(series[channel]["v"])}
+    curves = {channel: {"t": _list(t - t0), "v": _list(v)} for channel, (t, v) in series.items()}
     spec = s.specimen
     return {
         "status": s.status, "message": "", "specimen": spec.specimen_id, "start_time": s.start_time,
@@ -145,7 +144,7 @@ def _session_state(s) -> dict[str, Any]:
                   "pressure": _list(steps["pressure"]), "force": _list(steps["force"]),
                   "target_pressure": _list(steps["target_pressure"]), "t": _list(steps["t_wall"] - t0),
                   "active": [bool(a) for a in steps["active"]]},
-        "series": series,
+        "series": curves,
         "events": [{"kind": e["kind"], "message": e["message"]} for e in s.events()[-6:]],
     }
 
@@ -180,7 +179,7 @@ def camera_png(path: str | Path, camera: int, row: int | None = None, detect: bo
             raise LookupError(f"no step row {row}; the session has {n}")
         image = np.asarray(s.image(names[camera], row))
     centres = _detections(image) if detect else np.zeros((0, 2))
-    grey = image if image.dtype == np.uint8 else cv2.normalize(image, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+    grey = image if image.dtype == np.uint8 else _to_uint8(image)
     scale = min(1.0, IMAGE_WIDTH / max(grey.shape[1], 1))
     small = cv2.resize(grey, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA) if scale < 1 else grey
     out = cv2.cvtColor(small, cv2.COLOR_GRAY2BGR)
@@ -190,6 +189,12 @@ def camera_png(path: str | Path, camera: int, row: int | None = None, detect: bo
     cv2.putText(out, f"{names[camera]}  row {row}  {len(centres)} markers", (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45,
                 (0, 220, 255), 1, cv2.LINE_AA)
     return _png(out), row
+
+
+def _to_uint8(image: np.ndarray) -> np.ndarray:
+    """A 16-bit (or float) frame scaled to 0..255 between its minimum and maximum."""
+    lo, hi = float(np.min(image)), float(np.max(image))
+    return ((image.astype(float) - lo) * (255.0 / max(hi - lo, 1e-12))).astype(np.uint8)
 
 
 def _detections(image: np.ndarray) -> np.ndarray:
