@@ -20,6 +20,7 @@ from vfmlab.cli import main
 from vfmlab.web.feed import start_web
 
 PNG = b"\x89PNG\r\n\x1a\n"
+POLL_PERIOD = 1.0  # s, the page's (vfmlab/web/static/app.js)
 CAMS = [CameraSpec(f"cam{i}", "simulated", 80, 60) for i in range(2)]
 
 
@@ -114,6 +115,7 @@ def test_a_captured_step_shows_in_the_next_poll(recording):
     first = _state(web.url)
     assert first["status"] == "running" and first["n_steps"] == 1
     writer.add_step(_step(1), images={c.name: _frame(1) for c in CAMS})
+    time.sleep(POLL_PERIOD)  # the page's next poll (the server reads the file at most every 0.5 s)
     assert _state(web.url)["n_steps"] == 2
     status, _, png = _get(web.url, "/api/camera/1.png?row=1")
     assert status == 200 and png.startswith(PNG)

@@ -25,6 +25,7 @@ import logging
 import os
 import sys
 import threading
+import time
 from collections import OrderedDict
 from importlib import resources
 from pathlib import Path
@@ -47,23 +48,42 @@ _CSP = "default-src 'self'; img-src 'self' data: blob:; style-src 'self' 'unsafe
 
 
 class WebState:
-    """What the handlers share: the session path, the run's live dict, small caches of pictures.
+    """What the handlers share: the session path, the run's live dict, small caches.
 
-    ``live`` is replaced whole (never mutated) by the feed thread; the caches are keyed by what
-    changes the picture (camera and row; the markers that the strain map is drawn from)."""
+    The file is read at most once per ``min_interval`` s whatever the number of pages open (the
+    state is cached that long); a picture is drawn once per (camera, step row), and the strain map
+    once per new marker positions (a new live step, or a new stored "markers" result). ``live`` is
+    replaced whole (never mutated) by the feed thread."""
 
-    def __init__(self, path: str | Path, live: dict[str, Any] | None = None, n_cached: int = 16) -> None:
+    def __init__(self, path: str | Path, live: dict[str, Any] | None = None, n_cached: int = 16,
+                 min_interval: float = 0.5) -> None:
         self.path = Path(path)
         self.live = live
+        self.min_interval = min_interval
+        self._state: tuple[float, Any, dict[str, Any]] | None = None  # (monotonic time, live read with, state)
         self._images: OrderedDict[tuple[int, int], bytes] = OrderedDict()
         self._strain: tuple[Any, bytes | None] | None = None
         self._n_cached = n_cached
         self._lock = threading.Lock()
 
+    def state(self) -> dict[str, Any]:
+        """The page's state, read from the file at most every ``min_interval`` s (or when the live dict changed)."""
+        now, live = time.monotonic(), self.live
+        cached = self._state
+        if cached is not None and now - cached[0] < self.min_interval and cached[1] is live:
+            return cached[2]
+        state = snapshot.read_state(self.path, live)
+        self._state = (now, live, state)
+        return state
+
     def state_json(self) -> bytes:
-        return json.dumps(snapshot.read_state(self.path, self.live), allow_nan=False).encode()
+        return json.dumps(self.state(), allow_nan=False).encode()
 
     def camera(self, camera: int, row: int | None) -> bytes:
+        """PNG of ``camera`` at ``row`` (default: the last row of the cached state)."""
+        if row is None:
+            n = int(self.state().get("n_steps", 0))
+            row = n - 1 if n > 0 else None
         with self._lock:
             if row is not None and (camera, row) in self._images:
                 return self._images[(camera, row)]
@@ -76,22 +96,12 @@ class WebState:
 
     def strain(self) -> bytes | None:
         live = self.live
-        key = (live or {}).get("last_row"), self._markers_key()
+        key = ((live or {}).get("last_row"), tuple(self.state().get("markers_results", ())))
         if self._strain is not None and self._strain[0] == key:
             return self._strain[1]
         png = snapshot.strain_png(self.path, live)
         self._strain = (key, png)
         return png
-
-    def _markers_key(self) -> tuple:
-        try:
-            st = self.path.stat()
-        except OSError:
-            return ()
-        live = self.live
-        # a running session changes at every log flush: redraw at most when its step count could have changed
-        n = (live or {}).get("steps_reconstructed")
-        return (st.st_ino, n) if n is not None else (st.st_ino, st.st_mtime_ns)
 
 
 class _Base(tornado.web.RequestHandler):

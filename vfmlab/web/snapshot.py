@@ -145,6 +145,7 @@ def _session_state(s) -> dict[str, Any]:
                   "target_pressure": _list(steps["target_pressure"]), "t": _list(steps["t_wall"] - t0),
                   "active": [bool(a) for a in steps["active"]]},
         "series": curves,
+        "markers_results": list(s.results("markers")),
         "events": [{"kind": e["kind"], "message": e["message"]} for e in s.events()[-6:]],
     }
 
