@@ -15,7 +15,6 @@ import contextlib
 import json
 import logging
 import math
-import os
 import select
 import subprocess
 import sys
@@ -25,6 +24,8 @@ from pathlib import Path
 from typing import IO, Any
 
 import numpy as np
+
+from vfmlab.web.priority import idle_priority
 
 log = logging.getLogger(__name__)
 
@@ -99,10 +100,7 @@ class WebProcess:
         return _nan_to_none(live_dict(self._state, results))
 
     def _feed(self) -> None:
-        try:  # this thread only: a lower priority than the capture loop's (Linux per-thread nice)
-            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 19)
-        except (AttributeError, OSError):
-            pass
+        idle_priority(threading.get_native_id())  # this thread only: the capture loop's threads come first
         last = ""
         while not self._stop.wait(self.interval):
             line = json.dumps(self._snapshot(), allow_nan=False)

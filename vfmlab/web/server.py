@@ -7,8 +7,8 @@ against the step table. Requests whose ``Host`` is not this machine's loopback n
 (a web page elsewhere cannot reach the server through DNS rebinding).
 
 The reads (HDF5, detection, drawing) run in one worker thread, so the event loop keeps answering,
-and the process lowers its own priority (``os.nice``): the capture loop of ``vfmlab run``, in
-another process, gets the cores first.
+and the process runs at idle priority (Linux SCHED_IDLE, :func:`idle_priority`): the capture loop
+of ``vfmlab run``, in another process, gets the cores first.
 
 Run as ``python -m vfmlab.web.server SESSION.h5 [--port N] [--feed]`` (what ``vfmlab run --web``
 starts): prints the URL on the first line of stdout; with ``--feed`` it reads the run's live
@@ -36,6 +36,7 @@ import tornado.netutil
 import tornado.web
 
 from vfmlab.web import snapshot
+from vfmlab.web.priority import idle_priority
 
 log = logging.getLogger(__name__)
 
@@ -218,13 +219,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("session")
     parser.add_argument("--port", type=int, default=DEFAULT_PORT)
     parser.add_argument("--feed", action="store_true", help="read live results on stdin; stop at its end")
-    parser.add_argument("--nice", type=int, default=10)
+    parser.add_argument("--no-idle", dest="idle", action="store_false",
+                        help="keep the normal scheduling priority (default: idle priority)")
     args = parser.parse_args(argv)
-    if args.nice:
-        try:
-            os.nice(args.nice)
-        except OSError:  # pragma: no cover - not permitted
-            pass
+    if args.idle:
+        idle_priority()
 
     async def run() -> None:
         stop = asyncio.Event()
