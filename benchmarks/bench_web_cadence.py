@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import io
+import json
 import os
 import subprocess
 import sys
@@ -45,22 +46,30 @@ views = 0
 """
 
 
-def poll(url: str, n_cameras: int, period: float = 0.5) -> None:
-    """Play an open page until killed: every endpoint every ``period`` s."""
-    paths = ["api/state", "api/strain.png"] + [f"api/camera/{i}.png" for i in range(n_cameras)]
-    while True:
-        t0 = time.monotonic()
-        for path in paths:
+def poll(url: str, n_cameras: int, log_path: Path, period: float = 0.5) -> None:
+    """Play an open page until killed: every endpoint every ``period`` s; each state's step count and
+    answer time go to ``log_path`` (one "n_steps seconds" line per poll)."""
+    paths = ["api/strain.png"] + [f"api/camera/{i}.png" for i in range(n_cameras)]
+    with open(log_path, "a", buffering=1) as log:
+        while True:
+            t0 = time.monotonic()
             try:
-                with urllib.request.urlopen(url + path, timeout=10) as r:
-                    r.read()
+                with urllib.request.urlopen(url + "api/state", timeout=30) as r:
+                    n = json.loads(r.read()).get("n_steps", 0)
+                log.write(f"{n} {time.monotonic() - t0:.4f}\n")
             except OSError:
-                pass  # 404 before the first step
-        time.sleep(max(0.0, period - (time.monotonic() - t0)))
+                pass
+            for path in paths:
+                try:
+                    with urllib.request.urlopen(url + path, timeout=30) as r:
+                        r.read()
+                except OSError:
+                    pass  # 404 before the first step
+            time.sleep(max(0.0, period - (time.monotonic() - t0)))
 
 
-def one_run(tmp: Path, k: int, args, web: bool) -> np.ndarray:
-    """One simulated session; the times between its captured steps (s)."""
+def one_run(tmp: Path, k: int, args, web: bool) -> tuple[np.ndarray, str]:
+    """One simulated session: the times between its captured steps (s), and what the page saw."""
     from rich.console import Console
 
     from acquisition.session import open_session
@@ -79,7 +88,9 @@ def one_run(tmp: Path, k: int, args, web: bool) -> np.ndarray:
     if web:
         with web_view(out, 0, say=lambda text: None) as hooks:
             url = hooks["observer"].__self__.url
-            poller = subprocess.Popen([sys.executable, "-m", "benchmarks.bench_web_cadence", "--poll", url],
+            log_path = tmp / f"poll{k}.txt"
+            poller = subprocess.Popen([sys.executable, "-m", "benchmarks.bench_web_cadence", "--poll", url,
+                                       "--poll-log", str(log_path)],
                                       cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT)))
             try:
                 run_session(str(tmp / "p.toml"), str(ROOT / "examples" / "specimen.toml"), str(out), **kwargs,
@@ -90,7 +101,12 @@ def one_run(tmp: Path, k: int, args, web: bool) -> np.ndarray:
     else:
         run_session(str(tmp / "p.toml"), str(ROOT / "examples" / "specimen.toml"), str(out), **kwargs)
     with open_session(out) as s:
-        return np.diff(s.steps["t_monotonic"])
+        dt = np.diff(s.steps["t_monotonic"])
+    if not web:
+        return dt, ""
+    seen = np.loadtxt(log_path, ndmin=2) if log_path.stat().st_size else np.zeros((0, 2))
+    return dt, (f"; the page polled {len(seen)} times, saw {len(np.unique(seen[:, 0]))} distinct step counts, "
+                f"state answered in {np.median(seen[:, 1]) if len(seen) else float('nan'):.3f} s (median)")
 
 
 def main() -> None:
@@ -99,18 +115,19 @@ def main() -> None:
     ap.add_argument("--speed", type=float, default=5.0, help="simulated plant speed-up")
     ap.add_argument("--size", default="640x480", help="camera resolution WxH (the --sim rig's default)")
     ap.add_argument("--poll", metavar="URL", help=argparse.SUPPRESS)  # the poller process
+    ap.add_argument("--poll-log", type=Path, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.poll:
-        poll(args.poll, n_cameras=4)
+        poll(args.poll, 4, args.poll_log)
         return
     medians: dict[bool, list[float]] = {False: [], True: []}
     with tempfile.TemporaryDirectory() as tmp:
         for k in range(args.repeats):
             for web in (False, True):
-                dt = one_run(Path(tmp), k, args, web)
+                dt, seen = one_run(Path(tmp), k, args, web)
                 medians[web].append(float(np.median(dt)))
                 print(f"run {k + 1} {'with the page   ' if web else 'without the page'}: {len(dt) + 1} steps, "
-                      f"median {np.median(dt):.3f} s per step (max {dt.max():.3f} s)", flush=True)
+                      f"median {np.median(dt):.3f} s per step (max {dt.max():.3f} s){seen}", flush=True)
     off, on = np.median(medians[False]), np.median(medians[True])
     print(f"\nstep cadence, median over {args.repeats} runs of the median time per step: without the page "
           f"{off:.3f} s, with the page open {on:.3f} s; ratio {on / off:.3f} (bound 1.05); "

@@ -25,8 +25,6 @@ from typing import IO, Any
 
 import numpy as np
 
-from vfmlab.web.priority import idle_priority
-
 log = logging.getLogger(__name__)
 
 __all__ = ["WebError", "WebProcess", "live_dict", "start_web", "web_view"]
@@ -100,7 +98,8 @@ class WebProcess:
         return _nan_to_none(live_dict(self._state, results))
 
     def _feed(self) -> None:
-        idle_priority(threading.get_native_id())  # this thread only: the capture loop's threads come first
+        # normal priority on purpose: a thread starved by the scheduler while it holds the GIL would stall the
+        # capture loop's threads (priority inversion); its work is one small json.dumps per interval
         last = ""
         while not self._stop.wait(self.interval):
             line = json.dumps(self._snapshot(), allow_nan=False)

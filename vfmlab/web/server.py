@@ -22,7 +22,6 @@ import asyncio
 import concurrent.futures
 import json
 import logging
-import os
 import sys
 import threading
 import time
@@ -214,6 +213,18 @@ def _read_feed(state: WebState, loop: asyncio.AbstractEventLoop, stop: asyncio.E
     loop.call_soon_threadsafe(stop.set)
 
 
+def _warm_up() -> None:
+    """Import now, at normal priority and before the run starts, what the first requests need (the
+    session reader, the marker detector, the plotting): at idle priority on a busy machine these
+    imports would otherwise delay the page's first picture by many seconds."""
+    import matplotlib.figure  # noqa: F401
+    import reconstruction  # noqa: F401
+
+    import acquisition.protocol  # noqa: F401
+    import acquisition.session  # noqa: F401
+    import vfmlab.fields  # noqa: F401
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m vfmlab.web.server", description=__doc__.split("\n")[0])
     parser.add_argument("session")
@@ -222,6 +233,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-idle", dest="idle", action="store_false",
                         help="keep the normal scheduling priority (default: idle priority)")
     args = parser.parse_args(argv)
+    _warm_up()
     if args.idle:
         idle_priority()
 
