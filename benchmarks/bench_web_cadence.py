@@ -3,7 +3,7 @@
     python -m benchmarks.bench_web_cadence [--repeats 3] [--speed 5] [--size 640x480]
 
 Runs a short simulated protocol (1 block x 8 pressures, no preconditioning, no calibration views)
-``2 x repeats`` times, alternating: without the page, then with ``--web`` (the server process of
+``2 x repeats`` times, alternating (ABBA order): without the page and with ``--web`` (the server process of
 ``vfmlab.web``, fed by the run as ``vfmlab run --web`` does) and a poller in another process that
 plays an open page, hitting every endpoint every 0.5 s (the JSON state, each camera's last image
 with its detections, the strain map). Prints the median time between captured steps of each run
@@ -46,26 +46,30 @@ views = 0
 """
 
 
+def _fetch_forever(url: str, period: float, log=None) -> None:
+    """GET ``url`` every ``period`` s (or as soon as the last answer came, if slower)."""
+    while True:
+        t0 = time.monotonic()
+        try:
+            with urllib.request.urlopen(url, timeout=60) as r:
+                body = r.read()
+            if log is not None:
+                log.write(f"{json.loads(body).get('n_steps', 0)} {time.monotonic() - t0:.4f}\n")
+        except OSError:
+            pass  # 404 before the first step
+        time.sleep(max(0.0, period - (time.monotonic() - t0)))
+
+
 def poll(url: str, n_cameras: int, log_path: Path, period: float = 0.5) -> None:
-    """Play an open page until killed: every endpoint every ``period`` s; each state's step count and
-    answer time go to ``log_path`` (one "n_steps seconds" line per poll)."""
+    """Play an open page until killed: every endpoint every ``period`` s, each from its own thread (as a
+    browser loads them side by side); each state's step count and answer time go to ``log_path``."""
+    import threading
+
     paths = ["api/strain.png"] + [f"api/camera/{i}.png" for i in range(n_cameras)]
+    for path in paths:
+        threading.Thread(target=_fetch_forever, args=(url + path, period), daemon=True).start()
     with open(log_path, "a", buffering=1) as log:
-        while True:
-            t0 = time.monotonic()
-            try:
-                with urllib.request.urlopen(url + "api/state", timeout=30) as r:
-                    n = json.loads(r.read()).get("n_steps", 0)
-                log.write(f"{n} {time.monotonic() - t0:.4f}\n")
-            except OSError:
-                pass
-            for path in paths:
-                try:
-                    with urllib.request.urlopen(url + path, timeout=30) as r:
-                        r.read()
-                except OSError:
-                    pass  # 404 before the first step
-            time.sleep(max(0.0, period - (time.monotonic() - t0)))
+        _fetch_forever(url + "api/state", period, log)
 
 
 def one_run(tmp: Path, k: int, args, web: bool) -> tuple[np.ndarray, str]:
@@ -123,7 +127,7 @@ def main() -> None:
     medians: dict[bool, list[float]] = {False: [], True: []}
     with tempfile.TemporaryDirectory() as tmp:
         for k in range(args.repeats):
-            for web in (False, True):
+            for web in ((False, True) if k % 2 == 0 else (True, False)):  # ABBA: no order advantage
                 dt, seen = one_run(Path(tmp), k, args, web)
                 medians[web].append(float(np.median(dt)))
                 print(f"run {k + 1} {'with the page   ' if web else 'without the page'}: {len(dt) + 1} steps, "

@@ -6,7 +6,8 @@ camera is a number checked against the session's camera list, the step row an in
 against the step table. Requests whose ``Host`` is not this machine's loopback name are refused
 (a web page elsewhere cannot reach the server through DNS rebinding).
 
-The reads (HDF5, detection, drawing) run in one worker thread, so the event loop keeps answering,
+The reads (HDF5, detection, drawing) run in two worker threads (the JSON state; the pictures), so the
+event loop keeps answering and the state never waits for a picture,
 and the process runs at idle priority (Linux SCHED_IDLE, :func:`idle_priority`): the capture loop
 of ``vfmlab run``, in another process, gets the cores first.
 
@@ -176,12 +177,15 @@ def _asset(name: str) -> bytes:
 
 def make_app(state: WebState, port: list[int]) -> tornado.web.Application:
     """The tornado application; ``port`` is a one-item list holding the bound port (known after binding)."""
-    executor = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="web-read")
-    common = {"state": state, "executor": executor, "port": port}
+    # two readers: the JSON state never queues behind a picture being drawn (detection takes ~0.1 s per image)
+    executor = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="web-state")
+    pictures = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="web-pictures")
+    common: dict[str, Any] = {"state": state, "executor": executor, "port": port}
+    drawn = {**common, "executor": pictures}
     routes: list[tuple[str, type[tornado.web.RequestHandler], dict[str, Any]]] = [(route, AssetHandler, {**common, "body": _asset(name), "content_type": kind})
               for route, (name, kind) in _ASSETS.items()]
-    routes += [(r"/api/state", StateHandler, common), (r"/api/camera/([0-9]{1,3})\.png", CameraHandler, common),
-               (r"/api/strain\.png", StrainHandler, common)]
+    routes += [(r"/api/state", StateHandler, common), (r"/api/camera/([0-9]{1,3})\.png", CameraHandler, drawn),
+               (r"/api/strain\.png", StrainHandler, drawn)]
     return tornado.web.Application(routes, compress_response=True, serve_traceback=False)
 
 
