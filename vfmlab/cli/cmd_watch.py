@@ -37,7 +37,11 @@ def command(session: str, port: int) -> None:
             pass
     except SessionError as exc:
         raise CliInputError(str(exc)) from None
-    from vfmlab.web.server import serve
+    from vfmlab.web.priority import idle_priority
+    from vfmlab.web.server import serve, warm_up
+
+    warm_up()
+    idle_priority()  # a test recorded on this machine keeps the cores (docs/guide/live-web.md)
 
     def ready(url: str) -> None:
         console.print(f"Watching {session}: open {url} (this machine only; Ctrl-C stops)")

@@ -40,7 +40,7 @@ from vfmlab.web.priority import idle_priority
 
 log = logging.getLogger(__name__)
 
-__all__ = ["WebState", "make_app", "serve", "main", "DEFAULT_PORT"]
+__all__ = ["WebState", "make_app", "serve", "main", "warm_up", "DEFAULT_PORT"]
 
 DEFAULT_PORT = 8765
 HOST = "127.0.0.1"
@@ -217,7 +217,7 @@ def _read_feed(state: WebState, loop: asyncio.AbstractEventLoop, stop: asyncio.E
     loop.call_soon_threadsafe(stop.set)
 
 
-def _warm_up() -> None:
+def warm_up() -> None:
     """Import now, at normal priority and before the run starts, what the first requests need (the
     session reader, the marker detector, the plotting): at idle priority on a busy machine these
     imports would otherwise delay the page's first picture by many seconds."""
@@ -237,7 +237,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-idle", dest="idle", action="store_false",
                         help="keep the normal scheduling priority (default: idle priority)")
     args = parser.parse_args(argv)
-    _warm_up()
+    warm_up()
     if args.idle:
         idle_priority()
 
