@@ -47,8 +47,9 @@ views = 0
 
 
 def _fetch_forever(url: str, period: float, log=None) -> None:
-    """GET ``url`` every ``period`` s (or as soon as the last answer came, if slower)."""
-    while True:
+    """GET ``url`` every ``period`` s (or as soon as the last answer came, if slower), while the benchmark lives."""
+    parent = os.getppid()
+    while os.getppid() == parent:
         t0 = time.monotonic()
         try:
             with urllib.request.urlopen(url, timeout=60) as r:
@@ -87,6 +88,7 @@ def one_run(tmp: Path, k: int, args, web: bool) -> tuple[np.ndarray, str]:
     (tmp / "rig.toml").write_text(rig)
     out = tmp / f"s{k}{'w' if web else ''}.h5"
     poller = None
+    cpu0 = time.process_time()
     kwargs = dict(rig_path=str(tmp / "rig.toml"), sim=True, yes=True, sim_speed=args.speed,
                   console=Console(file=io.StringIO()), live_models=())
     if web:
@@ -99,18 +101,27 @@ def one_run(tmp: Path, k: int, args, web: bool) -> tuple[np.ndarray, str]:
             try:
                 run_session(str(tmp / "p.toml"), str(ROOT / "examples" / "specimen.toml"), str(out), **kwargs,
                             **hooks)
+                server_cpu = _cpu_seconds(hooks["observer"].__self__.proc.pid)
             finally:
                 poller.kill()
                 poller.wait()
     else:
         run_session(str(tmp / "p.toml"), str(ROOT / "examples" / "specimen.toml"), str(out), **kwargs)
+    run_cpu = f"; run CPU {time.process_time() - cpu0:.1f} s"
     with open_session(out) as s:
         dt = np.diff(s.steps["t_monotonic"])
     if not web:
-        return dt, ""
+        return dt, run_cpu
     seen = np.loadtxt(log_path, ndmin=2) if log_path.stat().st_size else np.zeros((0, 2))
-    return dt, (f"; the page polled {len(seen)} times, saw {len(np.unique(seen[:, 0]))} distinct step counts, "
-                f"state answered in {np.median(seen[:, 1]) if len(seen) else float('nan'):.3f} s (median)")
+    return dt, run_cpu + (f"; the page polled {len(seen)} times, saw {len(np.unique(seen[:, 0]))} distinct step counts, "
+                f"state answered in {np.median(seen[:, 1]) if len(seen) else float('nan'):.3f} s (median); "
+                f"server CPU {server_cpu:.1f} s at idle priority")
+
+
+def _cpu_seconds(pid: int) -> float:
+    """CPU time (user + system, with its reaped children) of process ``pid`` so far, s (Linux)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return sum(int(v) for v in fields[11:15]) / os.sysconf("SC_CLK_TCK")
 
 
 def main() -> None:
@@ -125,6 +136,7 @@ def main() -> None:
         poll(args.poll, 4, args.poll_log)
         return
     medians: dict[bool, list[float]] = {False: [], True: []}
+    ratios = []
     with tempfile.TemporaryDirectory() as tmp:
         for k in range(args.repeats):
             for web in ((False, True) if k % 2 == 0 else (True, False)):  # ABBA: no order advantage
@@ -132,8 +144,11 @@ def main() -> None:
                 medians[web].append(float(np.median(dt)))
                 print(f"run {k + 1} {'with the page   ' if web else 'without the page'}: {len(dt) + 1} steps, "
                       f"median {np.median(dt):.3f} s per step (max {dt.max():.3f} s){seen}", flush=True)
+            ratios.append(medians[True][-1] / medians[False][-1])
     off, on = np.median(medians[False]), np.median(medians[True])
-    print(f"\nstep cadence, median over {args.repeats} runs of the median time per step: without the page "
+    print(f"\nratio with / without, per adjacent pair: {', '.join(f'{r:.3f}' for r in ratios)}; "
+          f"median {np.median(ratios):.3f}")
+    print(f"step cadence, median over {args.repeats} runs of the median time per step: without the page "
           f"{off:.3f} s, with the page open {on:.3f} s; ratio {on / off:.3f} (bound 1.05); "
           f"4 cameras {args.size}, sim speed x{args.speed:g}; load average {os.getloadavg()[0]:.1f} on "
           f"{os.cpu_count()} cores")
