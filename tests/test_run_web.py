@@ -169,3 +169,49 @@ def test_watch_refuses_what_is_not_a_session(tmp_path, capsys):
     (tmp_path / "x.h5").write_text("not hdf5")
     assert main(["watch", str(tmp_path / "x.h5")]) == 2
     assert "not a session file" in capsys.readouterr().err
+
+
+ROOT = Path(__file__).resolve().parents[1]
+SHORT = """
+[preconditioning]
+pressure_cycles = 0
+stretch_cycles = 0
+[stability]
+band_mmHg = 1.0
+dwell_s = 0.1
+timeout_s = 20
+[test]
+stretches = [1.1]
+pressures_mmHg = [0, 50, 100]
+[calibration]
+views = 0
+"""
+
+
+@pytest.mark.timeout(180)
+def test_run_web_prints_the_address_and_the_server_ends_with_the_run(tmp_path, capsys):
+    (tmp_path / "p.toml").write_text(SHORT)
+    rig = (ROOT / "examples" / "sim-rig.toml").read_text().replace("width = 640, height = 480",
+                                                                   "width = 320, height = 240")
+    (tmp_path / "rig.toml").write_text(rig)
+    out = tmp_path / "w.h5"
+    rc = main(["run", str(tmp_path / "p.toml"), "--specimen", str(ROOT / "examples" / "specimen.toml"), "-o",
+               str(out), "--rig", str(tmp_path / "rig.toml"), "--sim", "--sim-speed", "5", "--yes", "--web", "0"])
+    text = capsys.readouterr().out
+    assert rc == 0 and "Live view in a browser: http://127.0.0.1:" in text and "Session complete" in text
+    servers = subprocess.run(["ps", "-eo", "args"], capture_output=True, text=True).stdout
+    assert f"vfmlab.web.server {out}" not in servers  # the page's process ended with the run
+
+
+def test_run_web_on_a_taken_port_stops_before_anything_moves(tmp_path, capsys):
+    import socket
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        rc = main(["run", str(ROOT / "examples" / "paper-protocol.toml"), "--specimen",
+                   str(ROOT / "examples" / "specimen.toml"), "-o", str(tmp_path / "x.h5"), "--sim", "--yes",
+                   "--web", str(port)])
+    assert rc == 1 and f"the page's server did not start on port {port}" in capsys.readouterr().err
+    assert not (tmp_path / "x.h5").exists()
