@@ -215,3 +215,25 @@ def test_run_web_on_a_taken_port_stops_before_anything_moves(tmp_path, capsys):
                    "--web", str(port)])
     assert rc == 1 and f"the page's server did not start on port {port}" in capsys.readouterr().err
     assert not (tmp_path / "x.h5").exists()
+
+
+def test_live_results_give_the_parameters_and_the_strain_map(tmp_path):
+    """The run's LiveStatus -> the feed's JSON line -> the page's parameters and strain map."""
+    from tests._e2e_data import synthetic_tube
+    from vfmlab.live_results import LiveEstimate, LiveStatus
+    from vfmlab.web import snapshot
+    from vfmlab.web.feed import WebProcess, live_dict
+
+    pos = synthetic_tube(120)[0]
+    est = LiveEstimate("fung", ("beta", "alpha11", "alpha22", "alpha12"), np.array([5e3, 14.0, 7.0, 0.1]),
+                       np.array([200.0, 0.5, 0.3, np.nan]), np.arange(4), 1e-3, ())
+    status = LiveStatus(steps_reconstructed=4, estimates={"fung": est}, positions=pos[:4], last_row=3)
+    live = json.loads(json.dumps(WebProcess._clean(live_dict(None, status)), allow_nan=False))
+    session = make_session(tmp_path / "s.h5", with_results=False)
+    state = snapshot.read_state(session, live)
+    beta, _, _, alpha12 = state["parameters"][0]["parameters"]
+    assert state["parameters"][0]["source"] == "live (run)" and beta["unit"] == "kPa"
+    assert beta["value"] == pytest.approx(5.0) and beta["high"] == pytest.approx(5.0 + 1.96 * 0.2)
+    assert alpha12["stderr"] is None and alpha12["low"] is None  # no interval rather than NaN
+    assert snapshot.strain_png(session, live).startswith(PNG)
+    assert snapshot.strain_png(session, None) is None  # no stored reconstruction

@@ -93,9 +93,14 @@ class WebProcess:
         """The run's LiveResults (``status()`` is thread-safe)."""
         self._results = results
 
+    @staticmethod
+    def _clean(live: dict[str, Any]) -> dict[str, Any]:
+        """JSON has no NaN: None instead (the page shows "–")."""
+        return _nan_to_none(live)
+
     def _snapshot(self) -> dict[str, Any]:
         results = self._results.status() if self._results is not None else None
-        return _nan_to_none(live_dict(self._state, results))
+        return self._clean(live_dict(self._state, results))
 
     def _feed(self) -> None:
         # normal priority on purpose: a thread starved by the scheduler while it holds the GIL would stall the
