@@ -187,8 +187,9 @@ def camera_png(path: str | Path, camera: int, row: int | None = None, detect: bo
     radius = max(2, int(round(4 * max(scale, 0.5))))
     for x, y in centres * scale:
         cv2.circle(out, (int(round(x)), int(round(y))), radius, (0, 200, 0), 1, lineType=cv2.LINE_AA)
-    cv2.putText(out, f"{names[camera]}  row {row}  {len(centres)} markers", (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45,
-                (0, 220, 255), 1, cv2.LINE_AA)
+    if out.shape[1] >= 300:  # a caption only where it fits (the page names the camera anyway)
+        cv2.putText(out, f"{names[camera]}  row {row}  {len(centres)} markers", (6, 16), cv2.FONT_HERSHEY_SIMPLEX,
+                    0.45, (0, 220, 255), 1, cv2.LINE_AA)
     return _png(out), row
 
 
