@@ -63,6 +63,9 @@ class LiveStatus:
     seconds_per_step: float = float("nan")  # worker time for the last step (reconstruction + identification)
     skipped_rows: tuple[int, ...] = ()  # step rows that failed in the worker: not in the estimates
     partial_rows: tuple[int, ...] = ()  # step rows where fewer than PARTIAL_FRACTION of the reference markers were tracked
+    # the browser view's strain map (vfmlab.web): positions (n_steps, n_markers, 3) m, specimen frame, and the last row
+    positions: np.ndarray | None = field(default=None, repr=False, compare=False)
+    last_row: int = -1
 
 
 def calibrate_from_session(path: str | Path, fix_k3: bool = True) -> list:
@@ -229,7 +232,7 @@ class LiveResults:
         n = tracker.n_steps
         result = tracker.result(frame="specimen")
         tracked = int(result.visible[-1].sum())
-        self._set(steps_reconstructed=n, tracked=tracked,
+        self._set(steps_reconstructed=n, tracked=tracked, positions=result.positions, last_row=int(row),
                   message="waiting for two loaded steps" if n < 3 else f"identifying after step row {row}")
         self._check_partial(row, tracked, int(result.visible[0].sum()))
         if n >= 3:

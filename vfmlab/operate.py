@@ -198,6 +198,7 @@ def run_session(protocol_path: str, specimen_path: str, out: str, *, rig_path: s
                 detector: Callable[[np.ndarray], int] | None = None, sim_seed: int | None = None,
                 observer: Callable[[RunnerState, Bench], None] | None = None, live_models: tuple[str, ...] = (),
                 live_options: dict[str, Any] | None = None, check_seconds: float = 0.0,
+                on_live_results: Callable[[Any], None] | None = None,
                 **runner_kwargs: Any) -> Outcome:
     """``vfmlab run``: validate, assemble the rig, create the session file and run the protocol.
 
@@ -208,6 +209,8 @@ def run_session(protocol_path: str, specimen_path: str, out: str, *, rig_path: s
     arguments of :class:`~vfmlab.live_results.LiveResults` in ``live_options``); their final
     estimates are stored as "identification" results. ``check_seconds`` > 0: the pre-flight check
     (:mod:`vfmlab.preflight`) with that many seconds of readings, kept in the session.
+    ``on_live_results(results)`` is called with the :class:`~vfmlab.live_results.LiveResults` once they start
+    (the browser view, :mod:`vfmlab.web`).
     """
     try:
         rig = load_rig_config(rig_path, sim, sim_seed if sim else None)
@@ -259,6 +262,8 @@ def run_session(protocol_path: str, specimen_path: str, out: str, *, rig_path: s
         for line in check.lines() if check is not None else []:
             writer.add_event("check", line)
         results = _live_results(out_path, specimen, rig, live_models, live_options, protocol, console)
+        if results is not None and on_live_results is not None:
+            on_live_results(results)
         try:
             runner = _execute(runner_kwargs, protocol, writer, bench, console, yes, 0, True, True, detector,
                               observer, results)

@@ -30,6 +30,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("cmd_demo", "Run a complete simulated test end to end (no hardware)."),
     "run": ("cmd_run", "Run a test protocol on the rig (or --sim) into a session file."),
     "resume": ("cmd_resume", "Continue an interrupted session from its last completed step."),
+    "watch": ("cmd_watch", "Show a session in a browser while it is recorded (or afterwards)."),
     "monitor": ("cmd_monitor", "Show live readings of the pressure transducer and load cell."),
     "sim-rig": ("cmd_sim_rig", "Serve simulated instruments on pseudo-terminals."),
     "check-rig": ("cmd_check_rig", "Check the rig before a test: cameras, markers, instruments, stage."),

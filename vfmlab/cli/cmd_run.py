@@ -58,10 +58,15 @@ def require_answers(yes: bool) -> None:
                    "'none' to switch off): each step is reconstructed in the background (cameras calibrated from "
                    "the board views; off when the protocol has none) and the final parameters are stored as "
                    "identification results. The capture never waits for it; a failure there is logged.")
+@click.option("--web", "web", is_flag=False, flag_value=8765, default=None, type=click.IntRange(0, 65535),
+              metavar="[PORT]", help="Also show the test in a browser: a read-only page on this machine only "
+                                     "(http://127.0.0.1:PORT/, default 8765) served by a separate process "
+                                     "(docs/guide/live-web.md).")
 @click.option("--json", "as_json", is_flag=True,
               help="Progress on stderr; print the outcome (status, path, n_steps, elapsed_s) as JSON on stdout.")
 def command(protocol: str, specimen: str, out: str, rig: str | None, sim: bool, sim_speed: float,
-            sim_seed: int | None, old_speed: float | None, yes: bool, detect: bool, live_models: str, as_json: bool) -> None:
+            sim_seed: int | None, old_speed: float | None, yes: bool, detect: bool, live_models: str, web: int | None,
+            as_json: bool) -> None:
     """Run PROTOCOL (TOML) on the rig, writing every step to the session file --out as it happens."""
     from vfmlab.stages.batch import check_sim_seed, run
     from vfmlab.stages.settings import RunSettings
@@ -71,7 +76,23 @@ def command(protocol: str, specimen: str, out: str, rig: str | None, sim: bool, 
                            sim_seed=sim_seed, yes=yes, detect=detect, live_models=live_models)
     check_sim_seed(settings)
     check_output_path(out, force=False, inputs=[protocol, specimen, rig], can_force=False, leftover_ok=True)
-    finish_session(lambda: run(protocol, specimen, out, settings, console=err_console if as_json else console), as_json)
+    with _web_hooks(out, web, err_console if as_json else console) as hooks:
+        finish_session(lambda: run(protocol, specimen, out, settings, console=err_console if as_json else console,
+                                   hooks=hooks), as_json)
+
+
+def _web_hooks(out: str, port: int | None, shown):
+    """``--web``: the page's server in its own process while the run lasts (vfmlab.web); no-op without it."""
+    import contextlib
+
+    if port is None:
+        return contextlib.nullcontext({})
+    from vfmlab.web.feed import WebError, web_view
+
+    try:
+        return web_view(out, port, say=shown.print)
+    except WebError as exc:
+        raise CliError(str(exc)) from None
 
 
 def finish_session(operate, as_json: bool) -> None:

@@ -80,10 +80,11 @@ def reprocess(sessions: Iterable[str | os.PathLike], settings: ReprocessSettings
 
 
 def run(protocol: str | os.PathLike, specimen: str | os.PathLike, out: str | os.PathLike,
-        settings: RunSettings | None = None, *, console=None, **overrides: Any):
+        settings: RunSettings | None = None, *, console=None, hooks: dict[str, Any] | None = None, **overrides: Any):
     """Run ``protocol`` (TOML) on the rig (``sim=True``: the simulated rig) into the new session file ``out``
     (``vfmlab run``; defaults: :class:`RunSettings`); the :class:`vfmlab.operate.Outcome`. Unattended
-    unless a terminal can answer: pass ``yes=True`` from scripts and notebooks."""
+    unless a terminal can answer: pass ``yes=True`` from scripts and notebooks. ``hooks``: keyword arguments of
+    :func:`vfmlab.operate.run_session` that watch the run (the browser view's ``on_live_results``)."""
     from rich.console import Console
 
     from vfmlab.operate import detector_from_reconstruction, run_session
@@ -98,7 +99,7 @@ def run(protocol: str | os.PathLike, specimen: str | os.PathLike, out: str | os.
     return run_session(os.fspath(protocol), os.fspath(specimen), os.fspath(out), rig_path=s.rig, sim=s.sim, yes=s.yes,
                        sim_speed=s.sim_speed, console=console or Console(stderr=True), sim_seed=s.sim_seed,
                        detector=detector_from_reconstruction() if s.detect else None, live_models=models,
-                       check_seconds=s.check_seconds)
+                       check_seconds=s.check_seconds, **(hooks or {}))
 
 
 def check_sim_seed(s: RunSettings) -> None:
