@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from acquisition.session import CameraSpec, SessionWriter, SpecimenInfo, StepRecord
-from tests._e2e_data import make_session
+from rig_sim.synthetic_session import make_session
 from tests.test_e2e_report import _chromium
 from vfmlab.cli import main
 from vfmlab.web.feed import start_web
@@ -219,7 +219,7 @@ def test_run_web_on_a_taken_port_stops_before_anything_moves(tmp_path, capsys):
 
 def test_live_results_give_the_parameters_and_the_strain_map(tmp_path):
     """The run's LiveStatus -> the feed's JSON line -> the page's parameters and strain map."""
-    from tests._e2e_data import synthetic_tube
+    from rig_sim.synthetic_session import synthetic_tube
     from vfmlab.live_results import LiveEstimate, LiveStatus
     from vfmlab.web import snapshot
     from vfmlab.web.feed import WebProcess, live_dict

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from vfmlab.cli._common import CliError, CliInputError, console, esc, print_json
+from vfmlab.cli._common import CliError, CliInputError, console, print_json
 from vfmlab.cli._outputs import check_output_path
 
 
@@ -94,6 +94,7 @@ def command(session, as_json, force, **options):
     """
     from vfmlab.cli._feedback import notify, progress_bar
     from vfmlab.stages.calibrate import calibrate
+    from vfmlab.stages.calibrate_views import board_lines, import_lines
     from vfmlab.stages.settings import CalibrateSettings
 
     out = options["out"]
@@ -105,76 +106,12 @@ def command(session, as_json, force, **options):
     if as_json:
         print_json(outcome.summary)
     elif outcome.result is None:
-        _print_import(outcome, session)
+        for line in import_lines(outcome, session):
+            console.print(line)
     else:
-        _print_board(outcome, session)
+        import numpy as np
 
-
-
-
-def _table(result):
-    from rich.table import Table
-
-    t = Table(title="Calibration (joint bundle adjustment)")
-    for col in ("camera", "views", "RMS (px)", "init RMS (px)", "fx (px)", "fy (px)", "cx (px)", "cy (px)", "k1", "k2"):
-        t.add_column(col, justify="right" if col != "camera" else "left")
-    for i, (row, cam) in enumerate(zip(result.summary(), result.cameras)):
-        t.add_row(esc(row["camera"]), str(row["views"]), f"{row['rms_px']:.3f}", f"{result.initial_rms[i]:.3f}",
-                  f"{row['fx']:.1f}±{row['fx_std']:.1f}", f"{row['fy']:.1f}±{row['fy_std']:.1f}",
-                  f"{row['cx']:.1f}±{row['cx_std']:.1f}", f"{row['cy']:.1f}±{row['cy_std']:.1f}",
-                  f"{cam.dist[0]:+.4f}", f"{cam.dist[1]:+.4f}")
-    return t
-
-
-def _print_board(outcome, session) -> None:
-    """The per-camera table, the windows and the totals of a board calibration; exit 1 when a camera kept
-    no observation."""
-    import numpy as np
-
-    result, summary = outcome.result, outcome.summary
-    console.print(_table(result))
-    for w in summary.get("windows", []):
-        line = f"window ({esc(', '.join(w['cameras']))}): plane distance {w['plane_distance_mm']:.3f} mm"
-        if "plane_distance_std_mm" in w:
-            line += (f" ± {w['plane_distance_std_mm']:.3f} mm (moved {w['plane_shift_mm']:+.3f} mm), normal ± "
-                     f"{w['normal_std_deg']:.3f} deg (turned {w['normal_change_deg']:.3f} deg), refined")
-        else:
-            line += ", as the rig file states (not refined)"
-        console.print(line)
-    console.print(f"total RMS {result.rms_total:.3f} px over {result.n_observations} observations; "
-                  f"{result.n_outliers} outliers rejected; converged: {result.converged}")
-    if summary["out"] is not None:
-        console.print(f"wrote {esc(summary['out'])}")
-    if outcome.stored:
-        console.print(f"stored as {outcome.stored} in {esc(session)}")
-    if not np.all(np.isfinite(result.rms)):
-        raise CliError("some cameras have no inlier observations")
-
-
-def _print_import(outcome, session) -> None:
-    """What an import read, refined, stored and wrote."""
-    cams, meta, path, out = outcome.cameras, outcome.meta, outcome.summary["imported_from"], outcome.summary["out"]
-    console.print(f"imported {len(cams)} cameras from {esc(path)}: {esc(', '.join(c.name for c in cams))}")
-    if "body_rms_px" in meta:
-        console.print("calibration body RMS: " + ", ".join(f"{esc(n)} {r:.3f} px" for n, r in meta["body_rms_px"].items())
-                      + f"; media assumed: {esc(meta['media_assumed'])}")
-    if "self_calibration" in meta:
-        _print_selfcal(meta["self_calibration"])
-    if outcome.stored:
-        console.print(f"stored as {outcome.stored} in {esc(session)}")
-    if out is not None:
-        console.print(f"wrote {esc(out)}")
-    if not outcome.stored and out is None:
-        console.print("nothing stored: give a SESSION (or -o for a calibration without a window) to keep these cameras")
-
-
-def _print_selfcal(f: dict) -> None:
-    console.print(f"self-calibration: {esc(f['message'])}; particle RMS after the last pass {f['particle_rms_px'][-1]:.3f} px")
-    console.print(f"disparity peaks at the first pass's tolerances: {f['disparity_peak_rms_px_before']:.3f} px RMS "
-                  f"(max {f['disparity_peak_max_px_before']:.3f} px) before, {f['disparity_peak_rms_px_after']:.3f} px RMS "
-                  f"(max {f['disparity_peak_max_px_after']:.3f} px) after")
-    if f["body_far_side_cameras"]:
-        console.print(f"body as {esc(', '.join(f['body_far_side_cameras']))} see it (its other side): offset "
-                      f"{1e3 * f['body_offset_m']:+.3f} mm along its normal")
-    console.print("calibration body RMS before -> after: " + ", ".join(
-        f"{esc(n)} {f['body_rms_px_before'][n]:.3f} -> {r:.3f} px" for n, r in f["body_rms_px_after"].items()))
+        for line in board_lines(outcome, session):
+            console.print(line)
+        if not np.all(np.isfinite(outcome.result.rms)):
+            raise CliError("some cameras have no inlier observations")

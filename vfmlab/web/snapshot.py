@@ -244,12 +244,11 @@ def strain_png(path: str | Path, live: dict[str, Any] | None = None) -> bytes | 
     if found is None:
         return None
     reference, last, label = found
-    from vfmlab.fields import FieldsError, surface_mesh, triangle_kinematics
+    from vfmlab.fields import FieldsError, surface_kinematics, surface_mesh
 
     try:
         mesh = surface_mesh(reference)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            kin = triangle_kinematics(np.stack([reference, last]), mesh.triangles)
+        kin, _ = surface_kinematics(mesh, np.stack([reference, last]))
     except (FieldsError, ValueError, np.linalg.LinAlgError) as exc:
         log.debug("web view: no strain map: %s", exc)
         return None
