@@ -53,3 +53,25 @@ def test_log_lines_show_control_characters_escaped(capsys):
     _EchoHandler().emit(logging.LogRecord("vfmlab", logging.WARNING, __file__, 1, f"x{ESC}[2Jy", None, None))
     err = capsys.readouterr().err
     assert ESC not in err and "x\\x1b[2Jy" in err
+
+
+# -- item 9: an HDF5 session with a user block -------------------------------------------------------------------
+
+@pytest.mark.parametrize("userblock", [512, 1024, 4096])
+def test_export_markers_never_overwrites_an_hdf5_file_with_a_user_block(tmp_path, capsys, userblock):
+    import h5py
+
+    markers, loads = _write_inputs(tmp_path, n_markers=12, n_steps=3)
+    session = tmp_path / "s.h5"
+    assert run(capsys, "import-markers", markers, loads, "--thickness-mm", "1.3", "-o", session)[0] == 0
+    other = tmp_path / "U.h5"
+    with h5py.File(other, "w", userblock_size=userblock) as f:
+        f["entry/data"] = np.arange(10.0)
+    before = other.read_bytes()
+    assert before[:8] != b"\x89HDF\r\n\x1a\n" and before[userblock:userblock + 8] == b"\x89HDF\r\n\x1a\n"
+    rc, _, err = run(capsys, "export-markers", session, "-o", other, "--force")
+    assert rc == 1 and "is an HDF5 session file; vfmlab never overwrites a session, even with --force" in err
+    assert other.read_bytes() == before
+    text = tmp_path / "t.csv"  # 8 bytes that look like the signature, but not at an offset the spec allows
+    text.write_bytes(b"x" * 100 + b"\x89HDF\r\n\x1a\n")
+    assert run(capsys, "export-markers", session, "-o", text, "--force")[0] == 0
