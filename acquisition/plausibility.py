@@ -16,11 +16,14 @@ import numpy as np
 from acquisition.errors import ImplausibleInputError
 
 __all__ = ["LoadLimits", "check_loads", "check_geometry", "check_marker_cloud", "check_cloud_scale", "check_identifiable",
-           "STRETCH_RANGE", "MIN_MESH_MARKERS"]
+           "STRETCH_RANGE", "MIN_MESH_MARKERS", "SPECIMEN_RANGES", "check_specimen_size"]
 
 MMHG = 133.322387415  # Pa per mmHg
 STRETCH_RANGE = (0.5, 3.0)  # axial stretch outside this open interval is refused
 MIN_MESH_MARKERS = 8  # fewer reference markers cannot mesh a tube surface (decision 0007)
+#: Plausible specimen sizes, m: (low, high) of radius, wall thickness and length; outside, refused (a unit
+#: mistake or a typo: a 1 nm or a 2 m artery does not exist).
+SPECIMEN_RANGES = {"radius": (1e-4, 0.1), "thickness": (5e-6, 0.05), "length": (5e-4, 1.0)}
 _CLOUD_RATIO = 2.0  # marker-cloud radius vs specimen radius: beyond this factor, refused
 
 
@@ -100,8 +103,20 @@ def check_loads(pressure: np.ndarray, force: np.ndarray, stretch: np.ndarray, *,
     return warnings
 
 
+def check_specimen_size(*, source: str, **sizes: float | None) -> None:
+    """Each given size (``radius=``, ``thickness=``, ``length=``, m) within :data:`SPECIMEN_RANGES`."""
+    for name, value in sizes.items():
+        if value is None or not np.isfinite(value) or value <= 0:
+            continue  # check_geometry's positive-length messages
+        lo, hi = SPECIMEN_RANGES[name]
+        if not lo <= value <= hi:
+            raise ImplausibleInputError(f"{source}: the specimen {name} {value * 1e3:.4g} mm is outside the plausible "
+                                        f"range {lo * 1e3:g}..{hi * 1e3:g} mm (a unit mistake?)")
+
+
 def check_geometry(radius: float, thickness: float, length: float | None = None, *, source: str) -> list[str]:
-    """Reference geometry (m): radius > 0, thickness < radius; a thick wall (e > R/2) is a warning."""
+    """Reference geometry (m): radius > 0, thickness < radius, sizes within :data:`SPECIMEN_RANGES`; a thick
+    wall (e > R/2) is a warning."""
     if not (np.isfinite(radius) and radius > 0):
         raise ImplausibleInputError(f"{source}: the specimen radius must be a positive length; got "
                                     f"{radius * 1e3:.4g} mm")
@@ -111,6 +126,7 @@ def check_geometry(radius: float, thickness: float, length: float | None = None,
     if thickness >= radius:
         raise ImplausibleInputError(f"{source}: the wall thickness {thickness * 1e3:.4g} mm is not smaller than the "
                                     f"radius {radius * 1e3:.4g} mm (the markers sit on the outer wall)")
+    check_specimen_size(source=source, radius=radius, thickness=thickness, length=length)
     warnings = []
     if thickness > 0.5 * radius:
         warnings.append(f"{source}: the wall is thick (thickness {thickness * 1e3:.4g} mm > half the radius "

@@ -163,3 +163,113 @@ def test_reconstruct_says_which_camera_saw_nothing():
     turned = Camera(c.name, c.K, c.dist, c.rvec, c.tvec + np.array([0.05, 0.0, 0.0]), c.image_size)  # looks aside
     lines = blind_cameras([cams[0], turned, cams[2]], result)
     assert len(lines) == 1 and lines[0].startswith(f"camera {c.name!r} sees only 0% of the 50 reconstructed")
+
+
+# -- item 10: numbers that are not what they seem ----------------------------------------------------------------
+
+def _import(capsys, tmp_path, markers, loads, *extra, out="s.h5"):
+    return run(capsys, "import-markers", markers, loads, "--thickness-mm", "1.3", "-o", tmp_path / out, *extra)
+
+
+def test_a_marker_six_radii_off_the_tube_is_refused_at_import_and_identify(tmp_path, capsys):
+    from acquisition.session import write_result
+
+    markers, loads = _write_inputs(tmp_path, n_markers=40, n_steps=4, missing=False)
+    lines = markers.read_text().split("\n")
+    k = next(i for i, line in enumerate(lines) if line.startswith("M007,0,"))
+    label, step, x, y, z = lines[k].split(",")
+    lines[k] = f"{label},{step},{float(x) * 6.3:.6f},{float(y) * 6.3:.6f},{z}"  # one typo: 63 mm off a 10 mm tube
+    typo = tmp_path / "typo.csv"
+    typo.write_text("\n".join(lines))
+    rc, _, err = _import(capsys, tmp_path, typo, loads)
+    assert rc == 2 and "typo.csv, step 0: marker M007 lies 63 mm from the tube axis, 6.3 times the radius 10 mm" in err
+    assert not (tmp_path / "s.h5").exists()
+    # at a loaded step too; and identify refuses a stored result with such a marker
+    assert _import(capsys, tmp_path, markers, loads)[0] == 0
+    session = tmp_path / "s.h5"
+    from acquisition.session import open_session
+
+    with open_session(session) as s:
+        arrays = dict(s.latest("markers")["arrays"])
+    positions = arrays["positions"].copy()
+    positions[2, 7] *= np.array([8.0, 8.0, 1.0])
+    arrays["positions"] = positions
+    write_result(session, "markers", arrays, {"source": "test"}, units={"positions": "m"})
+    rc, _, err = run(capsys, "identify", session, "--model", "delfino")
+    assert rc == 2 and "markers_002, step 2: marker M007 lies" in err and "(at most 3 radii); a typo?" in err
+
+
+@pytest.mark.parametrize("text", ["1_0.5", "١٠.5", "0x10", "1e"])
+def test_numbers_python_would_accept_are_refused_in_csv(tmp_path, capsys, text):
+    markers, loads = _write_inputs(tmp_path, n_markers=12, n_steps=3)
+    lines = markers.read_text().split("\n")
+    label, step, x, y, z = lines[5].split(",")
+    lines[5] = f"{label},{step},{text},{y},{z}"
+    bad = tmp_path / "bad.csv"
+    bad.write_text("\n".join(lines))
+    rc, _, err = _import(capsys, tmp_path, bad, loads)
+    assert rc == 2 and f"bad.csv, line 6, column x_mm: {text!r} is not a number" in err
+    lines = loads.read_text().split("\n")
+    lines[2] = lines[2].replace("1.03", "1_0.3")
+    bad_loads = tmp_path / "bad_loads.csv"
+    bad_loads.write_text("\n".join(lines))
+    rc, _, err = _import(capsys, tmp_path, markers, bad_loads)
+    assert rc == 2 and "'1_0.300' is not a number" in err
+
+
+@pytest.mark.parametrize("damage", ["short", "deleted"])
+def test_damaged_marker_labels_are_reported_and_never_renumbered(tmp_path, capsys, damage):
+    import h5py
+
+    markers, loads = _write_inputs(tmp_path, n_markers=12, n_steps=3)
+    session = tmp_path / "s.h5"
+    assert _import(capsys, tmp_path, markers, loads)[0] == 0
+    with h5py.File(session, "a") as f:
+        del f["entry/results/markers_001/marker_label"]
+        if damage == "short":
+            f["entry/results/markers_001/marker_label"] = np.array([b"M000", b"M001"])
+    rc, out, err = run(capsys, "info", session)
+    assert rc == 2 and "the result 'markers_001'" in err and "is damaged" in err
+    rc, _, err = run(capsys, "export-markers", session, "-o", tmp_path / "m.csv")
+    assert rc == 2 and "markers_001" in err and "damaged" in err and not (tmp_path / "m.csv").exists()
+
+
+@pytest.mark.parametrize("thickness,radius,message", [
+    ("12", "10", "the wall thickness 12 mm is not smaller than the radius 10 mm"),
+    ("0.000001", "10", "the specimen thickness 1e-06 mm is outside the plausible range 0.005..50 mm"),
+])
+def test_implausible_specimen_geometry_is_refused_at_import(tmp_path, capsys, thickness, radius, message):
+    markers, loads = _write_inputs(tmp_path, n_markers=12, n_steps=3)
+    rc, _, err = run(capsys, "import-markers", markers, loads, "--thickness-mm", thickness, "--radius-mm", radius,
+                     "-o", tmp_path / "s.h5")
+    assert rc == 2 and message in err
+
+
+def test_a_session_whose_wall_is_thicker_than_its_radius_is_not_identified(tmp_path, capsys):
+    import h5py
+
+    markers, loads = _write_inputs(tmp_path, n_markers=40, n_steps=4)
+    session = tmp_path / "s.h5"
+    assert _import(capsys, tmp_path, markers, loads)[0] == 0
+    with h5py.File(session, "a") as f:  # as a session recorded by another tool might say
+        f["entry/sample/thickness"][...] = 0.012
+    rc, _, err = run(capsys, "identify", session, "--model", "delfino")
+    assert rc == 2 and "the wall thickness 12 mm is not smaller than the radius 10 mm" in err
+
+
+@pytest.mark.parametrize("key,value,message", [
+    ("radius_mm", "1e-6", "radius_mm: expected a plausible radius of 0.1..100 mm; got 1e-06"),
+    ("thickness_mm", "1e-6", "thickness_mm: expected a plausible thickness of 0.005..50 mm; got 1e-06"),
+    ("length_mm", "5000", "length_mm: expected a plausible length of 0.5..1000 mm; got 5000"),
+])
+def test_a_1_nm_specimen_is_refused_with_the_plausible_range(tmp_path, capsys, key, value, message):
+    from pathlib import Path
+
+    text = Path("examples/specimen.toml").read_text()
+    lines = [f"{key} = {value}" if line.startswith(f"{key} ") or line.startswith(f"{key}=") else line
+             for line in text.split("\n")]
+    specimen = tmp_path / "specimen.toml"
+    specimen.write_text("\n".join(lines))
+    rc, _, err = run(capsys, "run", "examples/paper-protocol.toml", "--specimen", specimen, "--out", tmp_path / "s.h5",
+                     "--sim", "--yes")
+    assert rc == 2 and message in err and not (tmp_path / "s.h5").exists()

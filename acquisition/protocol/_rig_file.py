@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from acquisition.plausibility import SPECIMEN_RANGES
 from acquisition.protocol._rig_model import (
     END_CONDITIONS,
     MAX_CAMERAS,
@@ -160,6 +161,10 @@ def parse_specimen(data: dict | str, source: str = "<specimen>") -> SpecimenFile
     if not sid.strip():
         t.fail("id", "expected a non-empty specimen id")
     dims = [t.number(k, lo=0.0, lo_open=True) * 1e-3 for k in ("radius_mm", "length_mm", "thickness_mm")]
+    for key, value in zip(("radius", "length", "thickness"), dims):
+        lo, hi = SPECIMEN_RANGES[key]
+        if not lo <= value <= hi:
+            t.fail(f"{key}_mm", f"expected a plausible {key} of {lo * 1e3:g}..{hi * 1e3:g} mm; got {value * 1e3:g}")
     if dims[2] >= dims[0]:
         t.fail("thickness_mm", f"wall thickness {dims[2] * 1e3:g} mm must be smaller than the radius "
                                f"{dims[0] * 1e3:g} mm")

@@ -15,7 +15,8 @@ from typing import Any
 from vfmlab.stages.errors import StageError, StageFailed
 from vfmlab.stages.settings import ExportSettings, ReportSettings, settings_with
 
-__all__ = ["ExportOutcome", "ReportOutcome", "default_out", "export", "hdf5_signature_offset", "latest_markers", "report"]
+__all__ = ["ExportOutcome", "ReportOutcome", "default_out", "export", "hdf5_signature_offset", "latest_markers", "marker_labels",
+           "report"]
 
 _HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 
@@ -38,6 +39,24 @@ def hdf5_signature_offset(path: str | os.PathLike) -> int | None:
     except OSError:
         return None
     return None
+
+
+def marker_labels(result: dict, session_path: str | os.PathLike) -> Any:
+    """The marker labels of a "markers" result (n_markers,): the imported labels, else the marker ids, else
+    0..n-1. An imported result whose labels are gone is damaged (``DamagedSessionError``): numbering its
+    markers afresh would silently rename them."""
+    import numpy as np
+
+    from acquisition.session import DamagedSessionError
+
+    arrays, name = result["arrays"], result["name"]
+    if "marker_label" in arrays:
+        return arrays["marker_label"]
+    if result.get("parameters", {}).get("source") == "import-markers":
+        raise DamagedSessionError(
+            f"{session_path}: the result {name!r} (/entry/results/{name}/marker_label) is damaged and cannot be read: "
+            f"the imported marker labels are missing; 'vfmlab info {session_path}' shows what is still readable")
+    return arrays.get("marker_id", np.arange(np.shape(arrays["positions"])[1]))
 
 
 def default_out(session_path: str | os.PathLike, out: str | os.PathLike | None, kind: str) -> Path:
