@@ -273,3 +273,63 @@ def test_a_1_nm_specimen_is_refused_with_the_plausible_range(tmp_path, capsys, k
     rc, _, err = run(capsys, "run", "examples/paper-protocol.toml", "--specimen", specimen, "--out", tmp_path / "s.h5",
                      "--sim", "--yes")
     assert rc == 2 and message in err and not (tmp_path / "s.h5").exists()
+
+
+# -- items 10 and 11: work beyond the machine is refused before it starts, with the estimate ----------------------
+
+def _levels_protocol(tmp_path, n_levels: int):
+    import re
+    from pathlib import Path
+
+    text = Path("examples/paper-protocol.toml").read_text()
+    levels = "[" + ", ".join(f"{150 * i / n_levels:.5f}" for i in range(n_levels)) + "]"
+    text = re.sub(r"pressures_mmHg = \[.*\]", f"pressures_mmHg = {levels}", text)
+    text = text.replace("dwell_s = 0.3", "dwell_s = 0.0").replace("band_mmHg = 0.1 ", "band_mmHg = 0.0001 ")
+    path = tmp_path / "levels.toml"
+    path.write_text(text)
+    return path
+
+
+def test_a_protocol_of_100001_levels_is_refused_with_its_duration(tmp_path, capsys):
+    rc, _, err = run(capsys, "run", _levels_protocol(tmp_path, 100_001), "--specimen", "examples/specimen.toml",
+                     "--out", tmp_path / "s.h5", "--sim", "--yes")
+    assert rc == 2 and "the protocol has 100,002 steps (at most 10,000) and would take at least 19.5 h" in err
+    assert not (tmp_path / "s.h5").exists()
+
+
+def test_a_camera_of_100000_px_is_refused_with_its_memory(tmp_path, capsys):
+    from pathlib import Path
+
+    rig = tmp_path / "rig.toml"
+    rig.write_text(Path("examples/sim-rig.toml").read_text().replace("width = 640, height = 480", "width = 100000, "
+                                                                      "height = 480", 1))
+    rc, _, err = run(capsys, "run", "examples/paper-protocol.toml", "--specimen", "examples/specimen.toml",
+                     "--rig", rig, "--out", tmp_path / "s.h5", "--sim", "--yes")
+    assert rc == 2 and "width must be a whole number of pixels in 1..40,000; got 100000" in err
+    assert "(one 100,000 x 480 px frame is 48 MB, about 2.3 GB of memory to capture)" in err
+
+
+def test_a_session_beyond_the_free_disk_or_the_memory_is_refused_with_the_estimate():
+    from acquisition.errors import ImplausibleInputError
+    from acquisition.plausibility import check_session_resources
+
+    frames = [(640, 480, 1)] * 4
+    check_session_resources(frames, 100, free_disk=1e9, memory=8e9, source="p.toml")
+    with pytest.raises(ImplausibleInputError, match=r"p.toml: the session would need about 12.5 GB on disk \(10,000 "
+                                                    r"captures x 4 camera\(s\) x 307 kB per image\) but only 1 GB"):
+        check_session_resources(frames, 10_000, free_disk=1e9, memory=8e9, source="p.toml")
+    with pytest.raises(ImplausibleInputError, match=r"capturing would need about 19.4 GB of memory \(largest frame "
+                                                    r"400,000,000 px\) but the machine has 8 GB"):
+        check_session_resources([(20_000, 20_000, 1)], 1, free_disk=1e12, memory=8e9, source="p.toml")
+
+
+def test_run_refuses_a_session_that_does_not_fit_the_disk(tmp_path, capsys, monkeypatch):
+    import shutil
+    from collections import namedtuple
+
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(shutil, "disk_usage", lambda path: usage(1e9, 1e9 - 5e6, 5e6))
+    rc, _, err = run(capsys, "run", "examples/paper-protocol.toml", "--specimen", "examples/specimen.toml",
+                     "--out", tmp_path / "s.h5", "--sim", "--yes")
+    assert rc == 2 and "the session would need about" in err and "but only 5 MB are free there" in err
+    assert not (tmp_path / "s.h5").exists()

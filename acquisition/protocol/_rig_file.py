@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from acquisition.plausibility import SPECIMEN_RANGES
+from acquisition.plausibility import MAX_IMAGE_SIDE_PX, SPECIMEN_RANGES, WORK_BYTES_PER_PIXEL, human_bytes
 from acquisition.protocol._rig_model import (
     END_CONDITIONS,
     MAX_CAMERAS,
@@ -55,6 +55,7 @@ def parse_rig(data: dict | str, text: str = "", source: str = "<rig>") -> RigCon
         if backend not in _BACKENDS:
             c.fail("backend", f"expected one of {list(_BACKENDS)}; got {backend!r}")
         settings = c.get("settings", {}, dict)
+        _check_frame_size(c, settings)
         c.done()
         _check_referenced_paths(c, settings)
         if any(x.name == cname for x in cams):
@@ -150,6 +151,16 @@ def load_specimen(path: str | Path) -> SpecimenFile:
     """Read and validate a specimen file (lengths in mm in the file, m in the result)."""
     data, _, source = _read(path)
     return parse_specimen(data, source=source)
+
+
+def _check_frame_size(c: _Table, settings: dict) -> None:
+    """``settings.width``/``height``, when given: whole pixels within 1..MAX_IMAGE_SIDE_PX (memory in the message)."""
+    w, h = settings.get("width", 640), settings.get("height", 480)
+    for key, value in (("width", w), ("height", h)):
+        if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= MAX_IMAGE_SIDE_PX:
+            size = (f" (one {w:,} x {h:,} px frame is {human_bytes(w * h)}, about {human_bytes(WORK_BYTES_PER_PIXEL * w * h)} of "
+                    "memory to capture)" if all(isinstance(v, (int, float)) and v > 0 for v in (w, h)) else "")
+            c.fail("settings", f"{key} must be a whole number of pixels in 1..{MAX_IMAGE_SIDE_PX:,}; got {value!r}{size}")
 
 
 def parse_specimen(data: dict | str, source: str = "<specimen>") -> SpecimenFile:
