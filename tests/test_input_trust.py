@@ -318,7 +318,7 @@ def test_a_session_beyond_the_free_disk_or_the_memory_is_refused_with_the_estima
     with pytest.raises(ImplausibleInputError, match=r"p.toml: the session would need about 12.5 GB on disk \(10,000 "
                                                     r"captures x 4 camera\(s\) x 307 kB per image\) but only 1 GB"):
         check_session_resources(frames, 10_000, free_disk=1e9, memory=8e9, source="p.toml")
-    with pytest.raises(ImplausibleInputError, match=r"capturing would need about 19.4 GB of memory \(largest frame "
+    with pytest.raises(ImplausibleInputError, match=r"capturing would need about 19.6 GB of memory \(largest frame "
                                                     r"400,000,000 px\) but the machine has 8 GB"):
         check_session_resources([(20_000, 20_000, 1)], 1, free_disk=1e12, memory=8e9, source="p.toml")
 
