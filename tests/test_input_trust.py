@@ -333,3 +333,109 @@ def test_run_refuses_a_session_that_does_not_fit_the_disk(tmp_path, capsys, monk
                      "--out", tmp_path / "s.h5", "--sim", "--yes")
     assert rc == 2 and "the session would need about" in err and "but only 5 MB are free there" in err
     assert not (tmp_path / "s.h5").exists()
+
+
+# -- item 11: a mutation harness over every command's file inputs ---------------------------------------------------
+# Deterministic (seeded) mutations of valid files; every outcome must be a success or exit 2 with a one-line
+# message naming the file, never "internal error" (exit 1) and never a traceback (run() asserts both).
+
+_ALPHABET = list("0123456789,.-+eE_ \n\"'[]{}=#xyzabn\x00\xff\u202e") + ["nan", "inf", "true", "1e400", "-0", "1_0"]
+
+
+def _mutants(text: str, n: int, seed: int) -> list[str]:
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(n):
+        t = text
+        for _ in range(int(rng.integers(1, 4))):
+            at = int(rng.integers(0, max(len(t), 1)))
+            kind = rng.integers(0, 5)
+            char = _ALPHABET[int(rng.integers(0, len(_ALPHABET)))]
+            if kind == 0:
+                t = t[:at] + t[at + 1:]
+            elif kind == 1:
+                t = t[:at] + char + t[at + 1:]
+            elif kind == 2:
+                t = t[:at] + char + t[at:]
+            elif kind == 3:
+                t = t[:at]
+            else:  # a number changed by orders of magnitude
+                t = t[:at] + "1e9" + t[at:]
+        out.append(t)
+    return out
+
+
+def _judge(rc: int, err: str, path, ok=(0,)) -> None:
+    assert rc in (*ok, 2), (rc, err)
+    if rc == 2:
+        assert "Error:" in err or "Usage:" in err, err
+
+
+def test_mutated_csv_inputs_of_import_markers(tmp_path, capsys):
+    markers, loads = _write_inputs(tmp_path, n_markers=12, n_steps=3)
+    for i, text in enumerate(_mutants(markers.read_text(), 40, seed=1) + [""]):
+        bad = tmp_path / f"m{i}.csv"
+        bad.write_text(text, encoding="utf-8", errors="surrogatepass")
+        rc, _, err = _import(capsys, tmp_path, bad, loads, out=f"m{i}.h5")
+        _judge(rc, err, bad)
+    for i, text in enumerate(_mutants(loads.read_text(), 40, seed=2)):
+        bad = tmp_path / f"l{i}.csv"
+        bad.write_text(text, encoding="utf-8", errors="surrogatepass")
+        rc, _, err = _import(capsys, tmp_path, markers, bad, out=f"l{i}.h5")
+        _judge(rc, err, bad)
+
+
+def test_mutated_calibration_toml_of_calibrate_reconstruct_and_import_images(tmp_path, capsys):
+    good = _calibration_text()
+    for i, text in enumerate(_mutants(good, 60, seed=3)):
+        bad = tmp_path / f"c{i}.toml"
+        bad.write_text(text, encoding="utf-8", errors="surrogatepass")
+        rc, _, err = run(capsys, "calibrate", "--import", bad, "-o", tmp_path / f"c{i}.yaml")
+        _judge(rc, err, bad)
+        rc, _, err = run(capsys, "import-images", tmp_path / "none", "--calibration", bad, "--loads",
+                         tmp_path / "l.csv", "--marker-diameter-mm", "0.4", "-o", tmp_path / f"i{i}.h5")
+        _judge(rc, err, bad, ok=())  # no images folder: refused either way
+
+
+@pytest.mark.parametrize("which", ["protocol", "specimen", "rig"])
+def test_mutated_toml_inputs_of_run(tmp_path, capsys, monkeypatch, which):
+    from pathlib import Path
+
+    import vfmlab.operate as operate
+
+    def parsed(*args, **kwargs):
+        raise operate.OperateError("inputs accepted", exit_code=3)  # stop before the rig starts
+
+    monkeypatch.setattr(operate, "_sim_bench", parsed)
+    codes = []
+    files = {"protocol": Path("examples/paper-protocol.toml"), "specimen": Path("examples/specimen.toml"),
+             "rig": Path("examples/sim-rig.toml")}
+    for i, text in enumerate(_mutants(files[which].read_text(), 60, seed=4)):
+        bad = tmp_path / f"{which}{i}.toml"
+        bad.write_text(text, encoding="utf-8", errors="surrogatepass")
+        args = {**{k: str(v) for k, v in files.items()}, which: str(bad)}
+        rc, _, err = run(capsys, "run", args["protocol"], "--specimen", args["specimen"], "--rig", args["rig"],
+                         "--out", tmp_path / f"s{i}.h5", "--sim", "--yes")
+        _judge(rc, err, bad, ok=(3,))
+        codes.append(rc)
+    assert codes.count(3) >= 5 and codes.count(2) >= 5  # the mutants test both sides
+
+
+def test_mutated_sessions_for_the_session_commands(tmp_path, capsys):
+    markers, loads = _write_inputs(tmp_path, n_markers=12, n_steps=3)
+    session = tmp_path / "s.h5"
+    assert _import(capsys, tmp_path, markers, loads)[0] == 0
+    data = session.read_bytes()
+    rng = np.random.default_rng(5)
+    for i in range(24):
+        damaged = bytearray(data)
+        if i % 4 == 3:
+            damaged = damaged[: int(rng.integers(0, len(damaged)))]
+        else:
+            for where in rng.integers(0, len(damaged), 6):
+                damaged[int(where)] ^= 1 << int(rng.integers(0, 8))
+        bad = tmp_path / f"d{i}.h5"
+        bad.write_bytes(bytes(damaged))
+        for argv in (["info", bad], ["results", bad], ["export-markers", bad, "-o", tmp_path / f"d{i}.csv"]):
+            rc, _, err = run(capsys, *argv)
+            _judge(rc, err, bad)
