@@ -85,7 +85,7 @@ def _centre_sums(A: np.ndarray, ci: np.ndarray, n: int):
     e = np.arange(m)
     row_end = np.cumsum(np.bincount(ci, minlength=n))  # the edges of centre i end there (sorted by centre)
     indptr = np.concatenate([[0]] + [row_end + k * m for k in range(6)])  # block k: the k-th product's rows
-    pair_vals = np.concatenate([A[:, k] * A[:, l] for k, l in _PAIRS])
+    pair_vals = np.concatenate([A[:, k] * A[:, j] for k, j in _PAIRS])
     pair_sum = csr_matrix((pair_vals, np.tile(e, 6), indptr), shape=(6 * n, m))
     first_sum = csr_matrix((A.T.ravel(), np.tile(e, 3), indptr[:3 * n + 1]), shape=(3 * n, m))
     return pair_sum, first_sum

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from vfmlab.cli._common import CliInputError, esc, num, print_json
+from vfmlab.cli._common import CliInputError, ModelChoice, print_json
 
 EPILOG = """
 \b
@@ -24,7 +24,7 @@ Examples:
               help="Number of markers, spread evenly over the circumference and the length.")
 @click.option("--noise-mm", type=click.FloatRange(min=0.0, min_open=True), default=0.17, show_default=True,
               help="Standard deviation of each marker coordinate, mm (the paper's accuracy was 0.17 mm).")
-@click.option("--model", type=click.Choice(["fung", "delfino", "hgo", "neohookean"]), default="fung",
+@click.option("--model", type=ModelChoice(), default="fung",
               show_default=True, help="Constitutive model.")
 @click.option("--params", default=None, metavar="NAME=VALUE,...",
               help="The law to predict at, SI (Pa, rad); unnamed parameters keep the seed paper's Table 1 values.")
@@ -43,7 +43,7 @@ def command(protocol_path, specimen_path, n_markers, noise_mm, model, params, wa
     axial stretch with the same pressure levels, and more markers, and shows what each would give.
     """
     from acquisition.protocol import ConfigError, load_protocol, load_specimen
-    from vfmlab.design import design_report, parse_parameters
+    from vfmlab.stages.design import design_report, design_tables, parse_parameters
 
     try:
         protocol = load_protocol(protocol_path)
@@ -56,47 +56,7 @@ def command(protocol_path, specimen_path, n_markers, noise_mm, model, params, wa
     if as_json:
         print_json(report)
         return
-    _print(report)
-
-
-def _shown(value: float, unit: str) -> str:
-    from vfmlab.display import quantity
-
-    return quantity(value, unit)
-
-
-def _print(report: dict) -> None:
-    from rich.table import Table
-
     from vfmlab.cli._common import console
 
-    names = list(report["parameters"])
-    stretches = ", ".join(f"{b['stretch']:g}" for b in report["blocks"])
-    steps = sum(len(b["pressures_Pa"]) for b in report["blocks"])
-    console.print(f"{esc(report['model'])} ({esc(report['wall'])}): {steps} steps at stretch {stretches}, "
-                  f"{report['n_markers']} markers at {num(report['marker_noise_m'] * 1e3)} mm, "
-                  f"loads at {num(report['load_noise_relative'] * 100)} % of reading")
-    table = Table(title="95 % half-width each parameter can reach (1.96 x the Cramér-Rao bound)")
-    for col in ("parameter", "value", "± 95 %", "± 95 % (value units)"):
-        table.add_column(col, justify="left" if col == "parameter" else "right")
-    for p in names:
-        unit = report["units"][p]
-        table.add_row(p, _shown(report["parameters"][p], unit), f"{num(report['half_width_95_percent'][p], 3)} %",
-                      _shown(report["half_width_95_SI"][p], unit))
-    console.print(table)
-    if report["warning"]:
-        console.print(f"[bold yellow]Warning:[/] {esc(report['warning'])}")
-    if not report["suggestions"]:
-        return
-    best = report["suggestions"][0]
-    gains = ", ".join(f"{p} ±{num(report['half_width_95_percent'][p], 2)} % → ±{num(best['half_width_95_percent'][p], 2)} %"
-                      for p in names)
-    console.print(f"Best addition: {esc(best['label'])}: {gains}")
-    table = Table(title="Candidate additions (95 % half-width, % of value)")
-    table.add_column("addition")
-    table.add_column("added steps", justify="right")
-    for p in names:
-        table.add_column(p, justify="right")
-    for s in report["suggestions"]:
-        table.add_row(esc(s["label"]), str(s["n_added_steps"]), *(num(s["half_width_95_percent"][p], 3) for p in names))
-    console.print(table)
+    for item in design_tables(report):
+        console.print(item)

@@ -11,40 +11,8 @@ from rich.progress import Progress
 from vfmlab.cli._common import CliError, CliInputError, console, err_console, esc, print_json
 from vfmlab.cli._outputs import check_output_path
 from vfmlab.stages.errors import StageError
-from vfmlab.stages.imports import first_images, read_image, scan_images
+from vfmlab.stages.imports import first_images, measure_tube, read_image, scan_images
 from vfmlab.stages.reconstruct import load_calibration_file
-
-def _measure_tube(first: dict, cams: list, marker_diameter_mm: float, polarity: str, radius_mm, length_mm,
-                  notes: list) -> tuple[float, float]:
-    """Radius and length (mm) not given, measured from the step-0 markers (a tube, or an error); says so in ``notes``."""
-    from reconstruction import ReconstructionSettings, fit_cylinder, reconstruct_step
-
-    settings = ReconstructionSettings(marker_diameter=marker_diameter_mm * 1e-3, detection={"polarity": polarity})
-    pts, _ = reconstruct_step(first, cams, settings)
-    if pts.centres.shape[0] < 8:
-        raise CliInputError("could not measure the specimen from the step-0 images (fewer than 8 markers "
-                            "reconstructed); give --radius-mm and --length-mm")
-    cyl = fit_cylinder(pts.centres)
-    _check_tube(cyl, pts.centres)
-    _, _, z = cyl.cylindrical(pts.centres)
-    if radius_mm is None:
-        radius_mm = (cyl.radius - 0.5 * marker_diameter_mm * 1e-3) * 1e3
-        notes.append(f"radius measured from step-0 markers ({pts.centres.shape[0]} markers)")
-    if length_mm is None:
-        length_mm = float(np.ptp(z)) * 1e3
-        notes.append("length = axial extent of the step-0 markers")
-    return radius_mm, length_mm
-
-
-def _check_tube(cyl, centres: np.ndarray) -> None:
-    """The specimen's radius and length are measured assuming the step-0 markers lie on a tube: refuse when they do not."""
-    extent = float(np.ptp(centres, axis=0).max())
-    if not (cyl.rms < 0.1 * cyl.radius and cyl.radius < 2.0 * extent):
-        raise CliError(
-            f"the {centres.shape[0]} step-0 markers do not lie on a tube (cylinder fit: radius {cyl.radius * 1e3:.3g} mm, "
-            f"RMS {cyl.rms * 1e3:.3g} mm, markers spread over {extent * 1e3:.3g} mm): the specimen's radius and length "
-            "are measured assuming a tubular specimen; give --radius-mm and --length-mm"
-        )
 
 
 EPILOG = """
@@ -113,7 +81,7 @@ def command(images_dir, calibration, polarity, calibration_units, loads_csv, out
     first, dtype = first_images(cams, files)
     notes_extra = []
     if radius_mm is None or length_mm is None:
-        radius_mm, length_mm = _measure_tube(first, cams, marker_diameter_mm, polarity, radius_mm, length_mm,
+        radius_mm, length_mm = measure_tube(first, cams, marker_diameter_mm, polarity, radius_mm, length_mm,
                                              notes_extra)
     if thickness_mm is None:
         thickness_mm = 0.1 * radius_mm

@@ -2,16 +2,13 @@
 
 from __future__ import annotations
 
-import datetime as _dt
 import json
 import time
 
 import click
 
-from vfmlab.cli._common import CliError, console, err_console, esc, fixed
-
-MMHG_PA = 133.322387415
-
+from vfmlab.cli._common import CliError, console, err_console, esc
+from vfmlab.stages.monitor import CHANNEL_NAMES as _NAMES
 
 def _open(kind: str, port: str, baud: int, timeout: float):
     from acquisition import InstrumentError, open_load_cell, open_pressure
@@ -22,50 +19,6 @@ def _open(kind: str, port: str, baud: int, timeout: float):
         return opener(port, baudrate=baud, timeout=timeout)
     except InstrumentError as exc:
         raise CliError(f"cannot open the {what} at {port!r}: {exc}") from exc
-
-
-_NAMES = {"pressure": "pressure transducer", "force": "load cell"}
-
-
-def _record(channel: str, sample, device_unit: str | None) -> dict:
-    row = {"channel": channel, "seq": sample.seq, "t_monotonic": sample.t_monotonic, "t_wall": sample.t_wall,
-           "time": _dt.datetime.fromtimestamp(sample.t_wall, _dt.UTC).isoformat(timespec="milliseconds")}
-    if channel == "pressure":
-        row.update(value=sample.value, unit="Pa", mmHg=sample.value / MMHG_PA, kPa=sample.value / 1e3)
-    else:
-        row.update(value=sample.value, unit="N")
-    row.update(raw=sample.raw, device_unit=device_unit)
-    return row
-
-
-def _table(sampler, devices, started: float):
-    from rich.table import Table
-
-    table = Table(title="vfmlab monitor  (Ctrl-C to stop)", title_justify="left")
-    table.add_column("instrument")
-    table.add_column("reading", justify="right")
-    table.add_column("", justify="right")
-    table.add_column("status")
-    table.add_column("samples", justify="right")
-    table.add_column("rate", justify="right")
-    elapsed = max(time.monotonic() - started, 1e-9)
-    for channel in sampler.channels:
-        s = sampler.latest(channel)
-        st = sampler.status(channel)
-        colour = {"ok": "green", "fault": "yellow", "disconnected": "red"}.get(st.state, "white")
-        status = f"[{colour}]{esc(st.state)}[/]" + (f" {esc(st.message[:60])}" if st.state != "ok" else "")
-        if channel == "pressure":
-            name = "pressure"
-            reading = "-" if s is None else f"{fixed(s.value / MMHG_PA, 2):>9} mmHg"
-            second = "" if s is None else f"{fixed(s.value / 1e3, 3):>8} kPa"
-        else:
-            name = "force"
-            reading = "-" if s is None else f"{fixed(s.value, 4):>9} N"
-            second = ""
-        table.add_row(name, reading, second, status, str(st.n_ok), f"{st.n_ok / elapsed:6.1f} Hz")
-    for channel, dev in devices.items():
-        table.caption = (table.caption or "") + f"{channel}: {esc(dev.identity)}  (device unit {esc(dev.unit)})\n"
-    return table
 
 
 EPILOG = """
@@ -131,6 +84,7 @@ STALL_S = 5.0
 
 def _monitor(sampler, devices, count, as_json, stall_s: float = STALL_S) -> None:
     from acquisition.sampler import Sample
+    from vfmlab.stages.monitor import readings_table, sample_record
 
     printed = {ch: 0 for ch in sampler.channels}
     started = time.monotonic()
@@ -160,7 +114,7 @@ def _monitor(sampler, devices, count, as_json, stall_s: float = STALL_S) -> None
                 if as_json:
                     s = Sample(int(rec.seq[i]), float(rec.t_monotonic[i]), float(rec.t_wall[i]),
                                float(rec.value[i]), rec.raw[i])
-                    click.echo(json.dumps(_record(channel, s, devices[channel].unit)))
+                    click.echo(json.dumps(sample_record(channel, s, devices[channel].unit)))
         for ev in sampler.drain_events():
             err_console.print(f"[yellow]{esc(ev.channel)}: {esc(ev.kind)}[/] {esc(ev.message)}", markup=True)
 
@@ -173,11 +127,11 @@ def _monitor(sampler, devices, count, as_json, stall_s: float = STALL_S) -> None
             else:
                 from rich.live import Live
 
-                with Live(_table(sampler, devices, started), console=console, refresh_per_second=8,
+                with Live(readings_table(sampler, devices, started), console=console, refresh_per_second=8,
                           transient=False) as live:
                     while not done():
                         time.sleep(0.1)
                         emit()
-                        live.update(_table(sampler, devices, started))
+                        live.update(readings_table(sampler, devices, started))
     except KeyboardInterrupt:
         err_console.print("stopped")

@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 
 from acquisition.errors import ImplausibleInputError
-from vfmlab.stages.errors import StageError
+from vfmlab.stages.errors import StageError, StageFailed
 from vfmlab.stages.feedback import Notify, log_notes
 
-__all__ = ["OUTLIER_RADII", "check_marker_inputs", "estimate_geometry", "first_images", "marker_outliers", "read_image",
-           "scan_images"]
+__all__ = ["OUTLIER_RADII", "check_marker_inputs", "check_tube", "estimate_geometry", "first_images", "marker_outliers",
+           "measure_tube", "read_image", "scan_images"]
 
 _IMAGE_SUFFIXES = {".png", ".tif", ".tiff", ".bmp", ".pgm", ".jpg", ".jpeg"}
 
@@ -191,3 +191,36 @@ def check_marker_inputs(table, loads, rows, markers_csv, loads_csv, thickness_mm
     for message in warnings:
         warn(message)
     return radius, length, warnings
+
+
+def measure_tube(first: dict, cams: list, marker_diameter_mm: float, polarity: str, radius_mm, length_mm,
+                  notes: list) -> tuple[float, float]:
+    """Radius and length (mm) not given, measured from the step-0 markers (a tube, or an error); says so in ``notes``."""
+    from reconstruction import ReconstructionSettings, fit_cylinder, reconstruct_step
+
+    settings = ReconstructionSettings(marker_diameter=marker_diameter_mm * 1e-3, detection={"polarity": polarity})
+    pts, _ = reconstruct_step(first, cams, settings)
+    if pts.centres.shape[0] < 8:
+        raise StageError("could not measure the specimen from the step-0 images (fewer than 8 markers "
+                            "reconstructed); give --radius-mm and --length-mm")
+    cyl = fit_cylinder(pts.centres)
+    check_tube(cyl, pts.centres)
+    _, _, z = cyl.cylindrical(pts.centres)
+    if radius_mm is None:
+        radius_mm = (cyl.radius - 0.5 * marker_diameter_mm * 1e-3) * 1e3
+        notes.append(f"radius measured from step-0 markers ({pts.centres.shape[0]} markers)")
+    if length_mm is None:
+        length_mm = float(np.ptp(z)) * 1e3
+        notes.append("length = axial extent of the step-0 markers")
+    return radius_mm, length_mm
+
+
+def check_tube(cyl, centres: np.ndarray) -> None:
+    """The specimen's radius and length are measured assuming the step-0 markers lie on a tube: refuse when they do not."""
+    extent = float(np.ptp(centres, axis=0).max())
+    if not (cyl.rms < 0.1 * cyl.radius and cyl.radius < 2.0 * extent):
+        raise StageFailed(
+            f"the {centres.shape[0]} step-0 markers do not lie on a tube (cylinder fit: radius {cyl.radius * 1e3:.3g} mm, "
+            f"RMS {cyl.rms * 1e3:.3g} mm, markers spread over {extent * 1e3:.3g} mm): the specimen's radius and length "
+            "are measured assuming a tubular specimen; give --radius-mm and --length-mm"
+        )

@@ -8,7 +8,7 @@ from __future__ import annotations
 from acquisition.protocol import Protocol, SpecimenFile
 from identification import PAPER_TABLE1, DesignSpecimen, MeasurementNoise, get_model, suggest_steps
 
-__all__ = ["protocol_blocks", "parse_parameters", "design_report"]
+__all__ = ["protocol_blocks", "parse_parameters", "design_report", "design_tables"]
 
 
 def protocol_blocks(protocol: Protocol) -> list[tuple[float, tuple[float, ...]]]:
@@ -67,3 +67,51 @@ def design_report(protocol: Protocol, specimen: SpecimenFile, *, model: str = "f
                          "half_width_95_percent": dict(s.half_width), "score": s.score} for s in suggestions],
     }
 
+
+def _shown(value: float, unit: str) -> str:
+    from vfmlab.display import quantity
+
+    return quantity(value, unit)
+
+
+def design_tables(report: dict) -> list:
+    """What ``vfmlab design`` prints: a summary line, the half-width table and the candidate additions (rich
+    renderables, in order)."""
+    from rich.markup import escape as esc
+    from rich.table import Table
+
+    from vfmlab.display import num
+
+    out: list = []
+
+    names = list(report["parameters"])
+    stretches = ", ".join(f"{b['stretch']:g}" for b in report["blocks"])
+    steps = sum(len(b["pressures_Pa"]) for b in report["blocks"])
+    out.append(f"{esc(report['model'])} ({esc(report['wall'])}): {steps} steps at stretch {stretches}, "
+                  f"{report['n_markers']} markers at {num(report['marker_noise_m'] * 1e3)} mm, "
+                  f"loads at {num(report['load_noise_relative'] * 100)} % of reading")
+    table = Table(title="95 % half-width each parameter can reach (1.96 x the Cramér-Rao bound)")
+    for col in ("parameter", "value", "± 95 %", "± 95 % (value units)"):
+        table.add_column(col, justify="left" if col == "parameter" else "right")
+    for p in names:
+        unit = report["units"][p]
+        table.add_row(p, _shown(report["parameters"][p], unit), f"{num(report['half_width_95_percent'][p], 3)} %",
+                      _shown(report["half_width_95_SI"][p], unit))
+    out.append(table)
+    if report["warning"]:
+        out.append(f"[bold yellow]Warning:[/] {esc(report['warning'])}")
+    if not report["suggestions"]:
+        return out
+    best = report["suggestions"][0]
+    gains = ", ".join(f"{p} ±{num(report['half_width_95_percent'][p], 2)} % → ±{num(best['half_width_95_percent'][p], 2)} %"
+                      for p in names)
+    out.append(f"Best addition: {esc(best['label'])}: {gains}")
+    table = Table(title="Candidate additions (95 % half-width, % of value)")
+    table.add_column("addition")
+    table.add_column("added steps", justify="right")
+    for p in names:
+        table.add_column(p, justify="right")
+    for s in report["suggestions"]:
+        table.add_row(esc(s["label"]), str(s["n_added_steps"]), *(num(s["half_width_95_percent"][p], 3) for p in names))
+    out.append(table)
+    return out
