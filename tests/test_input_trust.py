@@ -439,3 +439,20 @@ def test_mutated_sessions_for_the_session_commands(tmp_path, capsys):
         for argv in (["info", bad], ["results", bad], ["export-markers", bad, "-o", tmp_path / f"d{i}.csv"]):
             rc, _, err = run(capsys, *argv)
             _judge(rc, err, bad)
+
+
+def test_import_images_refuses_a_wall_thicker_than_the_radius(tmp_path, capsys):
+    import cv2
+
+    cal = tmp_path / "cal.toml"
+    cal.write_text(_calibration_text())
+    for cam in ("cam0", "cam1"):
+        (tmp_path / "img" / cam).mkdir(parents=True)
+        cv2.imwrite(str(tmp_path / "img" / cam / "0.png"), np.full((48, 64), 128, np.uint8))
+    loads = tmp_path / "loads.csv"
+    loads.write_text("step,pressure_mmHg,axial_force_N,stretch\n0,0,0,1\n")
+    rc, _, err = run(capsys, "import-images", tmp_path / "img", "--calibration", cal, "--loads", loads,
+                     "--marker-diameter-mm", "0.4", "--radius-mm", "10", "--length-mm", "30", "--thickness-mm", "12",
+                     "-o", tmp_path / "s.h5")
+    assert rc == 2 and "the wall thickness 12 mm is not smaller than the radius 10 mm" in err
+    assert not (tmp_path / "s.h5").exists()

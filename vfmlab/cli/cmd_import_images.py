@@ -61,6 +61,7 @@ def command(images_dir, calibration, polarity, calibration_units, loads_csv, out
     """Build a session from IMAGES_DIR/<camera>/<step>.png (camera names as in the calibration file,
     step 0 = reference), the camera calibration and a loads CSV. Then run 'vfmlab reconstruct OUT'."""
     from acquisition.markers_csv import read_loads_csv
+    from acquisition.plausibility import check_geometry
     from acquisition.session import CameraSpec, SessionError, SessionWriter, SpecimenInfo, StepRecord, write_result
     from reconstruction import cameras_to_arrays
 
@@ -86,6 +87,8 @@ def command(images_dir, calibration, polarity, calibration_units, loads_csv, out
     if thickness_mm is None:
         thickness_mm = 0.1 * radius_mm
         notes_extra.append("thickness not given: 10 % of the radius assumed")
+    for message in check_geometry(radius_mm * 1e-3, thickness_mm * 1e-3, length_mm * 1e-3, source=str(images_dir)):
+        err_console.print(f"[yellow]Warning:[/] {esc(message)}")
     try:
         specimen = SpecimenInfo(specimen_id or images_dir.name, radius_mm * 1e-3, length_mm * 1e-3,
                                 thickness_mm * 1e-3, "; ".join([notes] * bool(notes) + notes_extra),
