@@ -170,12 +170,6 @@ class Protocol:
         """Raise :class:`ConfigError` if the protocol has more than :data:`MAX_STEPS` steps or would take more
         than a day (estimate in the message)."""
         total = self.min_duration_s(n_cameras)
-        if self.n_steps > MAX_STEPS:
-            raise ConfigError(
-                f"{self.source}: the protocol has {self.n_steps:,} steps (at most {MAX_STEPS:,}) and would take at "
-                f"least {_human_duration(total)} ({self.n_steps:,} steps x >= "
-                f"{self.stability.dwell_s + _STEP_FLOOR_S + _FRAME_S * n_cameras:g} s with {n_cameras} camera(s)): "
-                "split it into several sessions")
         if total > MAX_DURATION_S:
             pc = self.preconditioning
             raise ConfigError(
@@ -185,6 +179,12 @@ class Protocol:
                 f"{self.calibration.views} calibration views, {n_cameras} camera(s)); the limit is "
                 f"{_human_duration(MAX_DURATION_S)}: split it into several sessions"
             )
+        if self.n_steps > MAX_STEPS:
+            raise ConfigError(
+                f"{self.source}: the protocol has {self.n_steps:,} steps (at most {MAX_STEPS:,}) and would take at "
+                f"least {_human_duration(total)} ({self.n_steps:,} steps x >= "
+                f"{self.stability.dwell_s + _STEP_FLOOR_S + _FRAME_S * n_cameras:g} s with {n_cameras} camera(s)): "
+                "split it into several sessions")
 
     def camera_names(self, rig: RigConfig) -> list[str]:
         """Names of the cameras to capture on ``rig``."""
