@@ -32,6 +32,8 @@ _LAZY = {
     "SerialLink": "acquisition.serial_link",
     "find_port_by_serial": "acquisition.serial_link",
     "StretchStage": "acquisition.stage",
+    "position_from_stretch": "acquisition.stage",
+    "stretch_from_position": "acquisition.stage",
     "StageFault": "acquisition.zaber",
     "StageNotHomed": "acquisition.zaber",
     "StageRejected": "acquisition.zaber",

@@ -124,6 +124,17 @@ class StretchStage:
         """Move to ``stretch`` and wait until the carriage is there."""
         self.stage.move_to(self.position_for(stretch), wait=True, timeout=self.timeout_s)
 
+    def clear_fault(self) -> list[str]:
+        """Acknowledge the stage's latched fault (Zaber ``warnings clear``); the flags that were set."""
+        clear = getattr(self.stage, "clear_warnings", None)
+        return list(clear()) if clear is not None else []
+
+    def stop(self) -> None:
+        """Stop the carriage (never refused for a fault)."""
+        stop = getattr(self.stage, "stop", None)
+        if stop is not None:
+            stop()
+
     def stretch(self) -> float:
         """Current axial stretch, from the carriage position."""
         return stretch_from_position(self.stage.position(), gauge_length_m=self.gauge_length_m, x0_m=self._x0(),

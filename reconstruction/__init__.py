@@ -22,6 +22,7 @@ from reconstruction.cameras import Camera, project_points, rotation_matrix
 from reconstruction.refraction import Window
 from reconstruction.correspondence import Correspondence, CylinderPrior, match_views
 from reconstruction.detection import REJECT_REASONS, Detections, detect_markers
+from reconstruction.image_quality import ImageQuality, image_quality, markers_in_views
 from reconstruction.particles import detect_particles
 from reconstruction.pipeline import detect_step, reconstruct_series
 from reconstruction.series_tracking import SeriesResult, SeriesTracker, track_series
@@ -40,7 +41,8 @@ __all__ = [
     "BoardDetection", "BoardSpec", "TargetError", "detect_board", "detect_boards",
     "Camera", "CameraError", "project_points", "rotation_matrix", "validate_camera", "fraction_in_view",
     "Correspondence", "CylinderPrior", "match_views",
-    "REJECT_REASONS", "Detections", "detect_markers", "detect_particles",
+    "REJECT_REASONS", "Detections", "detect_markers", "detect_particles", "ImageQuality", "image_quality",
+    "markers_in_views",
     "ReconstructionSettings", "SeriesResult", "SeriesTracker", "StepPoints", "detect_step", "points_from_detections",
     "reconstruct_series", "reconstruct_step", "track_series",
     "calibrate_from_body", "match_body_points", "refine_dot_centres", "select_body_model",

@@ -7,11 +7,13 @@ A tube of radius 10 mm inflated and stretched with a closed-form, slightly non-u
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 import numpy as np
 
-from acquisition.session import CameraSpec, SessionWriter, SpecimenInfo, StepRecord, write_result
+from acquisition.session import (CameraSpec, SessionWriter, SpecimenInfo, StagedSession, StepRecord, staged_session,
+                                 write_result)
 
 MMHG = 133.322387415
 RADIUS, LENGTH, THICKNESS = 10e-3, 35e-3, 1.3e-3
@@ -43,21 +45,27 @@ def make_session(path: Path, *, n_markers: int = 160, with_results: bool = True,
     cams = [CameraSpec(f"cam{i}", "simulated", 64, 48) for i in range(4)]
     spec = SpecimenInfo(specimen_id, RADIUS, LENGTH, THICKNESS, "synthetic test tube")
     protocol = "[preconditioning]\ncycles = 3\n\n[[block]]\nstretch = 1.05\npressures_mmHg = [0, 30, 80, 150]\n"
-    with SessionWriter.create(path, spec, cameras=cams, protocol_text=protocol, rig={"cameras": 4},
-                              instruments={"pressure": {"identity": "SIM-PT 1.0", "settings": {"range_kPa": 40}},
-                                           "load_cell": {"identity": "SIM-LC 2.0", "settings": {"range_N": 10}}}) as w:
-        t = np.arange(50) * 0.1
-        w.append_log("pressure", t, 1.7e9 + t, np.interp(t, np.linspace(0, 5, len(pressure)), pressure))
-        w.append_log("force", t, 1.7e9 + t, np.interp(t, np.linspace(0, 5, len(force)), force))
-        for k in range(len(pressure)):
-            w.add_step(StepRecord(block=int(k > 3), stretch=float(stretch[k]), target_pressure=float(pressure[k]),
-                                  pressure=float(pressure[k]) * 1.001, force=float(force[k]), t_monotonic=float(k),
-                                  t_wall=1.7e9 + k),
-                       images={c.name: np.full((48, 64), k, np.uint8) for c in cams})
-    if not with_results:
-        return path
-    n_steps = len(pressure)
-    write_result(path, "calibration",
+    with staged_session(path) as staged:  # results inside the file: a copy of the file carries them
+        with SessionWriter.create(staged.path, spec, cameras=cams, protocol_text=protocol, rig={"cameras": 4},
+                                  instruments={"pressure": {"identity": "SIM-PT 1.0", "settings": {"range_kPa": 40}},
+                                               "load_cell": {"identity": "SIM-LC 2.0",
+                                                             "settings": {"range_N": 10}}}) as w:
+            t = np.arange(50) * 0.1
+            w.append_log("pressure", t, 1.7e9 + t, np.interp(t, np.linspace(0, 5, len(pressure)), pressure))
+            w.append_log("force", t, 1.7e9 + t, np.interp(t, np.linspace(0, 5, len(force)), force))
+            for k in range(len(pressure)):
+                w.add_step(StepRecord(block=int(k > 3), stretch=float(stretch[k]), target_pressure=float(pressure[k]),
+                                      pressure=float(pressure[k]) * 1.001, force=float(force[k]),
+                                      t_monotonic=float(k), t_wall=1.7e9 + k),
+                           images={c.name: np.full((48, 64), k, np.uint8) for c in cams})
+        if with_results:
+            _add_results(staged, pos, cams, len(pressure), n_markers, seed)
+    return path
+
+
+def _add_results(staged, pos, cams, n_steps, n_markers, seed) -> None:
+    add = staged.add_result
+    add("calibration",
                  {"camera_names": np.array([c.name for c in cams]), "K": np.tile(np.eye(3), (4, 1, 1)),
                   "dist": np.zeros((4, 5)), "rvec": np.zeros((4, 3)), "tvec": np.zeros((4, 3)),
                   "image_size": np.tile([64, 48], (4, 1)), "rms": np.array([0.21, 0.25, 0.19, 0.31]),
@@ -67,18 +75,19 @@ def make_session(path: Path, *, n_markers: int = 160, with_results: bool = True,
     rng = np.random.default_rng(seed + 1)
     visible = rng.random(pos.shape[:2]) > 0.03
     visible[0] = True
-    write_result(path, "markers",
+    add("markers",
                  {"positions": np.where(visible[..., None], pos, np.nan), "visible": visible,
                   "uncertainty": np.full(visible.shape, 5e-6), "marker_id": np.arange(n_markers),
                   "step_index": np.arange(n_steps)},
                  {"source": "synthetic"}, units={"positions": "m", "uncertainty": "m"})
-    add_identification(path, "fung", ["beta", "alpha11", "alpha22", "alpha12"], [5.0e3, 14.5, 7.0, 0.1],
+    add_identification(staged, "fung", ["beta", "alpha11", "alpha22", "alpha12"], [5.0e3, 14.5, 7.0, 0.1],
                        n_steps=n_steps, cost=1.2e-3, seed=seed)
-    add_identification(path, "delfino", ["beta", "alpha"], [1.5e3, 4.6], n_steps=n_steps, cost=4.5e-3, seed=seed)
-    return path
+    add_identification(staged, "delfino", ["beta", "alpha"], [1.5e3, 4.6], n_steps=n_steps, cost=4.5e-3, seed=seed)
 
 
 def add_identification(path, model, names, values, *, n_steps, cost, seed=0, wall="membrane", optimizer="lsq"):
+    """Add a synthetic identification result to the session at ``path`` (or to a staged session being built)."""
+    write = path.add_result if isinstance(path, StagedSession) else functools.partial(write_result, path)
     rng = np.random.default_rng(seed + len(names))
     n = len(names)
     values = np.asarray(values, float)
@@ -89,7 +98,7 @@ def add_identification(path, model, names, values, *, n_steps, cost, seed=0, wal
     ivw = np.abs(rng.normal(1e-4, 2e-5, (2, n_steps))) * np.arange(n_steps)
     evw = ivw * (1 + rng.normal(0, 0.03, ivw.shape))
     flags = {"alpha12": "weakly identifiable (stderr > 50 %)"} if "alpha12" in names else {}
-    return write_result(path, "identification",
+    return write("identification",
                         {"parameters": values, "stderr": 0.04 * np.abs(values) + 1e-3, "parameter_names": np.array(names),
                          "correlation": corr, "ivw": ivw, "evw": evw, "field_names": np.array(["hoop", "axial"])},
                         {"model": model, "wall": wall, "optimizer": optimizer},

@@ -450,9 +450,15 @@ def test_a_job_waits_for_a_reader_then_gives_up_with_a_message(session, tmp_path
     path = tmp_path / "c.h5"
     path.write_bytes(session.read_bytes())
     monkeypatch.setenv("VFMLAB_LOCK_TIMEOUT_S", "0.5")
-    import h5py
+    import fcntl
 
-    with h5py.File(path, "r"):  # a foreign reader holding the file (HDF5 shared lock)
+    from acquisition.session import results_dir
+
+    results_dir(path).mkdir()
+    # another job writing a result holds the results folder's lock (a reader of the session no
+    # longer blocks anything: results are files of their own and the session is only read)
+    with open(results_dir(path) / ".lock", "w") as held:
+        fcntl.flock(held.fileno(), fcntl.LOCK_EX)
         t0 = time.monotonic()
         with pytest.raises(SessionError, match=r"another vfmlab job is using the file; gave up after waiting \d+ s \(try again"):
             write_result(path, "markers", {"x": np.zeros(3)}, {})

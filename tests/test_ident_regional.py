@@ -221,8 +221,9 @@ def test_profile_in_report_and_export(weak_session, stored_regional, tmp_path, c
     from vfmlab.report.build import _Report
     from vfmlab.report.profile import section
 
-    path = tmp_path / "copy.h5"
-    path.write_bytes(weak_session.read_bytes())
+    from acquisition.session import copy_session
+
+    path = copy_session(weak_session, tmp_path / "copy.h5")  # the file and its derived results
     with open_session(weak_session) as s:
         res = s.result(stored_regional["result_group"])
     attrs = {k: v for k, v in res["attrs"].items() if k not in ("date", "kind")}  # a new, latest result

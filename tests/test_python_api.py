@@ -3,7 +3,6 @@ defaults are the command line's (same settings, bit-identical stored parameters)
 
 import dataclasses
 import re
-import shutil
 from pathlib import Path
 
 import click
@@ -11,7 +10,7 @@ import numpy as np
 import pytest
 
 import vfmlab
-from acquisition.session import open_session
+from acquisition.session import copy_session, open_session
 from vfmlab.cli import cli, main
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -92,7 +91,7 @@ def test_library_and_command_store_the_same_parameters(doc_dir, tmp_path):
     with open_session(folder / "tube.h5") as s:  # the session as the doc made it, before any identification
         assert s.results("markers")
     for copy in (by_command, by_library):
-        shutil.copy(folder / "tube.h5", copy)
+        copy_session(folder / "tube.h5", copy)  # the file and its derived results
     assert main(["identify", str(by_command), "--model", "fung"]) == 0
     out = vfmlab.identify(by_library, model="fung")
     with open_session(by_command) as a, open_session(by_library) as b:

@@ -6,7 +6,7 @@ import pytest
 
 from acquisition.protocol import MMHG, parse_protocol, parse_rig, parse_specimen
 from vfmlab.cli import main
-from vfmlab.operate import _load_rig
+from vfmlab.operate import load_rig_config as _load_rig
 from vfmlab.simrig import SimScene
 
 PROTOCOL = """

@@ -283,7 +283,12 @@ def test_walk_not_repeated_while_a_quiet_file_is_unchanged(tmp_path, monkeypatch
     assert len(forks) == 1
     write_result(path, "markers", {"positions": np.zeros((1, 2, 3))}, {})  # its own open: still unchanged
     assert len(forks) == 1
-    open_session(path).close()  # the result changed the file: walked again
+    open_session(path).close()  # a result is a file of its own: the session is unchanged, not walked again
+    assert len(forks) == 1
+    with open(path, "r+b") as fh:  # a change of the session file itself: walked again
+        fh.seek(0, os.SEEK_END)
+        fh.write(b"\0")
+    open_session(path).close()
     assert len(forks) == 2
 
 

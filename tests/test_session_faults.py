@@ -1,10 +1,11 @@
 """Result writes cannot damage a session: SIGKILL at every disk write and disk full at every write.
 
 ``identify``, ``reconstruct`` and ``calibrate`` run through the real CLI (``vfmlab.cli.main``) in a
-forked child whose journaled writer (``acquisition.session._journal._JournaledFile._io``, the one place
-an append touches the disk) kills the process at its k-th write, for every k. The parent then
-opens the session as ``info`` does (which rolls an unfinished write back) and checks that the
-file is byte-identical to the one before the command. The heavy computation of each command is
+forked child whose result store (``acquisition.session._store._io``, the one place a result write
+touches the disk: writes, fsyncs, renames) kills the process at its k-th operation, for every k.
+The parent then runs ``info`` and checks that the session file is byte-identical to the one before
+the command and that its results are the earlier ones (plus the new one when the kill came after
+the manifest's rename, the commit point). The heavy computation of each command is
 computed once (identify) or stubbed (reconstruct's series, calibrate --import) so the loop is fast:
 what is under test is the write path, which is the same.
 """
@@ -23,11 +24,11 @@ import numpy as np
 import pytest
 
 from rig_sim.synthetic_session import make_session, synthetic_tube
-from acquisition.session import _journal as h5journal
+from acquisition.session import _store
 from acquisition.session import open_session
 from vfmlab.cli import main
 
-_REAL_IO = h5journal._JournaledFile._io
+_REAL_IO = _store._io
 
 
 @pytest.fixture(scope="module")
@@ -97,7 +98,7 @@ def _run_child(argv, stub, fault) -> int:
         try:
             sys.stdout = sys.stderr = open(os.devnull, "w")
             stub()
-            h5journal._JournaledFile._io = fault
+            _store._io = fault
             code = main(argv)
         finally:
             os._exit(code)
@@ -107,10 +108,10 @@ def _run_child(argv, stub, fault) -> int:
 def _count_writes(argv, stub) -> int:
     r, w = os.pipe()
 
-    def counting(self, kind, fh, offset, data, _n=[0]):
+    def counting(op, target, data=b"", _n=[0]):
         _n[0] += 1
         os.write(w, b".")
-        return _REAL_IO(self, kind, fh, offset, data)
+        return _REAL_IO(op, target, data)
 
     status = _run_child(argv, stub, counting)
     os.close(w)
@@ -141,25 +142,31 @@ def test_sigkill_at_every_write_leaves_the_session_byte_identical(command, base,
     argv, stub = _commands(path, identify_result, calib_file)[command]
     shutil.copy(base, path)
     n = _count_writes(argv, stub)
-    assert n >= 10  # journal records and file writes of one append
-    with open_session(path) as s:  # the complete append committed one new result
+    assert n >= 8  # result file: write, fsync, rename, folder fsync; manifest: the same; the folder's parent
+    with open_session(path) as s:  # the complete write committed one new result
         assert s.results()[:-1] == results_before and s.results()[-1].startswith(
             {"identify": "identification", "reconstruct": "markers", "calibrate": "calibration"}[command])
     for k in range(1, n + 1):
+        shutil.rmtree(_store.results_dir(path))
+        path.unlink()
         shutil.copy(base, path)
 
-        def kill_at_k(self, kind, fh, offset, data, _n=[0]):
+        def kill_at_k(op, target, data=b"", _n=[0]):
             _n[0] += 1
             if _n[0] == k:
                 os.kill(os.getpid(), signal.SIGKILL)
-            return _REAL_IO(self, kind, fh, offset, data)
+            return _REAL_IO(op, target, data)
 
         status = _run_child(argv, stub, kill_at_k)
         assert os.WIFSIGNALED(status) and os.WTERMSIG(status) == signal.SIGKILL, k
-        assert h5journal.journal_path(path).exists(), k
-        assert main(["info", str(path), "--json"]) == 0, k  # info rolls the unfinished write back
-        assert not h5journal.journal_path(path).exists()
+        assert main(["info", str(path), "--json"]) == 0, k
         assert path.read_bytes() == original, f"{command}: killed at write {k}/{n}: session changed"
+        with open_session(path) as s:
+            after = s.results()
+            for name in after:
+                s.result(name)  # every listed result reads
+        committed = k >= n - 1  # killed at the fsyncs after the manifest's rename: the result is there
+        assert after[:len(results_before)] == results_before and len(after) == len(results_before) + committed, k
 
 
 @pytest.mark.parametrize("command", ["identify", "reconstruct", "calibrate"])
@@ -178,25 +185,29 @@ def test_disk_full_at_every_write_leaves_the_session_byte_identical(command, bas
     try:
         stub()
         for k in range(1, n + 1):
+            shutil.rmtree(_store.results_dir(path), ignore_errors=True)
+            path.unlink()
             shutil.copy(base, path)
 
-            def full_from_k(self, kind, fh, offset, data, _n=[0]):
+            def full_from_k(op, target, data=b"", _n=[0]):
                 _n[0] += 1
-                if _n[0] >= k:
+                if _n[0] >= k and op != "fsync_dir":
                     raise OSError(errno.ENOSPC, "No space left on device")
-                return _REAL_IO(self, kind, fh, offset, data)
+                return _REAL_IO(op, target, data)
 
-            saved["io"] = h5journal._JournaledFile._io
-            h5journal._JournaledFile._io = full_from_k
+            saved["io"] = _store._io
+            _store._io = full_from_k
             try:
                 rc = main(argv)
             finally:
-                h5journal._JournaledFile._io = saved["io"]
+                _store._io = saved["io"]
             err = capsys.readouterr().err
+            if k >= n - 1:  # only the folder fsyncs are left: they do not fail on a full disk
+                continue
             assert rc == 1, k
             assert "disk full while writing the result" in err and "more needed" in err, err
             assert "left exactly as it was before" in err
-            assert not h5journal.journal_path(path).exists()
             assert path.read_bytes() == original, f"{command}: disk full at write {k}/{n}: session changed"
+            assert not _store.results_dir(path).exists(), k  # nothing committed: no trace
     finally:
         identification.identify, rp.reconstruct_series = stub_state["identify"], stub_state["series"]

@@ -34,6 +34,7 @@ class Bench:
     sampler : Sampler (started)
     cameras : list of open Camera, in rig-file order
     stage : callable(stretch) or None (no motorised stage: the operator sets it)
+    motor : ZaberStage or None (the rig file's ``[stage]``, opened, never moved here)
     operator_pressure : callable(Pa) or None (simulated operator's hand, for unattended manual mode)
     place_board, remove_board : callables or None (simulated hand with the calibration board)
     sim : SimBench or None
@@ -49,6 +50,7 @@ class Bench:
     place_board: Any = None
     remove_board: Any = None
     sim: Any = None
+    motor: Any = None
     _stack: contextlib.ExitStack = field(default_factory=contextlib.ExitStack, repr=False)
 
     def instruments(self) -> dict[str, dict[str, Any]]:
@@ -60,6 +62,8 @@ class Bench:
         """``rig=`` for SessionWriter.create: the rig file as run and the cameras' read-back settings."""
         out = {"name": self.config.name, "config_text": self.config.text, "simulated": self.sim is not None,
                "cameras": [c.describe() for c in self.cameras]}
+        if self.motor is not None:  # the motorised stage: port, microstep, soft limits, x0, gauge length
+            out["stage"] = self.stage.settings() if hasattr(self.stage, "settings") else self.motor.settings()
         if self.config.window is not None:  # reconstruction.refraction.Window.from_dict reads it back
             out["window"] = self.config.window.to_dict()
         return out
@@ -123,16 +127,35 @@ def open_bench(config: RigConfig, sim: Any = None, *, rate_hz: float = 50.0) -> 
                 raise BenchError(f"camera {cc.name!r} ({cc.backend}): {exc}") from exc
             stack.callback(cam.close)
             cameras.append(cam)
+        motor = _open_motor(config, sim, stack)
         sampler = Sampler(pressure, load_cell, rate_hz=rate_hz)
         sampler.start()
         stack.callback(sampler.stop)
         bench = Bench(config, pressure, load_cell, sampler, cameras,
-                      stage=sim.set_stretch if sim is not None else None,
+                      stage=sim.set_stretch if sim is not None and motor is None else None,
                       operator_pressure=sim.set_operator_pressure if sim is not None else None,
                       place_board=sim.place_board if sim is not None else None,
-                      remove_board=sim.remove_board if sim is not None else None, sim=sim,
+                      remove_board=sim.remove_board if sim is not None else None, sim=sim, motor=motor,
                       _stack=stack)
         return bench
     except BaseException:
         stack.close()
         raise
+
+
+def _open_motor(config: RigConfig, sim: Any, stack: contextlib.ExitStack) -> Any:
+    """The rig file's ``[stage]`` (a Zaber axis), opened but not moved; None without one."""
+    sc = config.stage
+    if sc is None:
+        return None
+    from acquisition import StageSettings, open_zaber
+
+    port = sim.stage_port if sc.port == "sim" else sc.port
+    try:
+        kw = {"baudrate": sc.baudrate} if sc.baudrate else {}
+        motor = open_zaber(port, StageSettings(sc.microstep_m, sc.min_m, sc.max_m, sc.device, sc.axis), **kw)
+    except Exception as exc:
+        raise BenchError(f"stage on {port}: {exc}") from exc
+    stack.callback(motor.close)
+    check_identity("stage", sc.serial_number, str(port))
+    return motor

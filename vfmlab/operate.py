@@ -33,6 +33,7 @@ from acquisition.session import (CameraSpec, SessionError, SessionWriter, Specim
 from vfmlab.bench import Bench, BenchError, open_bench
 from vfmlab.display import fixed
 from vfmlab.live import LiveView, TerminalOperator, format_duration
+from vfmlab.preflight import keep_check, preflight
 
 __all__ = ["OperateError", "Outcome", "run_session", "resume_session", "DEFAULT_SIM_RIG"]
 
@@ -79,7 +80,8 @@ def _sim_bench(rig: RigConfig, specimen: SpecimenFile, protocol: Protocol, sim_s
     return SimBench(rig, specimen, protocol, time_scale=sim_speed)
 
 
-def _load_rig(rig_path: str | None, sim: bool, sim_seed: int | None = None) -> RigConfig:
+def load_rig_config(rig_path: str | None, sim: bool, sim_seed: int | None = None) -> RigConfig:
+    """The rig file (or with ``sim`` and no file the built-in simulated rig), ``sim_seed`` written in."""
     if rig_path:
         rig = load_rig(rig_path)
     elif sim:
@@ -225,7 +227,8 @@ def run_session(protocol_path: str, specimen_path: str, out: str, *, rig_path: s
                 sim: bool = False, yes: bool = False, sim_speed: float = 1.0, console: Console,
                 detector: Callable[[np.ndarray], int] | None = None, sim_seed: int | None = None,
                 observer: Callable[[RunnerState, Bench], None] | None = None, live_models: tuple[str, ...] = (),
-                live_options: dict[str, Any] | None = None, **runner_kwargs: Any) -> Outcome:
+                live_options: dict[str, Any] | None = None, check_seconds: float = 0.0,
+                **runner_kwargs: Any) -> Outcome:
     """``vfmlab run``: validate, assemble the rig, create the session file and run the protocol.
 
     ``observer(state, bench)`` is called at every runner update (tests inject faults with it).
@@ -233,10 +236,11 @@ def run_session(protocol_path: str, specimen_path: str, out: str, *, rig_path: s
     imperfections, image and instrument noise of the simulated rig); None keeps the file's.
     ``live_models``: models identified while the test runs (:mod:`vfmlab.live_results`; keyword
     arguments of :class:`~vfmlab.live_results.LiveResults` in ``live_options``); their final
-    estimates are stored as "identification" results.
+    estimates are stored as "identification" results. ``check_seconds`` > 0: the pre-flight check
+    (:mod:`vfmlab.preflight`) with that many seconds of readings, kept in the session.
     """
     try:
-        rig = _load_rig(rig_path, sim, sim_seed if sim else None)
+        rig = load_rig_config(rig_path, sim, sim_seed if sim else None)
         protocol = load_protocol(protocol_path, rig)
         specimen = load_specimen(specimen_path)
     except ConfigError as exc:
@@ -268,9 +272,12 @@ def run_session(protocol_path: str, specimen_path: str, out: str, *, rig_path: s
         specs = [s for s in specs if s.name in names]
         bench.cameras = [c for c in bench.cameras if c.name in names]
         _check_resources(protocol, specs, out_path, console)
+        _stage_for_run(bench, specimen, protocol, console, yes, home=False)
+        check = preflight(bench, rig, console, yes, check_seconds)
         if not yes and not TerminalOperator(console).choose("Start the test? Nothing has moved yet.",
                                                            ["start", "cancel"]) == "start":
             raise OperateError("cancelled by the operator before the start; no file written")
+        _stage_for_run(bench, specimen, protocol, console, yes, home=True)
         try:
             ends, ends_source = specimen_ends(rig, specimen, sim, console)
             writer = SessionWriter.create(
@@ -280,6 +287,8 @@ def run_session(protocol_path: str, specimen_path: str, out: str, *, rig_path: s
                 load_cell_measures=rig.load_cell.measures, overwrite=replace_leftover)
         except (SessionError, OSError) as exc:
             raise OperateError(str(exc)) from None
+        for line in check.lines() if check is not None else []:
+            writer.add_event("check", line)
         results = _live_results(out_path, specimen, rig, live_models, live_options, protocol, console)
         try:
             runner, ctrl_c = _execute(runner_kwargs, protocol, writer, bench, console, yes, 0, True, True, detector,
@@ -289,6 +298,8 @@ def run_session(protocol_path: str, specimen_path: str, out: str, *, rig_path: s
                 results.close(cancel=True)
             raise
     outcome = _report(runner, out_path, console, ctrl_c)
+    if check is not None:
+        keep_check(check, out_path, console)
     if results is not None:
         _finish_live_results(results, out_path, console, cancel=outcome.status != "complete")
     return outcome
@@ -386,6 +397,8 @@ def resume_session(path: str, *, rig_path: str | None = None, sim: bool = False,
         if missing:
             raise OperateError(f"cameras {missing} of the session are not in the rig file")
         _camera_specs(bench)
+        _stage_for_run(bench, specimen, protocol, console, yes, home=False)
+        _stage_for_run(bench, specimen, protocol, console, yes, home=True)
         try:
             writer = SessionWriter.resume(path)
         except SessionError as exc:
@@ -423,6 +436,18 @@ def _confirm_stored_devices(rig: RigConfig, path: str, yes: bool, console: Conso
                   "They come from the session file, not from a rig file of this machine.")
     if TerminalOperator(console).choose("Use these devices?", ["no", "yes"]) != "yes":
         raise OperateError("resume cancelled: give --rig RIG.toml (this machine's rig file)", exit_code=2)
+
+
+def _stage_for_run(bench: Bench, specimen: SpecimenFile, protocol: Protocol, console: Console, yes: bool,
+                   home: bool) -> None:
+    """:func:`vfmlab.axial.prepare_stage`, its errors as OperateError."""
+    from vfmlab.axial import StageSetupError, prepare_stage
+
+    try:
+        prepare_stage(bench, specimen, protocol, TerminalOperator(console).choose, yes=yes, home=home,
+                      say=console.print)
+    except StageSetupError as exc:
+        raise OperateError(str(exc), exit_code=exc.exit_code) from None
 
 
 def _report(runner: SessionRunner, path: Path, console: Console, ctrl_c: bool = False) -> Outcome:

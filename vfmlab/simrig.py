@@ -23,9 +23,9 @@ import numpy as np
 
 from acquisition.cameras import FunctionCamera
 from acquisition.errors import InputError
-from acquisition.protocol import MMHG, Protocol, RigConfig, SpecimenFile
+from acquisition.protocol import MMHG, Protocol, RigConfig, SimFaults, SpecimenFile
 
-__all__ = ["SimScene", "SimBench"]
+__all__ = ["SimScene", "SimBench", "serve_until", "simulated_instruments"]
 
 log = logging.getLogger(__name__)
 
@@ -84,11 +84,13 @@ class SimScene:
     image_size : (width, height) px
     n_markers : int
     seed : int
+    faults : SimFaults, optional
+        Cameras rendered defocused, over-exposed or without markers (``[simulation.faults]``).
     """
 
     def __init__(self, specimen: SpecimenFile, protocol: Protocol, camera_names: list[str],
                  image_size: tuple[int, int] = (320, 240), n_markers: int = 300, seed: int = 0,
-                 material: str = "fung", clamped: bool = False):
+                 material: str = "fung", clamped: bool = False, faults: SimFaults | None = None):
         from rig_sim import camera_ring, random_marker_layout
 
         pc = protocol.preconditioning
@@ -107,6 +109,7 @@ class SimScene:
                                            margin=min(4e-3, specimen.length / 5), seed=seed)
         self.image_size = image_size
         self.seed = seed
+        self.faults = faults or SimFaults()
         self._lock = threading.Lock()
         self._cache: tuple[float, tuple[float, float], list[np.ndarray]] | None = None
         self.renders = 0
@@ -192,9 +195,30 @@ class SimScene:
                 return self._cache[2]
             pts, nrm, prof = self.markers(pressure, stretch)
             frame = render_markers(self.cameras, pts, nrm, prof, seed=self.seed + self.renders)
+            images = self._with_faults(list(frame.images), pts, nrm, prof)
             self.renders += 1
-            self._cache = (time.monotonic(), (pressure, stretch), frame.images)
-            return frame.images
+            self._cache = (time.monotonic(), (pressure, stretch), images)
+            return images
+
+    def _with_faults(self, images: list[np.ndarray], pts: np.ndarray, nrm: np.ndarray, prof) -> list[np.ndarray]:
+        """``images`` with the injected camera faults (``self.faults``) applied."""
+        f = self.faults
+        if not (f.defocus or f.saturate or f.no_markers):
+            return images
+        from rig_sim import render_markers
+        from rig_sim.camera_faults import defocus, overexpose
+
+        if f.no_markers:
+            bare = render_markers(self.cameras, np.full_like(pts[:1], np.nan), nrm[:1], prof,
+                                  seed=self.seed + self.renders).images
+        for i, name in enumerate(self.camera_names):
+            if name in f.no_markers:
+                images[i] = bare[i]
+            if name in f.defocus:
+                images[i] = defocus(images[i], f.defocus_px)
+            if name in f.saturate:
+                images[i] = overexpose(images[i])
+        return images
 
 
 class SimBench:
@@ -221,9 +245,10 @@ class SimBench:
         self.config, self.specimen, self.protocol = rig_config, specimen, protocol
         self.time_scale = float(time_scale)
         self.simulation = rig_config.simulation
-        self.stretch = 1.0
+        self._stretch = 1.0
         self.rig = None
         self.scene: SimScene | None = None
+        self.stage = None  # rig_sim.zaber_sim.SimulatedStage when the rig file's [stage] port is "sim"
 
     def __enter__(self) -> SimBench:
         from rig_sim.instruments import SimulatedRig
@@ -234,21 +259,56 @@ class SimBench:
             size = (int(cams[0].settings.get("width", 320)), int(cams[0].settings.get("height", 240)))
         sim = self.simulation
         self.scene = SimScene(self.specimen, self.protocol, [c.name for c in cams], size, sim.n_markers, sim.seed,
-                              material=sim.material, clamped=sim.clamped)
+                              material=sim.material, clamped=sim.clamped, faults=sim.faults)
         self.rig = SimulatedRig(pressure_source=self.config.pressure.mode,
                                 mechanics=self.scene.wall_force, tau_s=0.3 / self.time_scale,
-                                rng=np.random.default_rng(self.simulation.seed))
+                                rng=np.random.default_rng(self.simulation.seed),
+                                force_drift_n_per_s=sim.faults.force_drift)
         if self.config.load_cell.measures == "total":
             # a cell behind a closed cannula reads F_wall - p pi r_i^2 (decision 0003)
             r_i = self.specimen.radius - self.specimen.thickness
             self.rig.force_model.end_area_m2 = float(np.pi * r_i**2)
         self.rig.__enter__()
+        if self.config.stage is not None and self.config.stage.port == "sim":
+            self._start_stage()
         return self
 
+    def _start_stage(self) -> None:
+        """Serve a simulated Zaber axis on a pty; the specimen's stretch then follows its carriage."""
+        from rig_sim.zaber_sim import SimulatedStage, ZaberDevice
+
+        sc = self.config.stage
+        top = int(np.ceil(sc.max_m / sc.microstep_m)) + 1000
+        speed = 20e-3 / sc.microstep_m * self.time_scale  # 20 mm/s, faster with --sim-speed
+        device = ZaberDevice(speed=speed, limit_min=0, limit_max=top, start=int(round(sc.x0_m / sc.microstep_m)))
+        self.stage = SimulatedStage(device, rng=np.random.default_rng(self.simulation.seed + 7)).start()
+        mechanics = self.scene.wall_force
+        self.rig.set_mechanics(lambda pressure, _stretch: mechanics(pressure, self.stretch))
+
     def __exit__(self, *exc: object) -> None:
+        if self.stage is not None:
+            self.stage.close()
+            self.stage = None
         if self.rig is not None:
             self.rig.__exit__(*exc)
             self.rig = None
+
+    @property
+    def stretch(self) -> float:
+        """The specimen's axial stretch now: the simulated carriage's (with a ``[stage]``), else the last set."""
+        if self.stage is None:
+            return self._stretch
+        from acquisition import stretch_from_position
+
+        sc = self.config.stage
+        return stretch_from_position(self.stage.device.position() * sc.microstep_m,
+                                     gauge_length_m=self.specimen.length, x0_m=sc.x0_m, direction=sc.direction)
+
+    @property
+    def stage_port(self) -> str:
+        if self.stage is None:
+            raise RuntimeError("the rig file has no [stage] with port = \"sim\"")
+        return self.stage.port
 
     # ports for the drivers
     @property
@@ -262,7 +322,7 @@ class SimBench:
     def set_stretch(self, stretch: float) -> None:
         """The motorised stage of the simulated rig."""
         self.rig.set_stretch(stretch)
-        self.stretch = float(stretch)
+        self._stretch = float(stretch)
 
     def place_board(self, index: int, n_views: int) -> None:
         """The operator's hand placing the calibration board."""
@@ -283,3 +343,34 @@ class SimBench:
             return self.scene.images(self.rig.true_pressure(), self.stretch)[index]
 
         return FunctionCamera(name, render, settings, identity=f"simulated camera {name} (rig_sim ring)")
+
+
+def simulated_instruments(use_socket: bool, manual: bool, load_cell_measures: str, seed: int):
+    """``vfmlab sim-rig``'s instruments (not started): a Mensor CPC controller (``manual``: a CPG2500 indicator)
+    and a Mark-10 load cell on pseudo-terminals (``use_socket``: localhost sockets)."""
+    from rig_sim.instruments import SimulatedRig
+
+    return SimulatedRig(transport="socket" if use_socket else "pty",
+                        pressure_source="manual" if manual else "controller", rng=np.random.default_rng(seed),
+                        load_cell_measures=load_cell_measures)
+
+
+def serve_until(duration: float | None) -> None:
+    """Return after ``duration`` s (None: at Ctrl-C or SIGTERM), the simulators serving meanwhile."""
+    import signal
+
+    t_end = None if duration is None else time.monotonic() + duration
+    previous = None
+    if threading.current_thread() is threading.main_thread():
+        def handler(signum, frame):
+            raise KeyboardInterrupt
+
+        previous = signal.signal(signal.SIGTERM, handler)  # SIGTERM stops the simulators cleanly, as Ctrl-C
+    try:
+        while t_end is None or time.monotonic() < t_end:
+            time.sleep(0.05 if t_end is not None else 0.5)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)

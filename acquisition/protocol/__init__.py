@@ -50,8 +50,10 @@ from acquisition.protocol._rig_model import (
     PortConfig,
     RigConfig,
     SafetyLimits,
+    SimFaults,
     SimulationConfig,
     SpecimenFile,
+    StageConfig,
     WindowConfig,
 )
 from acquisition.protocol._units import MMHG, PRESSURE_UNITS, ConfigError
@@ -84,4 +86,6 @@ __all__ = [
     "END_CONDITIONS",
     "SIMULATED_MATERIALS",
     "SimulationConfig",
+    "SimFaults",
+    "StageConfig",
 ]

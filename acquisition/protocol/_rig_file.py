@@ -14,8 +14,10 @@ from acquisition.protocol._rig_model import (
     PortConfig,
     RigConfig,
     SafetyLimits,
+    SimFaults,
     SimulationConfig,
     SpecimenFile,
+    StageConfig,
     WindowConfig,
 )
 from acquisition.protocol._toml import _is, _loads, _read, _Table
@@ -38,9 +40,14 @@ def parse_rig(data: dict | str, text: str = "", source: str = "<rig>") -> RigCon
     meta = top.table("rig")
     name = Path(source).stem
     ends = ""
+    calibration = ""
     if meta is not None:
         name = meta.get("name", name, str)
         ends = _ends(meta)
+        calibration = meta.get("calibration", "", str)
+        if calibration and not Path(calibration).expanduser().exists():
+            meta.fail("calibration", f"{calibration!r} does not exist (a cameras file: .toml, .yaml or an OpenPTV "
+                                     f"folder; paths are relative to the folder vfmlab runs in: {Path.cwd()})")
         meta.done()
     pressure = _port(top.table("pressure", required=True), is_load_cell=False)
     load_cell = _port(top.table("load_cell", required=True), is_load_cell=True)
@@ -82,11 +89,55 @@ def parse_rig(data: dict | str, text: str = "", source: str = "<rig>") -> RigCon
             t.fail("material", f"expected one of {list(SIMULATED_MATERIALS)}; got {material!r}")
         simulation = SimulationConfig(material, t.integer("n_markers", simulation.n_markers, lo=10),
                                       t.get("clamped", simulation.clamped, bool),
-                                      t.integer("seed", simulation.seed))
+                                      t.integer("seed", simulation.seed),
+                                      _sim_faults(t.table("faults"), [c.name for c in cams]))
         t.done()
     window = _window(top.table("window"))
+    stage = _stage(top.table("stage"))
     top.done()
-    return RigConfig(name, pressure, load_cell, tuple(cams), safety, simulation, text, source, ends, window)
+    return RigConfig(name, pressure, load_cell, tuple(cams), safety, simulation, text, source, ends, window, stage,
+                     calibration)
+
+
+def _sim_faults(t: _Table | None, cameras: list[str]) -> SimFaults:
+    """``[simulation.faults]``: camera names per image fault, and the load cell's drift (N/s)."""
+    if t is None:
+        return SimFaults()
+    lists = []
+    for key in ("defocus", "saturate", "no_markers"):
+        names = t.get(key, [], list)
+        for n in names:
+            if n not in cameras:
+                t.fail(key, f"expected names of [[camera]] entries {cameras}; got {n!r}")
+        lists.append(tuple(names))
+    drift = t.number("force_drift_N_per_s", 0.0)
+    blur = t.number("defocus_px", SimFaults.defocus_px, lo=0.0, lo_open=True)
+    t.done()
+    return SimFaults(lists[0], lists[1], lists[2], force_drift=drift, defocus_px=blur)
+
+
+def _stage(t: _Table | None) -> StageConfig | None:
+    """``[stage]``: the motorised axial stage; lengths in mm in the file, m in the result."""
+    if t is None:
+        return None
+    port = t.get("port", kind=str)
+    microstep = t.number("microstep_um", lo=0.0, lo_open=True) * 1e-6
+    lo, hi = t.number("min_mm") * 1e-3, t.number("max_mm") * 1e-3
+    if not lo < hi:
+        t.fail("max_mm", f"expected max_mm > min_mm = {lo * 1e3:g}; got {hi * 1e3:g}")
+    x0 = t.number("x0_mm") * 1e-3
+    if not lo <= x0 <= hi:
+        t.fail("x0_mm", f"expected a position within [min_mm, max_mm] = [{lo * 1e3:g}, {hi * 1e3:g}]; "
+                        f"got {x0 * 1e3:g}")
+    direction = t.integer("direction", 1, lo=-1)
+    if direction not in (1, -1):
+        t.fail("direction", f"expected +1 (a larger position lengthens the specimen) or -1; got {direction}")
+    stage = StageConfig(port, microstep, lo, hi, x0, direction, t.integer("device", 1, lo=1),
+                        t.integer("axis", 1, lo=1), t.get("home", True, bool),
+                        t.number("timeout_s", 60.0, lo=0.0, lo_open=True), t.get("serial_number", "", str),
+                        t.integer("baudrate", 0, lo=1))
+    t.done()
+    return stage
 
 
 def _window(t: _Table | None) -> WindowConfig | None:

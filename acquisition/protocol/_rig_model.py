@@ -89,6 +89,65 @@ class WindowConfig:
 
 
 @dataclass(frozen=True)
+class SimFaults:
+    """Faults the simulated rig injects (rig file ``[simulation.faults]``), for testing ``vfmlab check-rig``.
+
+    ``defocus``, ``saturate``, ``no_markers``: names of cameras rendered out of focus (Gaussian blur of
+    ``defocus_px`` px), over-exposed (gain 4, clipped) or seeing no markers; ``force_drift``: a load cell whose
+    zero drifts by this many N/s.
+    """
+
+    defocus: tuple[str, ...] = ()
+    saturate: tuple[str, ...] = ()
+    no_markers: tuple[str, ...] = ()
+    force_drift: float = 0.0
+    defocus_px: float = 3.0
+
+    @property
+    def any(self) -> bool:
+        return bool(self.defocus or self.saturate or self.no_markers or self.force_drift)
+
+
+@dataclass(frozen=True)
+class StageConfig:
+    """The motorised axial stage (rig file ``[stage]``), SI.
+
+    Attributes
+    ----------
+    port : str
+        Serial port of the Zaber controller, or ``"sim"`` (the simulated stage, ``--sim``).
+    microstep_m : float
+        Size of one microstep, m.
+    min_m, max_m : float
+        Soft limits of the carriage position, m.
+    x0_m : float
+        Carriage position at which the specimen has its gauge length (stretch 1), m.
+    direction : {+1, -1}
+        +1 when increasing the carriage position lengthens the specimen.
+    device, axis : int
+        Zaber device address and axis.
+    home : bool
+        Home the axis before the test (asks the operator first unless ``--yes``).
+    timeout_s : float
+        Time allowed for one move, s.
+    serial_number, baudrate : as for the other instruments.
+    """
+
+    port: str
+    microstep_m: float
+    min_m: float
+    max_m: float
+    x0_m: float
+    direction: int = 1
+    device: int = 1
+    axis: int = 1
+    home: bool = True
+    timeout_s: float = 60.0
+    serial_number: str = ""
+    baudrate: int = 0
+
+
+@dataclass(frozen=True)
 class SimulationConfig:
     """The simulated specimen behind a ``port = "sim"`` rig (ignored by real rigs).
 
@@ -101,6 +160,7 @@ class SimulationConfig:
     n_markers: int = 300
     clamped: bool = False
     seed: int = 0
+    faults: SimFaults = field(default_factory=SimFaults)
 
 
 SIMULATED_MATERIALS = ("fung", "delfino", "hgo", "neohookean")
@@ -120,10 +180,16 @@ class RigConfig:
     ends: str = ""
     #: The flat window the cameras look through into the bath (``[window]``), None = none.
     window: WindowConfig | None = None
+    #: The motorised axial stage (``[stage]``), None = the operator sets the stretch.
+    stage: StageConfig | None = None
+    #: A cameras calibration file of the rig (``[rig] calibration``), '' = none (check-rig then skips the
+    #: markers-in-two-views line).
+    calibration: str = ""
 
     @property
     def simulated(self) -> bool:
-        return self.pressure.port == "sim" or self.load_cell.port == "sim"
+        return self.pressure.port == "sim" or self.load_cell.port == "sim" or (
+            self.stage is not None and self.stage.port == "sim")
 
 
 @dataclass(frozen=True)

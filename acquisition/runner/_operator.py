@@ -51,7 +51,8 @@ class AutoOperator:
 
     On a Ctrl-C pause it answers ``on_interrupt`` (default "quit": the session stays resumable);
     when stability times out it captures anyway (with a warning event); when a capture still
-    fails after the runner's automatic retries it aborts (vents). ``set_pressure`` /
+    fails after the runner's automatic retries it aborts (vents); a stage fault it clears (a few times
+    per session, then it quits resumably). ``set_pressure`` /
     ``set_stretch`` call the optional hooks (the simulated rig's hand on the valve).
     """
 
@@ -89,6 +90,8 @@ class AutoOperator:
             return "abort"
         if "capture" in options:
             return "capture"
+        if "clear" in options:  # a stage fault: clear it and retry the move (the runner bounds how often)
+            return "clear"
         return self.on_interrupt if self.on_interrupt in options else options[-1]
 
     def notify(self, message: str) -> None:

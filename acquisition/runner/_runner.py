@@ -52,7 +52,13 @@ class SessionRunner(_Preparation, _SafetyChecks, _Recording):
         is asked to retry or abort.
     clock, sleep : injectable time sources.
     free_space : callable() -> bytes free where the session file lives (injectable for tests).
+
+    A ``stage`` with ``clear_fault()`` (:class:`acquisition.stage.StretchStage`) that raises an instrument
+    fault pauses the session (pressure held) until the operator clears it; see :meth:`_stage_fault`.
     """
+
+    #: Stage faults that may be cleared in one session before only quit or abort are offered.
+    STAGE_CLEARS = 3
 
     def __init__(self, protocol: Protocol, writer: Any, *, pressure: Any, sampler: Any,
                  cameras: Sequence[Camera], operator: Operator, pressure_mode: str = "controller",
@@ -85,6 +91,7 @@ class SessionRunner(_Preparation, _SafetyChecks, _Recording):
         self._finalizing = False
         self.capture_retries, self.retry_delay_s = int(capture_retries), float(retry_delay_s)
         self._capture_failures = 0
+        self._stage_faults = 0
         self.status = "running"
         self.resumable = False  # after run(): whether an 'aborted' run left the file resumable
         self.stop_reason = ""
@@ -251,6 +258,9 @@ class SessionRunner(_Preparation, _SafetyChecks, _Recording):
             try:
                 return fn(*args)
             except InstrumentError as exc:
+                if what == "stage" and hasattr(self.stage, "clear_fault"):
+                    self._stage_fault(exc)  # paused until cleared (or quit/abort); then the move is retried
+                    continue
                 failures += 1
                 msg = f"{what}: command failed ({type(exc).__name__}: {exc})"
                 self._warn(msg)
@@ -258,6 +268,44 @@ class SessionRunner(_Preparation, _SafetyChecks, _Recording):
                 if failures >= attempts and self.sampler.healthy:
                     raise SessionAborted(f"{what} refuses the command after {failures} attempts: {exc}") from exc
                 self._hold(self.retry_delay_s)  # pauses here while the sampler sees the fault
+
+    def _stage_fault(self, exc: InstrumentError) -> None:
+        """A motorised stage fault (stall, driver off, timeout): stop the axis, hold the pressure, pause.
+
+        The operator (the unattended one: once per move) clears the stage's latched fault and the move is
+        retried; quit leaves the session resumable, abort vents it.
+        """
+        msg = f"stage fault, session paused (pressure held): {type(exc).__name__}: {exc}"
+        self._warn(msg)
+        self._event("fault", msg)
+        self.operator.notify(msg)
+        stop = getattr(self.stage, "stop", None)
+        try:
+            if stop is not None:
+                stop()
+        except InstrumentError as err:
+            log.error("stage stop after the fault failed: %s", err)
+        prev = self.state.phase
+        self._phase("paused", msg)
+        self._stage_faults += 1
+        options = ["clear", "quit", "abort"] if self._stage_faults <= self.STAGE_CLEARS else ["quit", "abort"]
+        choice = self.operator.choose("Stage fault: check the carriage and the specimen, then clear the fault "
+                                      "and retry the move (clear), stop resumably (quit) or abort?", options)
+        self._event("operator", f"operator chose {choice!r}")
+        if choice == "abort":
+            raise SessionAborted(f"aborted after a stage fault: {exc}")
+        if choice == "quit":
+            raise SessionQuit("stopped after a stage fault; continue with `vfmlab resume`")
+        clear: Any = getattr(self.stage, "clear_fault", list)
+        try:
+            flags = clear()
+        except InstrumentError as err:
+            self._warn(f"stage: clearing the fault failed ({err}); retrying the move")
+            flags = []
+        self._event("recovered", "stage fault cleared" + (f" (flags {', '.join(flags)})" if flags else "")
+                    + "; retrying the move")
+        self.operator.notify("stage fault cleared, resuming")
+        self._phase(prev, "resumed after the stage fault")
 
     def _wait_stable(self, target: float) -> None:
         stab = self.protocol.stability

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import h5py
 
-from acquisition.session._journal import LockTimeout, lock_timeout, wait_lock
+from acquisition.session._locks import LockTimeout, lock_timeout, wait_lock
 from acquisition.session._schema import SessionError
 
 

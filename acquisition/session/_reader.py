@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 import os
 from pathlib import Path
 from typing import Any
@@ -10,9 +11,9 @@ from typing import Any
 import h5py
 import numpy as np
 
-from acquisition.session import _guards
-from acquisition.session._guards import _READ_FAULTS, _reads
-from acquisition.session._journal import JournalError, LockTimeout, recover
+from acquisition.session import _guards, _store
+from acquisition.session._guards import _READ_FAULTS, _reads, damaged_error
+from acquisition.session._locks import legacy_journal
 from acquisition.session._opening import _open_possibly_growing
 from acquisition.session._preflight import _preflight
 from acquisition.session._schema import (
@@ -29,6 +30,9 @@ from acquisition.session._schema import (
 )
 
 
+log = logging.getLogger("acquisition.session")
+
+
 class Session:
     """A validated, read-only view of a session file. Obtain with :func:`open_session`.
 
@@ -40,6 +44,8 @@ class Session:
         self._f = h5file
         self.path = path
         self._entry = h5file["entry"]
+        self._raw_size = path.stat().st_size
+        self._manifest: _store.Manifest | None = None
 
     # -- identity and status --------------------------------------------------------------
     @property
@@ -155,9 +161,11 @@ class Session:
     @property
     @_reads("the step table (/entry/steps)")
     def n_steps(self) -> int:
-        """Complete step rows (a writer killed mid-append may have left a longer column)."""
+        """Complete step rows: in every column and with every camera's frame (a writer killed mid-append
+        may have left a longer column or an extra frame)."""
         steps = self._entry["steps"]
-        return int(min(steps[name].shape[0] for name in _STEP_COLUMNS))
+        images = steps.get("images") or {}
+        return int(min([steps[name].shape[0] for name in _STEP_COLUMNS] + [ds.shape[0] for ds in images.values()]))
 
     @property
     @_reads("the step table (/entry/steps)")
@@ -184,8 +192,9 @@ class Session:
 
     @_reads("the calibration images of camera {0!r} (/entry/calibration/images/{0})")
     def calibration_images(self, camera: str) -> np.ndarray:
-        """Calibration-board frames of ``camera``, shape (n_views, H, W)."""
-        return self._entry["calibration/images"][camera][()]
+        """Calibration-board frames of ``camera``, shape (n_views, H, W): the views every camera has (complete)."""
+        calib = self._entry["calibration/images"]
+        return calib[camera][:min(ds.shape[0] for ds in calib.values())]
 
     def log(self, channel: str) -> dict[str, np.ndarray]:
         """The continuous log of "pressure" (Pa) or "force" (N): time, t_monotonic, value, raw, seq."""
@@ -216,46 +225,63 @@ class Session:
         return [{"time": float(t), "kind": str(k), "message": str(m)} for t, k, m in zip(times, kinds, messages)]
 
     # -- derived results ---------------------------------------------------------------------
+    @property
+    @_reads("the session identity (/entry@session_uuid)")
+    def uuid(self) -> str:
+        """The uuid stored at creation ("" for sessions written before it existed)."""
+        return str(_decode(self._entry.attrs.get("session_uuid", "")))
+
+    def _beside(self) -> _store.Manifest:
+        """The derived results beside the file that belong to this session (read once)."""
+        if self._manifest is None:
+            try:
+                self._manifest = _store.read_manifest(self.path, self.uuid, self._raw_size)
+            except OSError as exc:
+                raise damaged_error(self.path, "the list of derived results beside the file", exc) from None
+            if self._manifest.note:
+                log.warning("%s", self._manifest.note)
+        return self._manifest
+
+    @property
+    def results_note(self) -> str:
+        """One sentence when results beside the file are not shown (another session's, unreadable), else ""."""
+        return self._beside().note
+
+    @_reads("the list of derived results (/entry/results)")
+    def results_in_file(self) -> list[str]:
+        """Names of the result groups stored inside the session file (sessions of older versions)."""
+        res = self._entry.get("results")
+        return [] if res is None else list(res.keys())
+
     @_reads("the list of derived results (/entry/results)")
     def results(self, kind: str | None = None) -> list[str]:
-        """Names of derived result groups (e.g. "markers_001"), oldest first, optionally of one kind."""
+        """Names of derived results (e.g. "markers_001"), oldest first, optionally of one kind.
+
+        Results beside the file (``<session>.results/``) and results inside older session files alike.
+        """
         res = self._entry.get("results")
-        if res is None:
-            return []
-        names = sorted(res.keys(), key=lambda n: (str(_decode(res[n].attrs.get("date", ""))), n))
-        if kind is not None:
-            names = [n for n in names if _decode(res[n].attrs.get("kind", "")) == kind]
-        return names
+        found = [] if res is None else [(str(_decode(res[n].attrs.get("date", ""))), n,
+                                         str(_decode(res[n].attrs.get("kind", "")))) for n in res]
+        found += [(str(e.get("date", "")), str(e["name"]), str(e.get("kind", ""))) for e in self._beside().entries]
+        return [name for _date, name, k in sorted(found) if kind is None or k == kind]
 
     def result(self, name: str) -> dict[str, Any]:
         """One result: ``{"name", "kind", "arrays": {...}, "parameters": {...}, "attrs": {...}, "units": {...}}``."""
         if name not in self.results():
             raise SessionError(f"{self.path}: no result {name!r}; results are {self.results()}")
-        return self._result(name)
+        entry = self._beside().entry(name)
+        if entry is None:
+            return self._result(name)
+        return self._result_beside(name, entry)
 
     @_reads("the result {0!r} (/entry/results/{0})")
     def _result(self, name: str) -> dict[str, Any]:
-        g = self._entry["results"][name]
-        arrays, units = {}, {}
-        for key, ds in g.items():
-            if isinstance(ds, h5py.Dataset):
-                arrays[key] = _read(ds)
-                if "units" in ds.attrs:
-                    units[key] = str(_decode(ds.attrs["units"]))
-        attrs = {k: _decode(v) for k, v in g.attrs.items() if k not in ("parameters", "NX_class")}
-        for key, value in list(attrs.items()):
-            if isinstance(value, str) and key.endswith("_json"):
-                attrs[key[:-5]] = json.loads(value)
-                del attrs[key]
-        _check_result_arrays(str(attrs.get("kind", "")), arrays)
-        return {
-            "name": name,
-            "kind": str(attrs.get("kind", "")),
-            "arrays": arrays,
-            "parameters": json.loads(str(_decode(g.attrs.get("parameters", "{}")))),
-            "attrs": attrs,
-            "units": units,
-        }
+        return _result_of(name, self._entry["results"][name])
+
+    @_reads("the result {0!r} (beside the file, in <session>.results/{0}.h5)")
+    def _result_beside(self, name: str, entry: dict[str, Any]) -> dict[str, Any]:
+        with _store.read_result_file(self.path, entry) as f:
+            return _result_of(name, f)
 
     def latest(self, kind: str) -> dict[str, Any] | None:
         """The newest result of ``kind``, or None."""
@@ -273,6 +299,30 @@ class Session:
         self.close()
 
 
+def _result_of(name: str, g: h5py.Group) -> dict[str, Any]:
+    """A result group (inside the session or the root of a result file) as plain data."""
+    arrays, units = {}, {}
+    for key, ds in g.items():
+        if isinstance(ds, h5py.Dataset):
+            arrays[key] = _read(ds)
+            if "units" in ds.attrs:
+                units[key] = str(_decode(ds.attrs["units"]))
+    attrs = {k: _decode(v) for k, v in g.attrs.items() if k not in ("parameters", "NX_class")}
+    for key, value in list(attrs.items()):
+        if isinstance(value, str) and key.endswith("_json"):
+            attrs[key[:-5]] = json.loads(value)
+            del attrs[key]
+    _check_result_arrays(str(attrs.get("kind", "")), arrays)
+    return {
+        "name": name,
+        "kind": str(attrs.get("kind", "")),
+        "arrays": arrays,
+        "parameters": json.loads(str(_decode(g.attrs.get("parameters", "{}")))),
+        "attrs": attrs,
+        "units": units,
+    }
+
+
 def open_session(path: str | os.PathLike) -> Session:
     """Open and validate a session file for reading.
 
@@ -287,16 +337,19 @@ def open_session(path: str | os.PathLike) -> Session:
         raise SessionError(f"{path}: no such file")
     if path.is_dir():
         raise SessionError(f"{path}: is a directory, not a session file")
-    try:
-        recover(path)  # roll back a result write that a killed job left unfinished
-    except (JournalError, LockTimeout) as exc:
-        raise SessionError(str(exc)) from None
     with open(path, "rb") as fh:
         head = fh.read(8)
     if head != b"\x89HDF\r\n\x1a\n":
         raise SessionError(f"{path}: not a session file (not HDF5: the file does not start with the HDF5 signature)")
     _preflight(path)
-    f = _open_possibly_growing(path)
+    try:
+        f = _open_possibly_growing(path)
+    except SessionError as exc:
+        journal = legacy_journal(path)
+        if journal is None:
+            raise
+        raise SessionError(f"{exc}. An older vfmlab left {journal.name} beside it (a result write it never "
+                           "finished); this version never applies it: see docs/guide/session-format.md") from None
     try:
         _validate(f, path)
     except SessionError:

@@ -6,7 +6,7 @@ open the file for writing again ("file is already open for write"). Readers can 
 it with ``swmr=True``. To append to it again (resume a session) we reset the flag byte and
 rewrite the superblock checksum (Jenkins lookup3, as HDF5's ``H5_checksum_metadata``).
 
-Also :func:`_trim_partial_records`: what resume cuts back after a kill (a table half-appended).
+Also :func:`_partial_records`: what a kill left half-appended (resume reports it; the next writes replace it).
 """
 
 from __future__ import annotations
@@ -92,34 +92,24 @@ def clear_consistency_flags(path: str | os.PathLike) -> bool:
     return True
 
 
-def _trim_partial_records(entry: h5py.Group) -> list[str]:
-    """Cut every table a killed writer may have left half-appended back to its complete rows.
+def _partial_records(entry: h5py.Group) -> list[str]:
+    """The records a killed writer left half-appended (nothing is changed: the next writes replace them).
 
     Log and event columns are appended one after another, and a step's frames are written before
     its table row, so after a kill the datasets of one table can differ in length by one append.
-    Returns a description of what was dropped (empty if nothing).
+    Readers count only complete rows (the shortest column); the writer writes its next record at that
+    index, over the leftovers, so resume needs no write of its own to cut them back.
     """
-    dropped = []
-    tables = [entry["log"][channel] for channel in _LOG_CHANNELS] + [entry["events"]]
-    for group in tables:
-        n = min(ds.shape[0] for ds in group.values())
-        for ds in group.values():
-            if ds.shape[0] > n:
-                dropped.append(f"{ds.name}[{n}:{ds.shape[0]}]")
-                ds.resize((n,) + ds.shape[1:])
+    tables = [list(entry["log"][channel].values()) for channel in _LOG_CHANNELS] + [list(entry["events"].values())]
     calib = entry["calibration/images"] if "calibration/images" in entry else {}
-    n_views = min((ds.shape[0] for ds in calib.values()), default=0)
-    for ds in calib.values():  # a view is complete once every camera has its frame
-        if ds.shape[0] > n_views:
-            dropped.append(f"{ds.name}[{n_views}:{ds.shape[0]}]")
-            ds.resize((n_views,) + ds.shape[1:])
+    tables.append(list(calib.values()))
     steps = entry["steps"]
-    n_rows = min(steps[name].shape[0] for name in _STEP_COLUMNS)
-    for ds in [steps[name] for name in _STEP_COLUMNS] + list(steps["images"].values()):
-        if ds.shape[0] > n_rows:
-            dropped.append(f"{ds.name}[{n_rows}:{ds.shape[0]}]")
-            ds.resize((n_rows,) + ds.shape[1:])
-    return dropped
+    tables.append([steps[name] for name in _STEP_COLUMNS] + list(steps["images"].values()))
+    partial = []
+    for datasets in tables:
+        n = min((ds.shape[0] for ds in datasets), default=0)
+        partial += [f"{ds.name}[{n}:{ds.shape[0]}]" for ds in datasets if ds.shape[0] > n]
+    return partial
 
 
 # -- reading ---------------------------------------------------------------------------------

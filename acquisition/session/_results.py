@@ -1,8 +1,16 @@
-"""Derived results in a session file: :func:`write_result` appends ``/entry/results/<kind>_NNN``, journaled."""
+"""Derived results: :func:`write_result` adds ``<kind>_NNN`` as its own file beside the session.
+
+The session file is only read. The result is built in memory, written as
+``<session>.results/<kind>_NNN.h5`` under a temporary name (every write's length checked), fsynced,
+renamed into place and listed in the manifest, itself replaced atomically (see ``_store``).
+Results stored inside older session files (``/entry/results``) are still read.
+"""
 
 from __future__ import annotations
 
 import errno
+import hashlib
+import io
 import json
 import logging
 import os
@@ -14,9 +22,9 @@ from typing import Any
 import h5py
 import numpy as np
 
-from acquisition.session._journal import LockTimeout, journaled_h5
+from acquisition.session import _store
+from acquisition.session._locks import LockTimeout
 from acquisition.session._reader import open_session
-from acquisition.session._recovery import clear_consistency_flags
 from acquisition.session._schema import SessionError, SessionWriteError, _now_iso, _software_version
 
 log = logging.getLogger("acquisition.session")
@@ -40,7 +48,10 @@ def write_result(
     attrs: Mapping[str, Any] | None = None,
     units: Mapping[str, str] | None = None,
 ) -> str:
-    """Append a derived result as ``/entry/results/<kind>_NNN`` (never overwrites); returns its name.
+    """Add a derived result ``<kind>_NNN`` beside the session (never overwrites anything); returns its name.
+
+    Written as ``<session>.results/<kind>_NNN.h5`` and listed in that folder's manifest; the session
+    file itself is not touched. A failure (disk full included) leaves everything as it was.
 
     ``parameters`` (the settings that produced it) is stored as JSON; ``attrs`` values that are
     dicts or lists are stored as JSON in ``<key>_json`` and decoded again by :meth:`Session.result`.
@@ -51,37 +62,59 @@ def write_result(
     with open_session(path) as session:
         if session.status == "running":
             raise SessionError(f"{path}: the session is still being written; add results once it has finished")
-        interrupted = session.status == "interrupted"
-    prepare = None
-    if interrupted:
-        # The writer is gone: clearing its "open for write" flag is safe (and journaled, so a
-        # kill right after leaves the file as it was); resume still works after.
-        def prepare(jf) -> None:
-            jf.save_original(0, 64)
-            clear_consistency_flags(path)
+        uuid, in_file = session.uuid, session.results_in_file()
+    raw_size = path.stat().st_size
+    identity = _store.session_identity(path, uuid)
+    image = b""
     try:
-        with journaled_h5(path, prepare=prepare) as f:
-            name = _write_result_group(f, kind, arrays, parameters, attrs, units)
+        with _store.locked(path) as folder:
+            listed = _store.read_manifest(path, uuid, raw_size).names()
+            name = _store.next_name(folder, kind, in_file + listed)
+            date = _now_iso()
+            image = result_image(kind, arrays, parameters, attrs, units, date=date)
+            entry = {"name": name, "kind": kind, "file": f"{name}.h5", "date": date, "size": len(image),
+                     "sha256": hashlib.sha256(image).hexdigest(), "raw_size": raw_size}
+            _store.commit(path, folder, identity, entry, image)
     except LockTimeout as exc:
         raise SessionWriteError(str(exc)) from None
+    except _store.ManifestError as exc:  # an unreadable manifest: reported, never replaced
+        raise SessionWriteError(f"{exc}; nothing was written. Move it away to start a new list of results") \
+            from None
     except OSError as exc:
+        exc.needed = len(image) + 4096  # type: ignore[attr-defined]
         raise SessionWriteError(_write_failure(path, exc)) from None
-    log.info("wrote result %s to %s", name, path)
+    log.info("wrote result %s beside %s", name, path)
     return name
 
 
-def _write_result_group(f: h5py.File, kind: str, arrays: Mapping[str, Any], parameters: Mapping[str, Any],
+def result_image(kind: str, arrays: Mapping[str, Any], parameters: Mapping[str, Any],
+                 attrs: Mapping[str, Any] | None = None, units: Mapping[str, str] | None = None,
+                 date: str = "") -> bytes:
+    """The bytes of a result's HDF5 file, built in memory (HDF5 never meets a disk error)."""
+    buffer = io.BytesIO()
+    with h5py.File(buffer, "w") as f:
+        _fill_result_group(f, kind, arrays, parameters, attrs, units, date)
+    return buffer.getvalue()
+
+
+def write_result_group(f: h5py.File, kind: str, arrays: Mapping[str, Any], parameters: Mapping[str, Any],
                         attrs: Mapping[str, Any] | None, units: Mapping[str, str] | None) -> str:
+    """Write a result group inside ``f`` (``/entry/results/<kind>_NNN``): only for a file nobody else sees yet."""
     res = f["entry"].require_group("results")
     existing = [n for n in res if n.startswith(kind + "_")]
     number = 1 + max((int(n.rsplit("_", 1)[1]) for n in existing if n.rsplit("_", 1)[1].isdigit()), default=0)
     name = f"{kind}_{number:03d}"
-    g = res.create_group(name)
+    _fill_result_group(res.create_group(name), kind, arrays, parameters, attrs, units)
+    return name
+
+
+def _fill_result_group(g: h5py.Group, kind: str, arrays: Mapping[str, Any], parameters: Mapping[str, Any],
+                       attrs: Mapping[str, Any] | None, units: Mapping[str, str] | None, date: str = "") -> None:
     g.attrs["NX_class"] = "NXprocess"
     g.attrs["kind"] = kind
     g.attrs["program"] = "vfmlab"
     g.attrs["version"] = _software_version()
-    g.attrs["date"] = _now_iso()
+    g.attrs["date"] = date or _now_iso()
     g.attrs["parameters"] = json.dumps(dict(parameters), sort_keys=True, default=_json_default)
     for key, value in (attrs or {}).items():
         if isinstance(value, (dict, list, tuple)):
@@ -94,7 +127,6 @@ def _write_result_group(f: h5py.File, kind: str, arrays: Mapping[str, Any], para
         ds = _store_array(g, key, value)
         if units and key in units:
             ds.attrs["units"] = units[key]
-    return name
 
 
 def _write_failure(path: Path, exc: OSError) -> str:

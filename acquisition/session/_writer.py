@@ -2,23 +2,27 @@
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import hashlib
 import json
 import logging
 import os
 import re
+import shutil
 import time
-from collections.abc import Mapping, Sequence
+import uuid
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import h5py
 import numpy as np
 
+from acquisition.session._fence import MARGIN, failure_errno, fence, is_write_failure, reserve, vfd_handle
 from acquisition.session._guards import _stamp_writer
 from acquisition.session._reader import incomplete_leftover, open_session
-from acquisition.session._recovery import _trim_partial_records, clear_consistency_flags
+from acquisition.session._recovery import _partial_records, clear_consistency_flags
 from acquisition.session._schema import (
     _EVENT_KIND_DTYPE,
     _EVENT_MESSAGE_DTYPE,
@@ -58,10 +62,12 @@ def _growable(group: h5py.Group, name: str, dtype: Any, units: str | None, chunk
     return ds
 
 
-def _append(ds: h5py.Dataset, values: np.ndarray) -> None:
-    n = ds.shape[0]
-    ds.resize((n + len(values),) + ds.shape[1:])
-    ds[n:] = values
+def _put(ds: h5py.Dataset, index: int, values: np.ndarray) -> None:
+    """Write ``values`` at rows ``index:``, growing ``ds`` if needed (never shrinking it)."""
+    end = index + len(values)
+    if ds.shape[0] < end:
+        ds.resize((end,) + ds.shape[1:])
+    ds[index:end] = values
 
 
 class SessionWriter:
@@ -77,6 +83,37 @@ class SessionWriter:
         self.path = path
         self._entry = h5file["entry"]
         self._closed = False
+        self._failed: OSError | None = None  # the failed disk write that stopped this writer
+        self._fd = vfd_handle(h5file)
+
+    @contextlib.contextmanager
+    def _disk(self, what: str, nbytes: int = 0) -> Iterator[None]:
+        """Run HDF5 writes; a failed disk write stops the writer as a kill at that write would.
+
+        The file is fenced (``_fence``): it keeps every record completed before, opens, reads as
+        "interrupted" and is resumable. Raises OSError (ENOSPC for a full disk) saying so.
+        """
+        if self._failed is not None:
+            raise OSError(self._failed.errno, f"{self.path}: the writer stopped at an earlier failed write "
+                                              f"({self._failed.strerror})")
+        try:
+            reserve(self._fd, nbytes)  # a full disk is found here, before HDF5 writes a byte
+        except OSError as exc:
+            raise OSError(exc.errno, f"{exc.strerror} while writing {what} ({nbytes / 1e6:.1f} MB and a margin "
+                                     f"needed); nothing of it was written and the session keeps every step "
+                                     f"completed before", str(self.path)) from None
+        try:
+            yield
+        except Exception as exc:
+            if not is_write_failure(exc):
+                raise
+            code = failure_errno(exc)
+            fence(self._f, self._fd)
+            self._closed = True
+            self._failed = OSError(code, f"{os.strerror(code)} while writing {what}; the session keeps every "
+                                         f"step completed before and can be resumed once the disk has room")
+            log.error("%s: %s", self.path, self._failed.strerror)
+            raise OSError(code, self._failed.strerror, str(self.path)) from None
 
     # -- construction -------------------------------------------------------------------
     @classmethod
@@ -119,14 +156,22 @@ class SessionWriter:
         # Built under a temporary name and renamed into place: a kill during creation never
         # leaves a partial file at ``path`` that would block run and resume.
         tmp = path.with_name(f".{path.name}.creating-{os.getpid()}")
+        free = shutil.disk_usage(path.parent).free
+        if free < MARGIN:  # HDF5 must not meet a full disk while it lays the file out
+            raise OSError(errno.ENOSPC, f"cannot create the file: disk full ({free / 1e6:.1f} MB free)", str(path))
         f = _create_h5(tmp, path)
+        fd = vfd_handle(f)
         try:
             cls._build(f, specimen, cameras, protocol_text, rig or {}, instruments or {}, load_cell_measures)
             f.flush()
             f.swmr_mode = True
+            reserve(fd, 0)
             os.replace(tmp, path)
-        except BaseException:
-            f.close()
+        except BaseException as exc:
+            if isinstance(exc, Exception) and is_write_failure(exc):
+                fence(f, fd)
+            else:
+                f.close()
             tmp.unlink(missing_ok=True)
             raise
         writer = cls(f, path)
@@ -146,6 +191,7 @@ class SessionWriter:
         entry.attrs["NX_class"] = "NXentry"
         entry.attrs["start_time"] = _now_iso()
         entry.attrs["software_version"] = _software_version()
+        entry.attrs["session_uuid"] = uuid.uuid4().hex  # binds the derived results beside the file to it
         _stamp_writer(entry)
         entry.create_dataset("status", data=np.bytes_(b"running"), dtype=_STATUS_DTYPE)
         entry.create_dataset("end_time", data=np.bytes_(b""), dtype="S40")
@@ -241,33 +287,24 @@ class SessionWriter:
             status = session.status
         if status != "interrupted":
             raise SessionError(f"{path}: session status is {status!r}; only an interrupted session can be resumed")
-        clear_consistency_flags(path)
-        try:
-            f = h5py.File(path, "a", libver="latest")
-        except OSError as exc:
-            if "unable to lock file" not in str(exc):
-                raise SessionError(f"{path}: cannot reopen for writing: {exc}") from None
-            # Readers that have the interrupted file open (SWMR readers, a live view, 'vfmlab info'
-            # in another terminal) hold HDF5's shared lock; they must not block resume. One writer
-            # at a time is kept by the status check above (a live writer = "running").
-            try:
-                f = h5py.File(path, "a", libver="latest", locking=False)
-            except OSError as exc2:
-                raise SessionError(f"{path}: cannot reopen for writing: {exc2}") from None
-        trimmed = _trim_partial_records(f["entry"])
-        _stamp_writer(f["entry"])
-        f.flush()
-        f.swmr_mode = True
-        f["entry/status"][()] = np.bytes_(b"running")
+        clear_consistency_flags(path)  # one 64-byte write of the superblock
+        # Opened straight in SWMR-write mode: every later write keeps the file readable at each
+        # instant, so a kill at any write of resume leaves a session that opens and resumes again.
+        f = _open_swmr_write(path)
+        partial = _partial_records(f["entry"])
         writer = cls(f, path)
+        with writer._disk("the writer's identity"):
+            _stamp_writer(f["entry"])
+            f["entry/status"][()] = np.bytes_(b"running")
+            f.flush()
         writer.add_event("resume", f"session resumed by pid {os.getpid()}"
-                         + (f"; dropped partial records: {', '.join(trimmed)}" if trimmed else ""))
+                         + (f"; dropped partial records: {', '.join(partial)}" if partial else ""))
         return writer
 
     # -- appending -----------------------------------------------------------------------
     @property
     def n_steps(self) -> int:
-        return int(self._entry["steps/block"].shape[0])
+        return self.n_rows_complete()
 
     @property
     def camera_names(self) -> list[str]:
@@ -306,11 +343,13 @@ class SessionWriter:
             raise ValueError(f"append_log: raw and seq must have {n} entries")
         if n == 0:
             return
-        g = self._entry["log"][channel]
-        for name, data in (("time", t_wall), ("monotonic_time", t_monotonic), ("value", value),
-                           ("raw", raw_arr), ("seq", seq_arr)):
-            _append(g[name], data)
-        self._f.flush()
+        with self._disk(f"the {channel} log", 128 * n):
+            g = self._entry["log"][channel]
+            row = min(ds.shape[0] for ds in g.values())  # past the last complete sample (a kill may leave more)
+            for name, data in (("time", t_wall), ("monotonic_time", t_monotonic), ("value", value),
+                               ("raw", raw_arr), ("seq", seq_arr)):
+                _put(g[name], row, data)
+            self._f.flush()
 
     def add_step(self, step: StepRecord, images: Mapping[str, np.ndarray] | None = None) -> int:
         """Append one captured step with one frame per camera; returns its row index.
@@ -325,18 +364,30 @@ class SessionWriter:
                 f"add_step: images must be given for cameras {sorted(expected)}; got {sorted(images)}"
             )
         steps = self._entry["steps"]
-        for name, frame in images.items():
+        frames = {}
+        for name, frame in images.items():  # every frame checked before anything is written
             ds = steps["images"][name]
             frame = np.asarray(frame)
             if frame.shape != ds.shape[1:]:
                 raise ValueError(f"add_step: camera {name!r} frame must have shape {ds.shape[1:]}; got {frame.shape}")
-            _append(ds, frame[None].astype(ds.dtype, copy=False))
-        # The table rows go last: a row exists only once its frames are written.
-        for name in _STEP_COLUMNS:
-            _append(steps[name], np.array([getattr(step, name)], dtype=steps[name].dtype))
-        self._f.flush()
+            frames[name] = frame[None].astype(ds.dtype, copy=False)
+        row = self.n_rows_complete()
+        with self._disk(f"step row {row}", sum(f.nbytes for f in frames.values()) + 4096):
+            # Frames first, written at the row's index (a frame a killed writer left there is replaced),
+            # the table row last: a row exists only once its frames are written.
+            for name, frame in frames.items():
+                _put(steps["images"][name], row, frame)
+            for name in _STEP_COLUMNS:
+                _put(steps[name], row, np.array([getattr(step, name)], dtype=steps[name].dtype))
+            self._f.flush()
         self._fsync()
-        return self.n_steps - 1
+        return row
+
+    def n_rows_complete(self) -> int:
+        """Step rows complete in every column and every camera (what readers count as steps)."""
+        steps = self._entry["steps"]
+        return int(min([steps[name].shape[0] for name in _STEP_COLUMNS]
+                       + [ds.shape[0] for ds in steps["images"].values()]))
 
     def add_calibration_view(self, images: Mapping[str, np.ndarray]) -> int:
         """Append one calibration-board view (one frame per camera, a subset allowed); returns its index."""
@@ -344,14 +395,17 @@ class SessionWriter:
         unknown = set(images) - set(calib.keys())
         if unknown:
             raise ValueError(f"add_calibration_view: unknown cameras {sorted(unknown)}; known {sorted(calib.keys())}")
-        index = max((calib[name].shape[0] for name in calib), default=0)
-        for name in calib:
-            ds = calib[name]
-            frame = images.get(name)
-            ds.resize((index + 1,) + ds.shape[1:])  # cameras not seeing this view keep a zero frame
-            if frame is not None:
-                ds[index] = np.asarray(frame).astype(ds.dtype, copy=False)
-        self._f.flush()
+        index = self.n_calibration_views
+        nbytes = sum(int(np.prod(ds.shape[1:])) * ds.dtype.itemsize for ds in calib.values())
+        with self._disk(f"calibration view {index}", nbytes):
+            for name in calib:
+                ds = calib[name]
+                frame = images.get(name)
+                if ds.shape[0] < index + 1:
+                    ds.resize((index + 1,) + ds.shape[1:])  # cameras not seeing this view keep a zero frame
+                ds[index] = (np.zeros(ds.shape[1:], ds.dtype) if frame is None
+                             else np.asarray(frame).astype(ds.dtype, copy=False))
+            self._f.flush()
         self._fsync()
         return index
 
@@ -359,19 +413,23 @@ class SessionWriter:
         """Record an operator note or runner event (kind <= 32 bytes, message <= 512 bytes)."""
         import time
 
-        events = self._entry["events"]
-        _append(events["time"], np.array([time.time()]))
-        _append(events["kind"], np.array([_fixed(kind, _EVENT_KIND_DTYPE)], dtype=_EVENT_KIND_DTYPE))
-        _append(events["message"], np.array([_fixed(message, _EVENT_MESSAGE_DTYPE)], dtype=_EVENT_MESSAGE_DTYPE))
-        self._f.flush()
+        with self._disk("the event log"):
+            events = self._entry["events"]
+            row = min(ds.shape[0] for ds in events.values())
+            _put(events["time"], row, np.array([time.time()]))
+            _put(events["kind"], row, np.array([_fixed(kind, _EVENT_KIND_DTYPE)], dtype=_EVENT_KIND_DTYPE))
+            _put(events["message"], row, np.array([_fixed(message, _EVENT_MESSAGE_DTYPE)],
+                                                  dtype=_EVENT_MESSAGE_DTYPE))
+            self._f.flush()
 
     def set_status(self, status: str) -> None:
         if status not in _STATUSES:
             raise ValueError(f"status must be one of {_STATUSES}; got {status!r}")
-        self._entry["status"][()] = np.bytes_(status.encode())
-        if status != "running":
-            self._entry["end_time"][()] = np.bytes_(_now_iso().encode())
-        self._f.flush()
+        with self._disk("the session status"):
+            self._entry["status"][()] = np.bytes_(status.encode())
+            if status != "running":
+                self._entry["end_time"][()] = np.bytes_(_now_iso().encode())
+            self._f.flush()
         self._fsync()
 
     def _fsync(self) -> None:
@@ -382,7 +440,7 @@ class SessionWriter:
             log.warning("fsync of %s failed: %s", self.path, exc)
 
     def close(self, status: str = "complete") -> None:
-        if self._closed:
+        if self._closed:  # closed, or stopped by a failed write (the file then reads "interrupted")
             return
         try:
             self.set_status(status)
@@ -395,6 +453,29 @@ class SessionWriter:
 
     def __exit__(self, exc_type, exc, tb) -> None:
         self.close("complete" if exc_type is None else "aborted")
+
+
+def _open_swmr_write(path: Path) -> h5py.File:
+    """An existing session opened for appending in SWMR-write mode (no non-SWMR write phase)."""
+    def attempt(locking: bool) -> h5py.File:
+        fapl = h5py.h5p.create(h5py.h5p.FILE_ACCESS)
+        fapl.set_libver_bounds(h5py.h5f.LIBVER_V110, h5py.h5f.LIBVER_LATEST)  # the oldest format with SWMR
+        if not locking:
+            fapl.set_file_locking(False, True)
+        fid = h5py.h5f.open(os.fsencode(path), h5py.h5f.ACC_RDWR | h5py.h5f.ACC_SWMR_WRITE, fapl=fapl)
+        return h5py.File(fid)
+    try:
+        return attempt(locking=True)
+    except OSError as exc:
+        if "unable to lock file" not in str(exc):
+            raise SessionError(f"{path}: cannot reopen for writing: {exc}") from None
+    # Readers that have the interrupted file open (SWMR readers, a live view, 'vfmlab info' in another
+    # terminal) hold HDF5's shared lock; they must not block resume. One writer at a time is kept by
+    # the status check (a live writer = "running").
+    try:
+        return attempt(locking=False)
+    except OSError as exc2:
+        raise SessionError(f"{path}: cannot reopen for writing: {exc2}") from None
 
 
 def _refuse_live_session(path: Path) -> None:

@@ -32,6 +32,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "resume": ("cmd_resume", "Continue an interrupted session from its last completed step."),
     "monitor": ("cmd_monitor", "Show live readings of the pressure transducer and load cell."),
     "sim-rig": ("cmd_sim_rig", "Serve simulated instruments on pseudo-terminals."),
+    "check-rig": ("cmd_check_rig", "Check the rig before a test: cameras, markers, instruments, stage."),
     "calibrate": ("cmd_calibrate", "Calibrate the cameras from calibration-board images."),
     "reconstruct": ("cmd_reconstruct", "Reconstruct and track 3-D marker positions in a session."),
     "identify": ("cmd_identify", "Identify constitutive parameters with the Virtual Fields Method."),

@@ -11,9 +11,8 @@ from rich.progress import Progress
 from vfmlab.cli._common import CliError, CliInputError, console, err_console, esc, print_json
 from vfmlab.cli._outputs import check_output_path
 from vfmlab.stages.errors import StageError
-from vfmlab.stages.imports import first_images, measure_tube, read_image, scan_images
+from vfmlab.stages.imports import FoundImages, first_images, measure_tube, scan_images, write_imported_session
 from vfmlab.stages.reconstruct import load_calibration_file
-
 
 EPILOG = """
 \b
@@ -61,9 +60,7 @@ def command(images_dir, calibration, polarity, calibration_units, loads_csv, out
     """Build a session from IMAGES_DIR/<camera>/<step>.png (camera names as in the calibration file,
     step 0 = reference), the camera calibration and a loads CSV. Then run 'vfmlab reconstruct OUT'."""
     from acquisition.markers_csv import read_loads_csv
-    from acquisition.plausibility import check_geometry
-    from acquisition.session import CameraSpec, SessionError, SessionWriter, SpecimenInfo, StepRecord, write_result
-    from reconstruction import cameras_to_arrays
+    from acquisition.session import SessionError, SpecimenInfo
 
     check_output_path(out, force=overwrite, inputs=[calibration, loads_csv])
     if not marker_diameter_mm > 0:
@@ -87,41 +84,21 @@ def command(images_dir, calibration, polarity, calibration_units, loads_csv, out
     if thickness_mm is None:
         thickness_mm = 0.1 * radius_mm
         notes_extra.append("thickness not given: 10 % of the radius assumed")
-    for message in check_geometry(radius_mm * 1e-3, thickness_mm * 1e-3, length_mm * 1e-3, source=str(images_dir)):
-        err_console.print(f"[yellow]Warning:[/] {esc(message)}")
     try:
         specimen = SpecimenInfo(specimen_id or images_dir.name, radius_mm * 1e-3, length_mm * 1e-3,
                                 thickness_mm * 1e-3, "; ".join([notes] * bool(notes) + notes_extra),
                                 ends or "", "import option --ends" if ends else "")
     except ValueError as exc:
         raise CliError(str(exc)) from None
-    specs = [CameraSpec(c.name, "imported", c.image_size[0], c.image_size[1], dtype) for c in cams]
     rig = {"source": "import-images", "images_dir": str(images_dir), "calibration": str(calibration),
            "loads_csv": str(loads_csv), "marker_diameter_mm": marker_diameter_mm, "marker_polarity": polarity}
+    found = FoundImages(cams, steps, rows, files, first, dtype)
     try:
-        with SessionWriter.create(out, specimen, cameras=specs, protocol_text="", rig=rig,
-                                  load_cell_measures=force_is, overwrite=overwrite) as writer:
-            with Progress(console=err_console, transient=True) as progress:
-                task = progress.add_task("importing images", total=int(steps.size))
-                for s, row in zip(steps, rows):
-                    imgs = {}
-                    for c in cams:
-                        path = files[c.name].get(int(s))
-                        if path is None:
-                            err_console.print(f"[yellow]Warning:[/] no image of {esc(c.name)} for step {s}; "
-                                              "stored blank.")
-                            img = np.zeros((c.image_size[1], c.image_size[0]), dtype)
-                        else:
-                            img = first[c.name] if s == 0 else read_image(path)
-                            if img.shape != (c.image_size[1], c.image_size[0]):
-                                raise CliInputError(f"{path}: image size {img.shape[::-1]} differs from the calibration")
-                        imgs[c.name] = img.astype(dtype, copy=False)
-                    writer.add_step(StepRecord(
-                        block=0, stretch=float(loads["stretch"][row]), target_pressure=float(loads["pressure"][row]),
-                        pressure=float(loads["pressure"][row]), force=float(loads["axial_force"][row]),
-                        t_monotonic=float("nan"), t_wall=float("nan")), images=imgs)
-                    progress.advance(task)
-        name = write_result(out, "calibration", cameras_to_arrays(cams), {"source": str(calibration)})
+        with Progress(console=err_console, transient=True) as progress:
+            task = progress.add_task("importing images", total=int(steps.size))
+            name = write_imported_session(out, specimen, found, loads, rig, str(calibration), force_is, overwrite,
+                                          warn=lambda text: err_console.print(f"[yellow]Warning:[/] {esc(text)}"),
+                                          advance=lambda: progress.advance(task))
     except StageError:  # an unreadable image: bad input (exit 2), not a failed write
         raise
     except (SessionError, ValueError) as exc:

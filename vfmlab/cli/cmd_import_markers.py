@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 import numpy as np
 from acquisition.markers_csv import read_loads_csv, read_markers_csv
-from acquisition.session import SessionError, SessionWriter, SpecimenInfo, StepRecord, write_result
+from acquisition.session import SessionError, SessionWriter, SpecimenInfo, StepRecord, import_failure, staged_session
 from vfmlab.cli._common import CliError, CliInputError, console, esc, print_json, show_warning
 from vfmlab.cli._outputs import check_output_path
 from vfmlab.stages.imports import check_marker_inputs
@@ -58,28 +58,31 @@ def command(markers_csv, loads_csv, out, thickness_mm, radius_mm, length_mm, spe
     except ValueError as exc:
         raise CliInputError(str(exc)) from None
     rig = {"source": "import-markers", "markers_csv": str(markers_csv), "loads_csv": str(loads_csv)}
-    try:
-        with SessionWriter.create(out, specimen, protocol_text="", rig=rig, load_cell_measures=force_is,
-                                  overwrite=overwrite) as writer:
-            for message in warnings:
-                writer.add_event("warning", message)
-            for row in rows:
-                writer.add_step(StepRecord(
-                    block=0, stretch=float(loads["stretch"][row]), target_pressure=float(loads["pressure"][row]),
-                    pressure=float(loads["pressure"][row]), force=float(loads["axial_force"][row]),
-                    t_monotonic=float("nan"), t_wall=float("nan")))
-        visible = ~np.isnan(table.positions).any(axis=2)
-        name = write_result(
-            out, "markers",
-            {"positions": table.positions, "visible": visible,
-             "uncertainty": np.full(visible.shape, np.nan), "marker_id": np.arange(len(table.labels)),
-             "marker_label": table.labels, "step_index": np.arange(len(table.steps)),
-             "step_number": table.steps},
-            {"source": "import-markers", "markers_csv": str(markers_csv)},
-            units={"positions": "m", "uncertainty": "m"},
-        )
+    try:  # built under a temporary name and renamed onto OUT at the end: all or nothing
+        with staged_session(out, overwrite=overwrite) as staged:
+            with SessionWriter.create(staged.path, specimen, protocol_text="", rig=rig,
+                                      load_cell_measures=force_is) as writer:
+                for message in warnings:
+                    writer.add_event("warning", message)
+                for row in rows:
+                    writer.add_step(StepRecord(
+                        block=0, stretch=float(loads["stretch"][row]),
+                        target_pressure=float(loads["pressure"][row]), pressure=float(loads["pressure"][row]),
+                        force=float(loads["axial_force"][row]), t_monotonic=float("nan"), t_wall=float("nan")))
+            visible = ~np.isnan(table.positions).any(axis=2)
+            name = staged.add_result(
+                "markers",
+                {"positions": table.positions, "visible": visible,
+                 "uncertainty": np.full(visible.shape, np.nan), "marker_id": np.arange(len(table.labels)),
+                 "marker_label": table.labels, "step_index": np.arange(len(table.steps)),
+                 "step_number": table.steps},
+                {"source": "import-markers", "markers_csv": str(markers_csv)},
+                units={"positions": "m", "uncertainty": "m"},
+            )
     except SessionError as exc:
         raise CliError(str(exc)) from None
+    except OSError as exc:
+        raise CliError(import_failure(out, exc)) from None
     if as_json:
         print_json({"out": str(out), "result": name, "n_markers": len(table.labels), "n_steps": len(table.steps),
                     "radius_m": radius, "length_m": length, "thickness_m": thickness_mm * 1e-3,

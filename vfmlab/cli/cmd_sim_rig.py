@@ -3,9 +3,6 @@
 from __future__ import annotations
 
 import json
-import signal
-import threading
-import time
 
 import click
 
@@ -46,13 +43,9 @@ def command(use_socket, manual, pressure_mmhg, stretch, load_cell_measures, seed
     Ctrl-C. The pressure follows the controller's set-point (`Mode control`, `Setpt`) with a first-order
     response, or with --manual the value given by --pressure-mmhg.
     """
-    import numpy as np
+    from vfmlab.simrig import serve_until, simulated_instruments
 
-    from rig_sim.instruments import SimulatedRig
-
-    rig = SimulatedRig(transport="socket" if use_socket else "pty",
-                       pressure_source="manual" if manual else "controller", rng=np.random.default_rng(seed),
-                       load_cell_measures=load_cell_measures)
+    rig = simulated_instruments(use_socket, manual, load_cell_measures, seed)
     with rig:
         rig.set_stretch(stretch)
         if manual:
@@ -69,26 +62,6 @@ def command(use_socket, manual, pressure_mmhg, stretch, load_cell_measures, seed
             console.print(f"load cell (Mark-10 M5-20, s/n {esc(rig.load_cell_serial)}): {esc(rig.load_cell_port)}")
             console.print(f"\ntry:  vfmlab monitor --pressure {esc(rig.pressure_port)} "
                           f"--load-cell {esc(rig.load_cell_port)}\n\nCtrl-C to stop.")
-        t_end = None if duration is None else time.monotonic() + duration
-        previous = _stop_on_sigterm()
-        try:
-            while t_end is None or time.monotonic() < t_end:
-                time.sleep(0.05 if t_end is not None else 0.5)
-        except KeyboardInterrupt:
-            pass
-        finally:
-            if previous is not None:
-                signal.signal(signal.SIGTERM, previous)
+        serve_until(duration)
     if not as_json:
         console.print("simulated instruments stopped")
-
-
-def _stop_on_sigterm():
-    """Make SIGTERM stop the simulators cleanly (like Ctrl-C); returns the previous handler."""
-    if threading.current_thread() is not threading.main_thread():
-        return None
-
-    def handler(signum, frame):
-        raise KeyboardInterrupt
-
-    return signal.signal(signal.SIGTERM, handler)

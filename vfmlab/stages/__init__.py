@@ -10,6 +10,7 @@ identify           :func:`vfmlab.stages.identify.identify`      ``vfmlab identif
 regional           :func:`vfmlab.stages.identify.regional`      ``vfmlab identify --regions``
 report, export     :mod:`vfmlab.stages.outputs`                 ``vfmlab report``, ``vfmlab export``
 run, reprocess     :mod:`vfmlab.stages.batch`                   ``vfmlab run``, ``vfmlab reprocess``
+check-rig          :func:`vfmlab.stages.check.check_rig`        ``vfmlab check-rig``
 =================  ==========================================  ==============================
 
 A stage never prints: it raises :class:`~vfmlab.stages.errors.StageError` (bad input, exit code 2) or

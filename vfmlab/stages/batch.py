@@ -97,7 +97,8 @@ def run(protocol: str | os.PathLike, specimen: str | os.PathLike, out: str | os.
         raise StageError(f"--live-models must be among {', '.join(model_names())} or 'none'; got {unknown}")
     return run_session(os.fspath(protocol), os.fspath(specimen), os.fspath(out), rig_path=s.rig, sim=s.sim, yes=s.yes,
                        sim_speed=s.sim_speed, console=console or Console(stderr=True), sim_seed=s.sim_seed,
-                       detector=detector_from_reconstruction() if s.detect else None, live_models=models)
+                       detector=detector_from_reconstruction() if s.detect else None, live_models=models,
+                       check_seconds=s.check_seconds)
 
 
 def check_sim_seed(s: RunSettings) -> None:

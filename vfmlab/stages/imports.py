@@ -3,7 +3,10 @@ checks of the imported marker cloud and loads, and the reading of an image folde
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -11,8 +14,8 @@ from acquisition.errors import ImplausibleInputError
 from vfmlab.stages.errors import StageError, StageFailed
 from vfmlab.stages.feedback import Notify, log_notes
 
-__all__ = ["OUTLIER_RADII", "check_marker_inputs", "check_tube", "estimate_geometry", "first_images", "marker_outliers",
-           "measure_tube", "read_image", "scan_images"]
+__all__ = ["FoundImages", "OUTLIER_RADII", "check_marker_inputs", "check_tube", "estimate_geometry", "first_images",
+           "marker_outliers", "measure_tube", "read_image", "scan_images", "write_imported_session"]
 
 _IMAGE_SUFFIXES = {".png", ".tif", ".tiff", ".bmp", ".pgm", ".jpg", ".jpeg"}
 
@@ -224,3 +227,56 @@ def check_tube(cyl, centres: np.ndarray) -> None:
             f"RMS {cyl.rms * 1e3:.3g} mm, markers spread over {extent * 1e3:.3g} mm): the specimen's radius and length "
             "are measured assuming a tubular specimen; give --radius-mm and --length-mm"
         )
+
+
+@dataclass(frozen=True)
+class FoundImages:
+    """An image folder as read: calibrated ``cams``, ``steps`` (n,) with their ``rows`` in the loads table, the
+    ``files`` {camera: {step: path}}, the step-0 images ``first`` {camera: (H, W)} and their ``dtype``."""
+
+    cams: list
+    steps: np.ndarray
+    rows: np.ndarray
+    files: dict[str, dict[int, Path]]
+    first: dict[str, np.ndarray]
+    dtype: Any
+
+
+def write_imported_session(out: Path, specimen: Any, found: FoundImages, loads: Any, rig: dict, calibration: str,
+                           force_is: str, overwrite: bool, *, warn: Notify = log_notes,
+                           advance: Callable[[], None] = lambda: None) -> str:
+    """Create the session ``out`` with one step per image step (a missing image stored blank, with a warning) and
+    store the cameras as its first "calibration" result; returns that result's name. An implausible geometry
+    (thickness not below the radius, sizes outside the plausible ranges) is refused first."""
+    from acquisition.plausibility import check_geometry
+    from acquisition.session import CameraSpec, SessionWriter, StepRecord, write_result
+    from reconstruction import cameras_to_arrays
+
+    try:  # before the file exists
+        for message in check_geometry(specimen.radius, specimen.thickness, specimen.length,
+                                      source=str(rig.get("images_dir", out))):
+            warn(message)
+    except ImplausibleInputError as exc:
+        raise StageError(str(exc)) from None
+    cams, dtype = found.cams, found.dtype
+    specs = [CameraSpec(c.name, "imported", c.image_size[0], c.image_size[1], dtype) for c in cams]
+    with SessionWriter.create(out, specimen, cameras=specs, protocol_text="", rig=rig, load_cell_measures=force_is,
+                              overwrite=overwrite) as writer:
+        for s, row in zip(found.steps, found.rows):
+            imgs = {}
+            for c in cams:
+                path = found.files[c.name].get(int(s))
+                if path is None:
+                    warn(f"no image of {c.name} for step {s}; stored blank.")
+                    img = np.zeros((c.image_size[1], c.image_size[0]), dtype)
+                else:
+                    img = found.first[c.name] if s == 0 else read_image(path)
+                    if img.shape != (c.image_size[1], c.image_size[0]):
+                        raise StageError(f"{path}: image size {img.shape[::-1]} differs from the calibration")
+                imgs[c.name] = img.astype(dtype, copy=False)
+            writer.add_step(StepRecord(
+                block=0, stretch=float(loads["stretch"][row]), target_pressure=float(loads["pressure"][row]),
+                pressure=float(loads["pressure"][row]), force=float(loads["axial_force"][row]),
+                t_monotonic=float("nan"), t_wall=float("nan")), images=imgs)
+            advance()
+    return write_result(out, "calibration", cameras_to_arrays(cams), {"source": calibration})

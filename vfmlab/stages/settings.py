@@ -11,7 +11,7 @@ from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any, TypeVar
 
-__all__ = ["CalibrateSettings", "ExportSettings", "IdentifySettings", "ReconstructSettings", "RegionalSettings",
+__all__ = ["CalibrateSettings", "CheckLimits", "CheckRigSettings", "ExportSettings", "IdentifySettings", "ReconstructSettings", "RegionalSettings",
            "ReportSettings", "ReprocessSettings", "RunSettings", "SelfCalibrationSettings", "settings_with"]
 
 S = TypeVar("S")
@@ -165,3 +165,38 @@ class RunSettings:
     yes: bool = False
     detect: bool = True
     live_models: str = "fung"
+    #: seconds of instrument readings of the pre-flight check at the start (0 = no pre-flight check)
+    check_seconds: float = 2.0
+
+
+@dataclass(frozen=True)
+class CheckLimits:
+    """What the pre-flight check (``vfmlab check-rig``, the start of ``vfmlab run``) accepts; SI except where
+    the name says. A camera: at least ``min_markers`` markers, sharpness (variance of the Laplacian over the
+    image variance) and median marker contrast at least the minima, at most ``max_saturated`` of its pixels
+    saturated, and at least ``min_matched`` of its markers seen by another camera (with a calibration). An
+    instrument: zero offset, noise (standard deviation) and drift (linear fit) within the limits."""
+
+    min_markers: int = 20
+    min_sharpness: float = 0.02
+    min_contrast: float = 0.4
+    max_saturated: float = 0.01
+    min_matched: int = 6
+    max_pressure_offset_pa: float = 2 * 133.322387415
+    max_pressure_noise_pa: float = 133.322387415
+    max_pressure_drift_pa_per_s: float = 133.322387415 / 60
+    max_force_offset_n: float = 0.1
+    max_force_noise_n: float = 0.02
+    max_force_drift_n_per_s: float = 0.05 / 60
+
+
+@dataclass(frozen=True)
+class CheckRigSettings:
+    """``vfmlab check-rig``: a frame from every camera and a few seconds of every instrument, judged."""
+
+    rig: str | None = None
+    sim: bool = False
+    sim_seed: int | None = None
+    seconds: float = 3.0
+    out: str | None = None
+    limits: CheckLimits = CheckLimits()
