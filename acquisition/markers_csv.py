@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from acquisition.errors import InputError
+from acquisition.numbers import strict_float
 
 __all__ = [
     "CsvFormatError",
@@ -115,7 +116,7 @@ def _number(path: Path, line: int, column: str, text: str, *, allow_empty: bool 
             return math.nan
         raise CsvFormatError(f"{path}, line {line}, column {column}: missing value")
     try:
-        value = float(text)
+        value = strict_float(text)  # not float(): "1_0.5" would be 10.5
     except ValueError:
         raise CsvFormatError(f"{path}, line {line}, column {column}: {text!r} is not a number") from None
     if math.isinf(value):

@@ -21,10 +21,11 @@ from typing import Any
 import numpy as np
 
 from acquisition.errors import ImplausibleInputError
-from acquisition.plausibility import check_identifiable
+from acquisition.plausibility import check_geometry, check_identifiable
 from acquisition.session import SessionError, SessionWriteError, open_session, write_result
 from vfmlab.parallel import fork_map
 from vfmlab.stages.errors import StageError, StageUnavailable
+from vfmlab.stages.imports import marker_outliers
 
 log = logging.getLogger(__name__)
 
@@ -65,14 +66,18 @@ def load_identification_inputs(session, markers: str | None = None) -> dict[str,
     if rows.size != positions.shape[0] or (rows.size and (rows.max() >= session.n_steps or rows.min() < 0)):
         raise StageError(f"{session.path}: markers result {result['name']} refers to steps {rows.tolist()} but the "
                          f"session has {session.n_steps} steps")
+    specimen = session.specimen
     try:
         notes = check_identifiable(positions, source=f"{session.path}: {result['name']}")
+        check_geometry(specimen.radius, specimen.thickness, specimen.length, source=f"{session.path}: specimen")
+        labels = arrays.get("marker_label", arrays.get("marker_id", np.arange(positions.shape[1])))
+        marker_outliers(positions, _labels(labels, positions.shape[1]), rows, radius=specimen.radius,
+                        source=f"{session.path}: {result['name']}")
     except ImplausibleInputError as exc:
         raise StageError(str(exc)) from None
     steps = session.steps
     pressure = np.asarray(steps["pressure"], float)[rows]
     force = np.asarray(steps["force"], float)[rows]
-    specimen = session.specimen
     ends = {"ends": specimen.ends, "source": specimen.ends_source}
     if session.load_cell_measures == "total":
         r_i = specimen.radius - specimen.thickness
@@ -84,6 +89,14 @@ def load_identification_inputs(session, markers: str | None = None) -> dict[str,
     return {"positions": positions, "pressure": pressure, "force": force, "thickness": float(specimen.thickness),
             "radius": float(specimen.radius), "length": float(specimen.length), "session_ends": ends,
             "markers_result": result["name"], "rows": rows, "notes": notes, "uncertainty": uncertainty}
+
+
+def _labels(labels, n_markers: int) -> np.ndarray:
+    """Marker labels as text for messages (their indices when the stored labels do not fit)."""
+    labels = np.asarray(labels)
+    if labels.shape != (n_markers,):
+        return np.arange(n_markers).astype(str)
+    return np.array([v.decode("utf-8", "replace") if isinstance(v, bytes) else str(v) for v in labels.tolist()])
 
 
 def read_identification_inputs(path: str | os.PathLike, markers: str | None = None) -> dict[str, Any]:

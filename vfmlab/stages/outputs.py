@@ -15,7 +15,48 @@ from typing import Any
 from vfmlab.stages.errors import StageError, StageFailed
 from vfmlab.stages.settings import ExportSettings, ReportSettings, settings_with
 
-__all__ = ["ExportOutcome", "ReportOutcome", "default_out", "export", "latest_markers", "report"]
+__all__ = ["ExportOutcome", "ReportOutcome", "default_out", "export", "hdf5_signature_offset", "latest_markers", "marker_labels",
+           "report"]
+
+_HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+
+
+def hdf5_signature_offset(path: str | os.PathLike) -> int | None:
+    """Where the HDF5 signature of the file at ``path`` is, or None when it is no HDF5 file (or unreadable).
+
+    The HDF5 specification (format signature, superblock) allows a user block before the superblock:
+    the signature is then at 512, 1024, 2048, ... bytes (MATLAB v7.3 files have one of 512 bytes).
+    """
+    try:
+        with open(path, "rb") as fh:
+            size = os.fstat(fh.fileno()).st_size
+            offset = 0
+            while offset + len(_HDF5_SIGNATURE) <= size:
+                fh.seek(offset)
+                if fh.read(len(_HDF5_SIGNATURE)) == _HDF5_SIGNATURE:
+                    return offset
+                offset = 512 if offset == 0 else 2 * offset
+    except OSError:
+        return None
+    return None
+
+
+def marker_labels(result: dict, session_path: str | os.PathLike) -> Any:
+    """The marker labels of a "markers" result (n_markers,): the imported labels, else the marker ids, else
+    0..n-1. An imported result whose labels are gone is damaged (``DamagedSessionError``): numbering its
+    markers afresh would silently rename them."""
+    import numpy as np
+
+    from acquisition.session import DamagedSessionError
+
+    arrays, name = result["arrays"], result["name"]
+    if "marker_label" in arrays:
+        return arrays["marker_label"]
+    if result.get("parameters", {}).get("source") == "import-markers":
+        raise DamagedSessionError(
+            f"{session_path}: the result {name!r} (/entry/results/{name}/marker_label) is damaged and cannot be read: "
+            f"the imported marker labels are missing; 'vfmlab info {session_path}' shows what is still readable")
+    return arrays.get("marker_id", np.arange(np.shape(arrays["positions"])[1]))
 
 
 def default_out(session_path: str | os.PathLike, out: str | os.PathLike | None, kind: str) -> Path:
