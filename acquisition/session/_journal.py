@@ -245,7 +245,7 @@ def journaled_h5(path: str | os.PathLike, *, prepare: Callable[[_JournaledFile],
                 jf = _JournaledFile(fh, journal, size0)
                 if prepare is not None:
                     prepare(jf)
-                f = h5py.File(jf, "r+", libver="latest", locking=False)
+                f = h5py.File(jf, "r+", libver=("v110", "v110"), locking=False)
             except BaseException:
                 _rollback(path, fh, jpath)
                 raise

@@ -44,7 +44,7 @@ log = logging.getLogger("acquisition.session")
 def _create_h5(tmp: Path, path: Path) -> h5py.File:
     """A new HDF5 file at ``tmp``; a failure names ``path`` (what the user asked for), not the temporary name."""
     try:
-        return h5py.File(tmp, "w", libver="latest")
+        return h5py.File(tmp, "w", libver=("v110", "v110"))
     except OSError as exc:
         found = re.search(r"errno = (\d+)", str(exc))
         code = int(found.group(1)) if found else (exc.errno or errno.EIO)
@@ -243,7 +243,7 @@ class SessionWriter:
             raise SessionError(f"{path}: session status is {status!r}; only an interrupted session can be resumed")
         clear_consistency_flags(path)
         try:
-            f = h5py.File(path, "a", libver="latest")
+            f = h5py.File(path, "a", libver=("v110", "v110"))
         except OSError as exc:
             if "unable to lock file" not in str(exc):
                 raise SessionError(f"{path}: cannot reopen for writing: {exc}") from None
@@ -251,7 +251,7 @@ class SessionWriter:
             # in another terminal) hold HDF5's shared lock; they must not block resume. One writer
             # at a time is kept by the status check above (a live writer = "running").
             try:
-                f = h5py.File(path, "a", libver="latest", locking=False)
+                f = h5py.File(path, "a", libver=("v110", "v110"), locking=False)
             except OSError as exc2:
                 raise SessionError(f"{path}: cannot reopen for writing: {exc2}") from None
         trimmed = _trim_partial_records(f["entry"])
