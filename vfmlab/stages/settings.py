@@ -133,7 +133,7 @@ class ExportSettings:
     """``vfmlab export``: ``out`` default <SESSION stem>_export next to the session; ``markers_name`` default the latest."""
 
     out: Path | None = None
-    fmt: str = "vtk"
+    fmt: str = "vtu"
     markers_name: str | None = None
 
 
