@@ -32,9 +32,10 @@ Examples:
 @click.option("--compare", nargs=2, metavar="A B", help="Compare two results by name, e.g. identification_001 identification_002.")
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable JSON on stdout (SI; each parameter has its unit).")
 def command(session, kind, compare, as_json):
-    """List the results stored in SESSION (name, kind, date, version, settings; identified parameters),
-    or compare two of them (settings diff and differences of their parameters)."""
-    from vfmlab.results import compare_results, list_results
+    """List the results stored in SESSION (name, kind, date, version, settings; identified parameters) and the
+    identified models side by side (parameters with units, cost, verdict), or compare two results (settings diff
+    and differences of their parameters)."""
+    from vfmlab.results import compare_results, list_results, side_by_side
 
     with cli_session(session) as s:
         data = compare_results(s, *compare) if compare else list_results(s, kind)
@@ -50,6 +51,9 @@ def command(session, kind, compare, as_json):
     console.print(f"[bold]{esc(session)}[/]: {len(data)} result(s), oldest first")
     for row in data:
         _print_row(row)
+    table = side_by_side(data)
+    if table["rows"]:
+        _print_side_by_side(table)
 
 
 def _print_row(row: dict) -> None:
@@ -64,12 +68,34 @@ def _print_row(row: dict) -> None:
         flags = row["flags"] if isinstance(row["flags"], list) else [f"{k}: {v}" for k, v in row["flags"].items()]
         for flag in flags:
             console.print(f"    [yellow]warning:[/] {esc(flag)}")
+        if row.get("verdict"):
+            reasons = "; ".join(str(r) for r in row.get("verdict_reasons") or [])
+            console.print(f"    verdict: {esc(row['verdict'])}" + (f" ({esc(reasons)})" if reasons else ""))
     elif row["kind"] == "markers" and "n_markers" in row:
         console.print(f"    {row['n_markers']} markers × {row['n_steps']} steps, "
                       f"{row['completeness'] * 100:.1f} % of marker-steps reconstructed")
     elif row["kind"] == "calibration" and "rms_px" in row:
         console.print(f"    {len(row['rms_px'])} cameras, reprojection RMS "
                       + ", ".join(f"{esc(c)} {v:.3f} px" for c, v in zip(row["cameras"], row["rms_px"])))
+
+
+def _print_side_by_side(table: dict) -> None:
+    t = Table(title="Models side by side (± standard error; ? = parameter judged doubtful)")
+    for col in ("result", "model", *(f"{p['name']} ({p['unit'] or '1'})" for p in table["parameters"]),
+                "cost", "verdict"):
+        t.add_column(esc(col), justify="left" if col in ("result", "model", "verdict") else "right")
+    for r in table["rows"]:
+        cells = []
+        for p in table["parameters"]:
+            v = r["values"].get(p["name"])
+            cells.append("" if v is None else f"{quantity(v['value'], p['unit'])} ± {quantity(v['stderr'], p['unit'], 2)}"
+                         + (" ?" if v["verdict"] == "doubtful" else ""))
+        state = "" if r["converged"] else " [red](not converged)[/]"
+        verdict = r["verdict"] or "–"
+        t.add_row(esc(r["name"]), esc(f"{r['model']} ({r['wall']})"), *[esc(c) for c in cells],
+                  num(r["cost"], 3) + state, ("[yellow]" if verdict == "doubtful" else "") + esc(verdict)
+                  + ("[/]" if verdict == "doubtful" else ""))
+    console.print(t)
 
 
 def _print_comparison(data: dict) -> None:
