@@ -98,7 +98,7 @@ class CalibrateSettings:
     subpix_window: int = 5
     reference: str | None = None
     world_view: int | None = None
-    fix_k3: bool = False
+    fix_k3: bool | None = None  # None: fixed or free as held-out views decide (reconstruction.calibration_select)
     out: Path | None = None
     units: str = "mm"
     store: bool = True
