@@ -36,7 +36,6 @@ def command(session, out, result, force, as_json):
     if as_json:
         print_json(o.to_dict())
         return
-    console.print(f"Wrote the loads of {o.n_steps} steps to {esc(out)} (pressure in Pa, axial force in N"
-                  + (f"; step numbers of {esc(o.markers_result)}" if o.markers_result else "")
-                  + f"). The load cell measures the {esc(o.load_cell_measures)} force: import with "
-                  f"--force-is {esc(o.load_cell_measures)}.")
+    numbers = f"; step numbers of {esc(o.markers_result)}" if o.markers_result else ""
+    console.print(f"Wrote the loads of {o.n_steps} steps to {esc(out)} (pressure in Pa, axial force in N{numbers}); "
+                  f"import with --force-is {esc(o.load_cell_measures)} (what the load cell measures).")

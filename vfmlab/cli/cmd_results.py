@@ -35,6 +35,7 @@ def command(session, kind, compare, as_json):
     """List the results stored in SESSION (name, kind, date, version, settings; identified parameters) and the
     identified models side by side (parameters with units, cost, verdict), or compare two results (settings diff
     and differences of their parameters)."""
+    from vfmlab.display import side_by_side_table
     from vfmlab.results import compare_results, list_results, side_by_side
 
     with cli_session(session) as s:
@@ -53,7 +54,7 @@ def command(session, kind, compare, as_json):
         _print_row(row)
     table = side_by_side(data)
     if table["rows"]:
-        _print_side_by_side(table)
+        console.print(side_by_side_table(table))
 
 
 def _print_row(row: dict) -> None:
@@ -77,25 +78,6 @@ def _print_row(row: dict) -> None:
     elif row["kind"] == "calibration" and "rms_px" in row:
         console.print(f"    {len(row['rms_px'])} cameras, reprojection RMS "
                       + ", ".join(f"{esc(c)} {v:.3f} px" for c, v in zip(row["cameras"], row["rms_px"])))
-
-
-def _print_side_by_side(table: dict) -> None:
-    t = Table(title="Models side by side (± standard error; ? = parameter judged doubtful)")
-    for col in ("result", "model", *(f"{p['name']} ({p['unit'] or '1'})" for p in table["parameters"]),
-                "cost", "verdict"):
-        t.add_column(esc(col), justify="left" if col in ("result", "model", "verdict") else "right")
-    for r in table["rows"]:
-        cells = []
-        for p in table["parameters"]:
-            v = r["values"].get(p["name"])
-            cells.append("" if v is None else f"{quantity(v['value'], p['unit'])} ± {quantity(v['stderr'], p['unit'], 2)}"
-                         + (" ?" if v["verdict"] == "doubtful" else ""))
-        state = "" if r["converged"] else " [red](not converged)[/]"
-        verdict = r["verdict"] or "–"
-        t.add_row(esc(r["name"]), esc(f"{r['model']} ({r['wall']})"), *[esc(c) for c in cells],
-                  num(r["cost"], 3) + state, ("[yellow]" if verdict == "doubtful" else "") + esc(verdict)
-                  + ("[/]" if verdict == "doubtful" else ""))
-    console.print(t)
 
 
 def _print_comparison(data: dict) -> None:
