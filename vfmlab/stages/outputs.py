@@ -1,5 +1,6 @@
 """The report and export stages: what a session holds, as an HTML report with PNG figures, or as meshes and
-fields per step that ParaView opens (legacy VTK or PLY) with the latest parameter profile (CSV, VTK polyline).
+fields per step that ParaView, PyVista and meshio open (VTU + .pvd series; legacy VTK or PLY on request) with the
+latest parameter profile (CSV, VTK polyline).
 
 Output folders default to ``<session stem>_report`` / ``<session stem>_export`` next to the session; files in SI.
 """
@@ -63,7 +64,7 @@ def report(session_path: str | os.PathLike, settings: ReportSettings | None = No
 
 @dataclass(frozen=True)
 class ExportOutcome:
-    """The files written: ``files`` (meshes per step, and the .vtk.series index), ``profile`` (CSV and VTK
+    """The files written: ``files`` (meshes per step, then the .pvd or .vtk.series indexes), ``profile`` (CSV and VTK
     polyline of the latest regional result, or none), the ``fields`` exported and where they came from."""
 
     out: Path
