@@ -22,6 +22,7 @@ import cv2
 import numpy as np
 
 from reconstruction.calibration import calibrate_cameras
+from reconstruction.calibration_errors import CalibrationError
 from reconstruction.calibration_init import _normalise_inputs
 from reconstruction.cameras import Camera
 
@@ -90,6 +91,22 @@ def _heldout_rms(cameras: list[Camera], uv: np.ndarray, obj: np.ndarray, views: 
     return float(np.sqrt(sq / n)) if n else float("nan")
 
 
+def _held_out(usable: np.ndarray, seen: np.ndarray, every: int) -> np.ndarray:
+    """Views to hold out: every ``every``-th of ``seen``, skipping a view that would take from some camera more
+    than 1 in ``every`` of the views it sees (``usable`` (n_cams, n_views) bool)."""
+    budget = usable.sum(1) // every
+    taken = np.zeros_like(budget)
+    held = []
+    for k, v in enumerate(seen):
+        if (k + 1) % every and len(held) >= (k + 1) // every:
+            continue  # not this view's turn, and on schedule
+        cams = usable[:, v]
+        if np.all(taken[cams] < budget[cams]):
+            held.append(v)
+            taken[cams] += 1
+    return np.asarray(held, int)
+
+
 def choose_distortion(image_points: np.ndarray, object_points: np.ndarray, image_sizes: list[tuple[int, int]],
                       camera_names: list[str] | None = None, *, holdout_every: int = 4, prefer_margin: float = 0.02,
                       min_views: int = 8, **calibrate_kwargs) -> DistortionChoice:
@@ -112,11 +129,19 @@ def choose_distortion(image_points: np.ndarray, object_points: np.ndarray, image
     if len(seen) < min_views:
         return DistortionChoice(True, f"k3 fixed at 0: {len(seen)} board views are too few to test a free k3 on "
                                       f"held-out views (>= {min_views})")
-    held = seen[holdout_every - 1::holdout_every]
+    held = _held_out(np.isfinite(uv).all(-1).sum(-1) >= min_points, seen, holdout_every)
+    if len(held) == 0:
+        return DistortionChoice(True, "k3 fixed at 0: no board view can be held out without leaving a camera "
+                                      "too few views")
     train = np.setdiff1d(np.arange(uv.shape[1]), held)
     rms, problems = {}, {}
     for model, fix in zip(MODELS, (True, False)):
-        result = calibrate_cameras(uv[:, train], obj[train], image_sizes, camera_names, fix_k3=fix, **calibrate_kwargs)
+        try:
+            result = calibrate_cameras(uv[:, train], obj[train], image_sizes, camera_names, fix_k3=fix,
+                                       **calibrate_kwargs)
+        except CalibrationError as exc:
+            return DistortionChoice(True, f"k3 fixed at 0: the views left after holding out {len(held)} cannot "
+                                          f"calibrate the cameras ({exc})")
         rms[model] = _heldout_rms(result.cameras, uv, obj, held, min_points)
         found = [p for p in (distortion_problem(c) for c in result.cameras) if p]
         if found:
