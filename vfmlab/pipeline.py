@@ -24,6 +24,7 @@ from acquisition.errors import ImplausibleInputError
 from acquisition.plausibility import check_geometry, check_identifiable
 from acquisition.session import SessionError, SessionWriteError, open_session, write_result
 from vfmlab.parallel import fork_map
+from vfmlab.results import round_floats
 from vfmlab.stages.errors import StageError, StageUnavailable
 from vfmlab.stages.imports import marker_outliers
 
@@ -234,7 +235,7 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
                 "smoothing": smoothing, "markers_result": data["markers_result"],
                 # what was used: exact-looking (unsmoothed) data keep the paper's cost
                 "weighting": weighting if result.smoothing is not None else "paper",
-                "thickness": data["thickness"],
+                "thickness_m": round_floats(data["thickness"]),
                 "force_correction": force_notes}
     arrays, _, attrs = identification_arrays(result, data["rows"], checks)
     attrs.update({"model": model, "wall": wall, "invoked_by": invoked_by, "notes": data["notes"]})

@@ -14,6 +14,7 @@ import numpy as np
 
 from acquisition.session import SessionError, write_result
 from vfmlab.pipeline import FORCE_NOISE, PRESSURE_NOISE, StageError, read_identification_inputs, resolve_ends
+from vfmlab.results import round_floats
 
 __all__ = ["RegionsSpec", "parse_regions", "identify_regional_stored", "AUTO_MAX_BANDS"]
 
@@ -144,7 +145,7 @@ def identify_regional_stored(path: str | os.PathLike, *, regions: RegionsSpec | 
     arrays, units = _result_arrays(get_model(model), result, rd, data["rows"], choice)
     settings = {"model": model, "wall": wall, "ends": ends, "ends_source": ends_source, "regions": str(spec),
                 "n_bands": int(result.n_bands), "smoothing": smoothing, "markers_result": data["markers_result"],
-                "thickness": data["thickness"], "force_correction": data["notes"]}
+                "thickness_m": round_floats(data["thickness"]), "force_correction": data["notes"]}
     attrs = {"model": model, "wall": wall, "cost": result.cost, "converged": result.converged,
              "flags": list(result.flags), "message": result.message, "regional": list(result.regional),
              "profile_kind": result.kind, "uncertainty": result.uncertainty, "confidence": 0.95,

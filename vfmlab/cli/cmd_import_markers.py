@@ -10,7 +10,7 @@ from acquisition.markers_csv import read_loads_csv, read_markers_csv
 from acquisition.session import SessionError, SessionWriter, SpecimenInfo, StepRecord, import_failure, staged_session
 from vfmlab.cli._common import CliError, CliInputError, console, esc, print_json, show_warning
 from vfmlab.cli._outputs import check_output_path
-from vfmlab.stages.imports import check_marker_inputs
+from vfmlab.stages.imports import check_marker_inputs, mm_to_m
 
 
 EPILOG = """
@@ -53,7 +53,7 @@ def command(markers_csv, loads_csv, out, thickness_mm, radius_mm, length_mm, spe
     radius, length, warnings = check_marker_inputs(table, loads, rows, markers_csv, loads_csv, thickness_mm,
                                                    radius_mm, length_mm, show_warning)
     try:
-        specimen = SpecimenInfo(specimen_id or Path(markers_csv).stem, radius, length, thickness_mm * 1e-3, notes,
+        specimen = SpecimenInfo(specimen_id or Path(markers_csv).stem, radius, length, mm_to_m(thickness_mm), notes,
                                 ends or "", "import option --ends" if ends else "")
     except ValueError as exc:
         raise CliInputError(str(exc)) from None
@@ -85,7 +85,7 @@ def command(markers_csv, loads_csv, out, thickness_mm, radius_mm, length_mm, spe
         raise CliError(import_failure(out, exc)) from None
     if as_json:
         print_json({"out": str(out), "result": name, "n_markers": len(table.labels), "n_steps": len(table.steps),
-                    "radius_m": radius, "length_m": length, "thickness_m": thickness_mm * 1e-3,
+                    "radius_m": radius, "length_m": length, "thickness_m": mm_to_m(thickness_mm),
                     "load_cell_measures": force_is, "ends": ends})
         return
     console.print(

@@ -32,9 +32,11 @@ Examples:
 @click.option("--compare", nargs=2, metavar="A B", help="Compare two results by name, e.g. identification_001 identification_002.")
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable JSON on stdout (SI; each parameter has its unit).")
 def command(session, kind, compare, as_json):
-    """List the results stored in SESSION (name, kind, date, version, settings; identified parameters),
-    or compare two of them (settings diff and differences of their parameters)."""
-    from vfmlab.results import compare_results, list_results
+    """List the results stored in SESSION (name, kind, date, version, settings; identified parameters) and the
+    identified models side by side (parameters with units, cost, verdict), or compare two results (settings diff
+    and differences of their parameters)."""
+    from vfmlab.display import side_by_side_table
+    from vfmlab.results import compare_results, list_results, side_by_side
 
     with cli_session(session) as s:
         data = compare_results(s, *compare) if compare else list_results(s, kind)
@@ -50,6 +52,9 @@ def command(session, kind, compare, as_json):
     console.print(f"[bold]{esc(session)}[/]: {len(data)} result(s), oldest first")
     for row in data:
         _print_row(row)
+    table = side_by_side(data)
+    if table["rows"]:
+        console.print(side_by_side_table(table))
 
 
 def _print_row(row: dict) -> None:
@@ -64,6 +69,9 @@ def _print_row(row: dict) -> None:
         flags = row["flags"] if isinstance(row["flags"], list) else [f"{k}: {v}" for k, v in row["flags"].items()]
         for flag in flags:
             console.print(f"    [yellow]warning:[/] {esc(flag)}")
+        if row.get("verdict"):
+            reasons = "; ".join(str(r) for r in row.get("verdict_reasons") or [])
+            console.print(f"    verdict: {esc(row['verdict'])}" + (f" ({esc(reasons)})" if reasons else ""))
     elif row["kind"] == "markers" and "n_markers" in row:
         console.print(f"    {row['n_markers']} markers × {row['n_steps']} steps, "
                       f"{row['completeness'] * 100:.1f} % of marker-steps reconstructed")

@@ -15,7 +15,13 @@ from vfmlab.stages.errors import StageError, StageFailed
 from vfmlab.stages.feedback import Notify, log_notes
 
 __all__ = ["FoundImages", "OUTLIER_RADII", "check_marker_inputs", "check_tube", "estimate_geometry", "first_images",
-           "marker_outliers", "measure_tube", "read_image", "scan_images", "write_imported_session"]
+           "marker_outliers", "measure_tube", "mm_to_m", "read_image", "scan_images", "write_imported_session"]
+
+
+def mm_to_m(value_mm: float) -> float:
+    """A length typed in mm, in m, rounded to 12 significant digits: 1.3 mm -> 0.0013 m, not the
+    0.0013000000000000002 that ``1.3 * 1e-3`` gives and the session would store."""
+    return float(f"{value_mm * 1e-3:.12g}")
 
 _IMAGE_SUFFIXES = {".png", ".tif", ".tiff", ".bmp", ".pgm", ".jpg", ".jpeg"}
 
@@ -184,9 +190,9 @@ def check_marker_inputs(table, loads, rows, markers_csv, loads_csv, thickness_mm
         check_marker_cloud(reference, source=str(markers_csv), radius=radius_mm * 1e-3, fitted_radius=fitted_radius)
     else:
         check_cloud_scale(fitted_radius, source=str(markers_csv))
-    radius = radius_mm * 1e-3 if radius_mm else fitted_radius
-    length = length_mm * 1e-3 if length_mm else fitted_length
-    warnings += check_geometry(radius, thickness_mm * 1e-3, length, source=str(markers_csv))
+    radius = mm_to_m(radius_mm) if radius_mm else fitted_radius
+    length = mm_to_m(length_mm) if length_mm else fitted_length
+    warnings += check_geometry(radius, mm_to_m(thickness_mm), length, source=str(markers_csv))
     try:
         warnings += check_identifiable(table.positions, source=str(markers_csv), steps=table.steps)
     except ImplausibleInputError as exc:  # importing is fine; identifying will refuse

@@ -1,5 +1,6 @@
 """The report and export stages: what a session holds, as an HTML report with PNG figures, or as meshes and
-fields per step that ParaView opens (legacy VTK or PLY) with the latest parameter profile (CSV, VTK polyline).
+fields per step that ParaView, PyVista and meshio open (VTU + .pvd series; legacy VTK or PLY on request) with the
+latest parameter profile (CSV, VTK polyline).
 
 Output folders default to ``<session stem>_report`` / ``<session stem>_export`` next to the session; files in SI.
 """
@@ -104,7 +105,7 @@ def report(session_path: str | os.PathLike, settings: ReportSettings | None = No
 
 @dataclass(frozen=True)
 class ExportOutcome:
-    """The files written: ``files`` (meshes per step, and the .vtk.series index), ``profile`` (CSV and VTK
+    """The files written: ``files`` (meshes per step, then the .pvd or .vtk.series indexes), ``profile`` (CSV and VTK
     polyline of the latest regional result, or none), the ``fields`` exported and where they came from."""
 
     out: Path
@@ -128,7 +129,9 @@ def export(session_path: str | os.PathLike, settings: ExportSettings | None = No
     stresses as cell data, and the latest parameter profile along the axis (``vfmlab export``; defaults:
     :class:`ExportSettings`). Lengths in m, stresses in Pa."""
     from acquisition.session import open_session
-    from vfmlab.export import export_fields, export_profile
+    import numpy as np
+
+    from vfmlab.export import StepTimes, export_fields, export_profile
     from vfmlab.fields import FieldsError, compute_fields
 
     s = settings_with(ExportSettings, settings, overrides)
@@ -151,9 +154,11 @@ def export(session_path: str | os.PathLike, settings: ExportSettings | None = No
         except (FieldsError, ValueError) as exc:  # MeshError is a ValueError
             raise StageError(f"{path}: cannot build the surface fields from {markers['name']}: {exc}") from None
         specimen = session.specimen.specimen_id
+        clock = np.asarray(session.steps["t_monotonic"], float)[fields.steps]
+        times = StepTimes(np.asarray(session.steps["block"], int)[fields.steps], clock - clock[0])
         regional = session.latest("regional") if session.results("regional") else None
     try:
-        files = export_fields(fields, out_dir, fmt=s.fmt, specimen=specimen)
+        files = export_fields(fields, out_dir, fmt=s.fmt, specimen=specimen, times=times)
         profile = [] if regional is None else export_profile(regional, out_dir, specimen=specimen)
     except OSError as exc:
         raise StageFailed(f"cannot write to {out_dir}: {exc}") from None
