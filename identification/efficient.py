@@ -57,6 +57,11 @@ class EfficientSettings:
     marker_sigma : float or ndarray of shape (n_steps, n_markers), optional
         Per-coordinate marker noise (m), e.g. what the reconstruction reports per marker and step; default: the
         level the data show (``resimulation.marker_noise_level``).
+    refine_reference : bool
+        Estimate every marker's material coordinates from all steps (``reference.refine_reference``) instead of
+        taking the reference step's measured positions as exact.
+    reference_degree : (int, int)
+        The reference configuration's error is propagated on a basis of at least these (axial degree, harmonics).
     n_iterations : int
         Generalised least-squares fits, each with the covariance at the previous estimate (default 2).
     step : float
@@ -68,6 +73,8 @@ class EfficientSettings:
     force_relative: float = 1e-3
     force_floor: float = 2e-3
     marker_sigma: float | np.ndarray | None = None
+    refine_reference: bool = True
+    reference_degree: tuple[int, int] = (4, 2)
     n_iterations: int = 2
     step: float = 1e-6
 
@@ -142,16 +149,26 @@ class GapCovariance:
             pinv = np.linalg.solve(Bu.T @ Bu, Bu.T)  # coefficients of a field sampled at the used markers
             s2 = sigma[:, use] ** 2  # (n_steps, n_used)
             cov = np.einsum("bn,sn,cn->sbc", pinv, s2, pinv)  # (n_steps, n_b, n_b)
-            loaded, reference = [], []
+            loaded = []
             for i in range(B.shape[1]):
-                delta = eps * B[:, i, None] * e[j]  # (n_steps, n_markers, 3)
                 pos = aligned.copy()
-                pos[1:] += delta[1:]
+                pos[1:] += eps * B[:, i, None] * e[j][1:]
                 loaded.append(prep(pos))
+            self.modes.append((cov * (np.arange(len(cov)) > 0)[:, None, None], loaded, []))
+        # the reference configuration: its error is shared by all steps (a basis at least ``reference_degree``)
+        for j, degree in enumerate(data.smoothing):
+            degree = tuple(max(a, b) for a, b in zip(degree, settings.reference_degree))
+            B, ok_ref = smoothing_basis(mesh, degree)
+            use = ok & ok_ref
+            Bu = B[use]
+            pinv = np.linalg.solve(Bu.T @ Bu, Bu.T)
+            cov = np.einsum("bn,sn,cn->sbc", pinv, sigma[:1, use] ** 2, pinv)
+            reference = []
+            for i in range(B.shape[1]):
                 ref = aligned.copy()
-                ref[0] += delta[0]
+                ref[0] += eps * B[:, i] [:, None] * e[j][0]
                 reference.append(prep(ref, m=remeasured_mesh(mesh, ref[0])))
-            self.modes.append((cov, loaded, reference))
+            self.modes.append((cov, [], reference))
 
     def _marker_sigma(self, positions) -> np.ndarray:
         """Per-coordinate marker noise (m), shape (n_steps, n_markers)."""
@@ -179,10 +196,12 @@ class GapCovariance:
         gf = (self._gaps(self.d_force, params) - g0) / self.df * self.sf
         step_cov = np.einsum("ks,ls->skl", gp, gp) + np.einsum("ks,ls->skl", gf, gf)
         for c_b, loaded, reference in self.modes:
-            G = np.stack([(self._gaps(d, params) - g0) / self.settings.step for d in loaded], -1)  # (f, s, b)
-            H = np.stack([(self._gaps(d, params) - g0) / self.settings.step for d in reference], -1)
-            step_cov += np.einsum("ksb,sbc,lsc->skl", G, c_b, G) * (np.arange(n_s) > 0)[:, None, None]
-            cov += np.einsum("ksb,bc,ltc->kslt", H, c_b[0], H)
+            if loaded:  # a loaded step's own noise: (f, s, b)
+                G = np.stack([(self._gaps(d, params) - g0) / self.settings.step for d in loaded], -1)
+                step_cov += np.einsum("ksb,sbc,lsc->skl", G, c_b, G)
+            if reference:
+                H = np.stack([(self._gaps(d, params) - g0) / self.settings.step for d in reference], -1)
+                cov += np.einsum("ksb,bc,ltc->kslt", H, c_b[0], H)
         idx = np.arange(n_s)
         cov[:, idx, :, idx] += step_cov
         cov[:, 0], cov[:, :, :, 0] = 0.0, 0.0  # the reference step: no load, no information (its gap ~ 0)

@@ -15,6 +15,8 @@ from typing import Mapping
 import numpy as np
 
 from .efficient import EfficientSettings, identify_efficient
+from .reference import refine_reference
+from .resimulation import remeasured_mesh
 from .fit import IdentificationResult, identify_prepared
 from .models import Model
 from .noise_weights import weighted_flags, in_physical_units, used_positions, gap_noise, weighted_data, weights_from_noise
@@ -211,8 +213,16 @@ def identify_gls(positions, pressure, axial_force, *, thickness: float, model="f
     ``uncertainty="bootstrap"`` is not available yet for this weighting."""
     if uncertainty != "gauss-newton":
         raise ValueError(f"weighting='efficient' supports uncertainty='gauss-newton' only; got {uncertainty!r}")
+    settings = settings or EfficientSettings()
     first = identify(positions, pressure, axial_force, thickness=thickness, model=model, **prepare_options)
     options = {k: v for k, v in prepare_options.items() if k not in ("n_starts",)}
-    result, _ = identify_efficient(first, used_positions(first, positions), model, settings, options)
+    x = used_positions(first, positions)
+    if settings.refine_reference and first.data.smoothing is not None:
+        x = refine_reference(x, first.data.mesh, first.data.smoothing)
+        given = {k: v for k, v in prepare_options.items() if k not in ("mesh", "smoothing")}
+        first = replace(identify(x, first.data.pressure, first.data.axial_force, thickness=thickness, model=model,
+                                 mesh=remeasured_mesh(first.data.mesh, x[0]), smoothing=first.data.smoothing,
+                                 **given), steps=first.steps, flags=first.flags)
+    result, _ = identify_efficient(first, x, model, settings, options)
     result = dataclasses.replace(result, flags=weighted_flags(result, first, first.data, model))
     return in_physical_units(result, first.data, model)
