@@ -11,7 +11,7 @@ bound^2 / RMS^2 (RMS error over the seeds, so bias counts).
 
 Run: ``python -m benchmarks.bench_efficiency [--models fung,delfino,hgo] [--sigmas-mm 0.01,0.05,0.17]
 [--walls membrane,thick] [--ends free,clamped] [--stretches 1.1 | 1.05/1.1/1.15] [--seeds 40]
-[--estimators default,noise,efficient]``. The default is a reduced quick set (Fung, Delfino and HGO at 0.17 mm,
+[--estimators default,noise,efficient] [--diagnose]``. The default is a reduced quick set (Fung, Delfino and HGO at 0.17 mm,
 membrane, free ends, one stretch, 40 seeds). Prints Markdown tables (docs/validation/efficiency.md).
 """
 
@@ -105,6 +105,55 @@ def run_case(model: str, sigma: float, *, wall: str = "membrane", ends: str = "f
             "n": n_seeds}
 
 
+#: (label, noise on the loaded steps' markers, on the reference markers, on the readings, identify options)
+DIAGNOSIS = [
+    ("all noise, paper's cost", True, True, True, dict(smoothing="auto")),
+    ("exact markers, noisy readings, paper's cost", False, False, True, dict(smoothing="auto")),
+    ("noisy markers, exact readings, paper's cost", True, True, False, dict(smoothing="auto")),
+    ("loaded steps' markers only, paper's cost", True, False, False, dict(smoothing="auto")),
+    ("reference markers only, paper's cost", False, True, False, dict(smoothing="auto")),
+    ("all noise, smoothing (2, 0), paper's cost", True, True, True, dict(smoothing=(2, 0))),
+    ("all noise, smoothing (4, 2), paper's cost", True, True, True, dict(smoothing=(4, 2))),
+    ("all noise, weighting noise", True, True, True, dict(smoothing="auto", weighting="noise")),
+    ("all noise, weighting efficient", True, True, True, dict(smoothing="auto", weighting="efficient")),
+    ("exact reference, weighting efficient", True, False, True, dict(smoothing="auto", weighting="efficient")),
+    ("all noise, efficient + reference_noise_correction", True, True, True,
+     dict(smoothing="auto", weighting="efficient", reference_noise_correction=True)),
+]
+
+
+def diagnose(model: str, sigma: float, n_seeds: int) -> str:
+    """Where the information is lost: each noise source alone, and each lever, on the same seeds (free membrane
+    tube, one stretch 1.1); efficiency against the bound of all noise sources."""
+    sim = simulate_case(model, wall="membrane", ends="free", stretches=(1.1,))
+    names = get_model(model).parameter_names
+    truth = np.array([PAPER_PARAMETERS[model][p] for p in names])
+    bound = case_bound(model, sim, sigma, wall="membrane")
+    noise = MeasurementNoise(sigma)
+    lines = [f"| variant ({model}, {sigma * 1e3:g} mm, {n_seeds} seeds) | " + " | ".join(
+        f"{p} RMS % (eff.)" for p in names) + " |", "|---|" + "---|" * len(names)]
+    for label, loaded, ref, loads, options in DIAGNOSIS:
+        err = []
+        for seed in range(n_seeds):
+            rng = np.random.default_rng([20261127, seed])
+            x = np.array(sim.exact_positions)
+            n = sigma * rng.standard_normal(x.shape)
+            x[1:] += n[1:] * loaded
+            x[0] += n[0] * ref
+            p, f = np.array(sim.pressure), np.array(sim.axial_force)
+            sp, sf = noise.load_sigma(p[1:], f[1:])
+            p[1:] += sp * rng.standard_normal(sp.shape) * loads
+            f[1:] += sf * rng.standard_normal(sf.shape) * loads
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                res = identify(x, p, f, thickness=H, model=model, ends="free", **options)
+            err.append((np.array([res.parameters[k] for k in names]) - truth) / np.abs(truth) * 100.0)
+        rms = np.sqrt(np.mean(np.array(err) ** 2, axis=0))
+        lines.append(f"| {label} | " + " | ".join(f"{r:.3g} ({(b / r) ** 2:.2f})" for r, b in zip(rms, bound)) + " |")
+        print(lines[-1], flush=True)
+    return "\n".join(lines)
+
+
 def summary(case: dict, estimator: str) -> dict:
     """RMS, bias and efficiency per parameter of one estimator in one case."""
     err = case["errors"][estimator]
@@ -138,9 +187,14 @@ def main(argv=None) -> None:
                         "several cases comma-separated")
     parser.add_argument("--seeds", type=int, default=40)
     parser.add_argument("--first-seed", type=int, default=0)
-    parser.add_argument("--estimators", default="default,noise")
+    parser.add_argument("--estimators", default="default,noise,efficient")
+    parser.add_argument("--diagnose", action="store_true", help="where the information is lost: each noise source "
+                        "alone and each lever, first model and sigma, free membrane, one stretch")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)
+    if args.diagnose:
+        print(diagnose(args.models.split(",")[0], float(args.sigmas_mm.split(",")[0]) * 1e-3, args.seeds))
+        return
     estimators = tuple(args.estimators.split(","))
     t0 = time.perf_counter()
     cases = []

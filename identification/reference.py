@@ -40,7 +40,7 @@ def _fit(B: np.ndarray, y: np.ndarray, ok: np.ndarray) -> np.ndarray:
     return coef
 
 
-def refine_reference(positions: np.ndarray, mesh: SurfaceMesh, degrees, *, n_iterations: int = 3) -> np.ndarray:
+def refine_reference(positions: np.ndarray, mesh: SurfaceMesh, degrees, *, n_iterations: int = 2) -> np.ndarray:
     """``positions`` (n_steps, n_markers, 3), m, with the reference step (0) replaced by its estimate from all steps.
 
     ``mesh``: the mesh of the measured reference; ``degrees``: the smoothing basis of the displacement (three
@@ -51,7 +51,9 @@ def refine_reference(positions: np.ndarray, mesh: SurfaceMesh, degrees, *, n_ite
     r, th, z, axes = step_cylindrical(mesh, aligned)  # (S, N) about each step's own axis
     ok = np.isfinite(r) & np.isfinite(th) & np.isfinite(z) & mesh.used[None]
     degs = per_component_degrees(degrees)
-    T, Z = np.where(mesh.used, mesh.theta, 0.0), np.where(mesh.used, mesh.z, 0.0)
+    # the measured reference in its own step frame (the frame the positions are rebuilt in)
+    T_meas, Z_meas = np.where(ok[0], th[0], 0.0), np.where(ok[0], z[0], 0.0)
+    T, Z = T_meas.copy(), Z_meas.copy()
     r0 = np.where(ok, r, 0.0)
     for _ in range(int(n_iterations)):
         m2 = replace(mesh, theta=T, z=Z)
@@ -94,6 +96,14 @@ def refine_reference(positions: np.ndarray, mesh: SurfaceMesh, degrees, *, n_ite
         step = np.zeros((len(T), 2))
         step[good] = -np.linalg.solve(JtJ[good], Jte[good][..., None])[..., 0]
         T, Z = T + step[:, 0], Z + step[:, 1]
+        # the gauge, imposed: the coordinates' smooth part (on the displacement's basis) is the measured reference's
+        # (the alternation alone creeps there at a rate of ~1/n_steps per iteration)
+        for c, (coord, measured) in enumerate(((T, T_meas), (Z, Z_meas))):
+            B, ok_ref = smoothing_basis(mesh, degs[c + 1])
+            use = ok[0] & ok_ref
+            dev = np.where(use, coord - measured, 0.0)
+            coef = np.linalg.lstsq(B[use], dev[use], rcond=None)[0]
+            coord -= np.where(use, B @ coef, 0.0)
     R0 = smoothing_basis(replace(mesh, theta=T, z=Z), last[0])[0] @ last[1]
     local = np.stack([R0 * np.cos(T), R0 * np.sin(T), Z], -1)
     ref = local @ axes[0].basis + axes[0].origin
