@@ -143,7 +143,8 @@ class GapCovariance:
         self.sp = np.hypot(settings.pressure_relative * p, settings.pressure_floor) * (np.arange(p.size) > 0)
         self.sf = np.hypot(settings.force_relative * f, settings.force_floor) * (np.arange(p.size) > 0)
         # the markers: the smoothing coefficients of the loaded steps and of the reference
-        self.modes = []  # (component basis covariance (n_b, n_b), [loaded VFMData], [reference VFMData])
+        self.modes: list[tuple] = []  # (component basis covariance (n_b, n_b), [loaded VFMData], [reference VFMData])
+        self.reference_sets: list[VFMData] = []  # re-measured references (``reference_replicates``)
         if data.smoothing is None:
             log.info("efficient weighting of unsmoothed data: the readings' noise only")
             return
@@ -164,7 +165,6 @@ class GapCovariance:
                 loaded.append(prep(pos))
             self.modes.append((cov * (np.arange(len(cov)) > 0)[:, None, None], loaded, []))
         # the reference configuration: its error is shared by all steps
-        self.reference_sets = []
         if settings.reference_replicates:
             rng = np.random.default_rng(settings.seed)
             for _ in range(int(settings.reference_replicates)):
@@ -173,7 +173,7 @@ class GapCovariance:
                 self.reference_sets.append(prep(ref, m=remeasured_mesh(mesh, ref[0])))
             return
         for j, degree in enumerate(data.smoothing):  # linearised on a basis of at least ``reference_degree``
-            degree = tuple(max(a, b) for a, b in zip(degree, settings.reference_degree))
+            degree = (max(degree[0], settings.reference_degree[0]), max(degree[1], settings.reference_degree[1]))
             B, ok_ref = smoothing_basis(mesh, degree)
             use = ok & ok_ref
             Bu = B[use]
@@ -260,4 +260,6 @@ def identify_efficient(first, positions, model, settings: EfficientSettings | No
         W = whitening_matrix(sigma)
         result = identify_prepared(data, model, initial=params, n_starts=1, whitening=W)
         params = result.parameters
+    if result is None:
+        raise IdentificationError(f"n_iterations must be >= 1; got {settings.n_iterations!r}")
     return dataclasses.replace(result, smoothing=data.smoothing, data=data, steps=first.steps), W

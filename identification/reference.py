@@ -71,7 +71,7 @@ def refine_reference(positions: np.ndarray, mesh: SurfaceMesh, degrees, *, n_ite
             coef = _fit(B, y, ok)
             vals, dt, dz = coef @ B.T, coef @ dBt.T, coef @ dBz.T
             if c == 0:  # the reference surface: its own (richer) basis
-                deg0 = tuple(max(a, b) for a, b in zip(deg, REFERENCE_RADIUS_DEGREE))
+                deg0 = (max(deg[0], REFERENCE_RADIUS_DEGREE[0]), max(deg[1], REFERENCE_RADIUS_DEGREE[1]))
                 B0 = smoothing_basis(m2, deg0)[0]
                 c0 = _fit(B0, y[:1], ok[:1])[0]
                 last = (deg0, c0)
