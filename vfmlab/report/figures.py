@@ -119,13 +119,14 @@ def markers_per_step(visible: np.ndarray, pressure: np.ndarray) -> Figure:
 
 def mesh_3d(fields: SurfaceFields) -> Figure:
     """3-D view of the surface mesh (the side facing the viewer) in the reference and the last step,
-    coloured by E11 in the last step."""
+    coloured by E11 in the last step; slivers (:func:`well_shaped`) are left out, so the seam shows no spikes."""
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
     fig = _figure(9.0, 4.6)
-    tri = fields.mesh.triangles
+    keep = well_shaped(fields)
+    tri = fields.mesh.triangles[keep]
     last = len(fields.positions) - 1
-    e11 = fields.kin["E11"][last] * 100
+    e11 = fields.kin["E11"][last][keep] * 100
     norm = Normalize(*_limits(e11))
     cmap = colormaps["viridis"]
     for i, (step, title) in enumerate(((0, "Reference (step 0)"), (last, f"Step {last}: "
@@ -160,6 +161,24 @@ def mesh_3d(fields: SurfaceFields) -> Figure:
         ax.set_title(title)
     fig.colorbar(ScalarMappable(norm, cmap), ax=fig.axes, shrink=0.7, label="E11 circumferential strain (%)")
     return fig
+
+
+def well_shaped(fields: SurfaceFields, min_quality: float = 0.25, max_edge: float = 3.0) -> np.ndarray:
+    """(n_triangles,) bool: triangles that are not slivers on the unrolled reference surface (cylindrical
+    coordinates R θ, z; seam triangles kept whole): shape quality 4√3·area / Σ edge² (1 for an equilateral
+    triangle) at least ``min_quality``, longest edge at most ``max_edge`` times the median longest edge."""
+    t = unrolled_triangulation(fields)
+    p = np.stack([t.x, t.y], axis=-1)[t.triangles]  # (n_tri, 3, 2) mm
+    edges = np.linalg.norm(p - np.roll(p, 1, axis=1), axis=2)
+    d1, d2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+    area = 0.5 * np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        quality = 4 * np.sqrt(3) * area / (edges**2).sum(axis=1)
+    longest = edges.max(axis=1)
+    ok = np.isfinite(quality) & (quality >= min_quality)
+    if ok.any():
+        ok &= longest <= max_edge * np.median(longest[ok])
+    return ok
 
 
 def _limits(values: np.ndarray, min_span: float = 0.0) -> tuple[float, float]:
