@@ -135,18 +135,20 @@ def mesh_3d(fields: SurfaceFields) -> Figure:
         x = fields.positions[step] * 1e3
         verts = x[tri]
         ok = np.all(np.isfinite(verts), axis=(1, 2))
-        # back-face culling: the triangles are oriented with outward normals, so drawing only those
-        # facing the viewer avoids matplotlib's painter's-algorithm mixing the far wall into the near one
+        # the far wall (its inside, seen over the near rim) first in grey, then the near wall on top of it: with
+        # the draw order fixed, matplotlib's depth sort cannot mix the walls, and the rim shows no spikes
         elev, azim = np.radians(25.0), np.radians(-60.0)
         view = np.array([np.cos(elev) * np.cos(azim), np.cos(elev) * np.sin(azim), np.sin(elev)])
         normal = np.cross(verts[:, 1] - verts[:, 0], verts[:, 2] - verts[:, 0])
         centre_xy = np.nanmean(x[:, :2], axis=0)
         outward = np.sign(np.einsum("ij,ij->i", normal[:, :2], verts.mean(axis=1)[:, :2] - centre_xy))
-        ok &= (normal @ view) * outward > 0
-        colors = cmap(norm(np.nan_to_num(e11))) if step else np.array([[0.75, 0.75, 0.8, 1.0]])
-        coll = Poly3DCollection(verts[ok], facecolors=colors[ok] if step else colors[0], edgecolors="k",
-                                linewidths=0.15, alpha=0.95)
-        ax.add_collection3d(coll)
+        near = (normal @ view) * outward > 0
+        colors = cmap(norm(np.nan_to_num(e11))) if step else np.tile([0.75, 0.75, 0.8, 1.0], (len(tri), 1))
+        ax.computed_zorder = False
+        ax.add_collection3d(Poly3DCollection(verts[ok & ~near], facecolors=(0.88, 0.88, 0.9, 1.0), edgecolors="0.6",
+                                             linewidths=0.1, zorder=1, rasterized=True))
+        ax.add_collection3d(Poly3DCollection(verts[ok & near], facecolors=colors[ok & near], edgecolors="k",
+                                             linewidths=0.15, zorder=2, rasterized=True))
         pts = x[np.isfinite(x).all(axis=1)]
         lo, hi = pts.min(axis=0), pts.max(axis=0)
         centre, half = (lo + hi) / 2, (hi - lo).max() / 2

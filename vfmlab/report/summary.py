@@ -23,6 +23,8 @@ __all__ = ["Verdict", "caveat", "intervals", "read_verdict", "section"]
 
 NO_VERDICT = "—"
 _Z95 = 1.959963984540054
+#: A model whose pressure or force misfit exceeds this fraction of the measured range fits poorly.
+POOR_FIT = 0.25
 
 
 @dataclass(frozen=True)
@@ -80,9 +82,11 @@ def caveat(result: Mapping[str, Any], quality: Mapping[str, float] | None = None
         return f"Caution: the identification {name} is doubtful ({why}); its stresses are indicative only."
     if not bool(at.get("converged", True)):
         return f"Caution: the identification {name} did not converge; its stresses are indicative only."
-    if quality and quality.get("pressure_rel", 0) > 0.25:
-        return (f"Caution: {name} fits the measured pressure–radius curve poorly (RMS misfit "
-                f"{quality['pressure_rel'] * 100:.0f} % of the pressure range); its stresses are indicative only.")
+    for key, curve in (("pressure", "pressure–radius"), ("force", "force–pressure")):
+        if quality and quality.get(f"{key}_rel", 0) > POOR_FIT:
+            return (f"Caution: {name} fits the measured {curve} curve poorly (RMS misfit "
+                    f"{quality[f'{key}_rel'] * 100:.0f} % of the measured {key} range); its stresses are indicative "
+                    "only.")
     return None
 
 
@@ -170,5 +174,5 @@ def _lead(ctx, qualities: Mapping[str, Mapping[str, float]]) -> str:
     trust = {"trusted": "its verdict is trusted", "doubtful": "but its verdict is doubtful"}.get(
         v.overall, "no verdict is stored for it")
     return (f'<p id="lead">Best fit of the measured pressure and force: <b>{html.escape(str(r["attrs"].get("model")))}'
-            f"</b> ({html.escape(best)}; pressure misfit {qualities[best]['pressure_rel'] * 100:.0f} %, force misfit "
-            f"{qualities[best]['force_rel'] * 100:.0f} % of the measured range); {trust}.</p>")
+            f"</b> ({html.escape(best)}; pressure misfit {qualities[best]['pressure_rel'] * 100:.1f} %, force misfit "
+            f"{qualities[best]['force_rel'] * 100:.1f} % of the measured range); {trust}.</p>")
