@@ -102,7 +102,8 @@ def _cell(result: Mapping[str, Any], verdict: Verdict, name: str) -> str:
     pv = verdict.parameters.get(name, NO_VERDICT)
     why = verdict.parameter_reasons.get(name, "")
     title = f' title="{html.escape(why)}"' if why else ""
-    return (f'<span class="value" data-param="{html.escape(name)}" data-value="{values[i]!r}">{num(shown, 4)}</span> '
+    return (f'<span class="value" data-of="{html.escape(result["name"])}" data-param="{html.escape(name)}" '
+            f'data-value="{float(values[i])!r}">{num(shown, 4)}</span> '
             f'{html.escape(u or "")}<br><span class="interval">[{num(low, 3)}, {num(high, 3)}]</span><br>'
             f'<span class="verdict {html.escape(pv)}"{title}>{html.escape(pv)}</span>')
 
