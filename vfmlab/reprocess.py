@@ -198,8 +198,10 @@ def reprocess(paths: Iterable[str | os.PathLike], runs: Sequence[Run], *, worker
                     done(SessionOutcome(path=futures[fut], errors=[f"{futures[fut]}: worker failed: {exc!r}"]))
     else:
         for k, p in enumerate(paths):
-            done(process_session(p, runs, invoked_by, on_run=lambda i, label, k=k, p=p: tell(
-                k * len(runs) + i, total, f"{Path(p).name}: {label}")))
+            def on_run(i: int, label: str, k: int = k, p: str = p) -> None:
+                tell(k * len(runs) + i, total, f"{Path(p).name}: {label}")
+
+            done(process_session(p, runs, invoked_by, on_run=on_run))
     return [outcomes[p] for p in paths]
 
 

@@ -1,7 +1,6 @@
 """The stages' feedback (:mod:`vfmlab.stages.feedback`) on the CLI's stderr console: notes and progress.
 
-On a terminal, a progress bar with the time left; otherwise (a log file, a pipe) one line per stage: the
-description when it starts or changes, so a log says what ran without a line per tick.
+On a terminal a bar with the time left; otherwise (a log, a pipe) one line per stage, when it starts or changes.
 """
 
 from __future__ import annotations
@@ -22,38 +21,36 @@ def notify(text: str) -> None:
 @contextmanager
 def progress_bar(description: str, total: int | None = None, *, console=None,
                  clock: Callable[[], float] | None = None) -> Iterator[Callable[..., None]]:
-    """Progress of one stage on ``console`` (default: stderr), yielding ``update(done=None, total=None,
-    description=None)`` (no argument: one more done). ``clock`` (seconds) for tests."""
-    from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
-                               TimeRemainingColumn)
+    """Progress of one stage on ``console`` (default stderr), yielding ``update(done=None, total=None,
+    description=None)`` (no argument: one more done; a new description: a new stage). ``clock`` for tests."""
+    from rich import progress as rp
 
     from vfmlab.cli._common import err_console
 
     console = console or err_console
+    shown = [esc(description)]
     if not console.is_terminal:
-        shown = [description]
-        console.print(esc(f"{description} ..."), soft_wrap=True)
+        console.print(f"{shown[0]} ...", soft_wrap=True)
 
         def line(done: int | None = None, total: int | None = None, description: str | None = None) -> None:
-            if description and description != shown[0]:
-                shown[0] = description
-                console.print(esc(f"{description} ..."), soft_wrap=True)
+            if description and esc(description) != shown[0]:
+                shown[0] = esc(description)
+                console.print(f"{shown[0]} ...", soft_wrap=True)
 
         yield line
         return
-    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-               TextColumn("left"), TimeRemainingColumn())
-    with Progress(*columns, console=console, transient=True,
-                  **({"get_time": clock} if clock is not None else {})) as progress:
-        task = progress.add_task(esc(description), total=total)
+    columns = (rp.TextColumn("{task.description}"), rp.BarColumn(), rp.MofNCompleteColumn(), rp.TimeElapsedColumn(),
+               rp.TextColumn("left"), rp.TimeRemainingColumn())
+    with rp.Progress(*columns, console=console, transient=True, get_time=clock) as bar:
+        task = bar.add_task(shown[0], total=total)
 
         def update(done: int | None = None, total: int | None = None, description: str | None = None) -> None:
             if done is None and total is None and description is None:
-                progress.advance(task)
-            elif description is not None and esc(description) != progress.tasks[0].description:
-                progress.reset(task, total=total, completed=done or 0, description=esc(description))  # a new stage
+                bar.advance(task)
+            elif description is not None and esc(description) != shown[0]:  # a new stage: its own time left
+                shown[0] = esc(description)
+                bar.reset(task, total=total, completed=done or 0, description=shown[0])
             else:
-                progress.update(task, completed=done, total=total)
+                bar.update(task, completed=done, total=total)
 
         yield update
-

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import html
 import logging
+import os
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -47,7 +48,8 @@ class ReportError(InputError):
     """The report cannot be written: the session cannot be read (exit code 2, decision 0007)."""
 
 
-def build_report(session_path: str | Path, out_dir: str | Path | None = None, *, strain_scale: str = "shared",
+def build_report(session_path: str | os.PathLike, out_dir: str | os.PathLike | None = None, *,
+                 strain_scale: str = "shared",
                  progress: Callable[[int, int, str], None] | None = None) -> Path:
     """Write ``report.html`` (self-contained: figures embedded as PNG) and each figure as SVG, 300 dpi PNG and its
     plotted data (JSON) into ``out_dir``.

@@ -3,8 +3,9 @@ each computed once."""
 
 from __future__ import annotations
 
+import functools
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
@@ -28,9 +29,9 @@ class Context:
         self.damaged: list[str] = []
         self.markers = self._read(lambda: session.latest("markers"))
         self.calibration = self._read(lambda: session.latest("calibration"))
-        self.idents = [r for r in (self._read(lambda n=n: session.result(n)) for n in session.results("identification"))
-                       if r is not None]
-        latest: dict[tuple[str, str], dict] = {}
+        self.idents = [r for r in (self._read(functools.partial(session.result, n))
+                                   for n in session.results("identification")) if r is not None]
+        latest: dict[tuple[str, str], Mapping[str, Any]] = {}
         for r in self.idents:  # newest result per (model, wall)
             latest[(str(r["attrs"].get("model", "?")), str(r["attrs"].get("wall", "")))] = r
         self.latest_idents = list(latest.values())

@@ -66,6 +66,14 @@ def groups(values: np.ndarray, digits: int = 3) -> list[tuple[float, np.ndarray]
     return [(float(v), np.flatnonzero(rounded == v)) for v in np.unique(rounded[np.isfinite(rounded)])]
 
 
+def _kpa_to_mmhg(kpa: Any) -> np.ndarray:
+    return np.asarray(kpa, float) * 1e3 / MMHG
+
+
+def _mmhg_to_kpa(mmhg: Any) -> np.ndarray:
+    return np.asarray(mmhg, float) * MMHG / 1e3
+
+
 def _figure(width: float, height: float) -> Figure:
     return Figure(figsize=(width, height), dpi=110, layout="constrained")
 
@@ -83,8 +91,7 @@ def pressure_radius(fits: Mapping[str, Any], stretch: np.ndarray) -> tuple[Figur
                     label=label if g == 0 else None)
     ax.set_xlabel("mid-span radius (mm)")
     ax.set_ylabel("pressure (kPa)")
-    ax.secondary_yaxis("right", functions=(lambda kpa: kpa * 1e3 / MMHG, lambda mm: mm * MMHG / 1e3)).set_ylabel(
-        "pressure (mmHg)")
+    ax.secondary_yaxis("right", functions=(_kpa_to_mmhg, _mmhg_to_kpa)).set_ylabel("pressure (mmHg)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
     ax.set_title("Pressure–radius: measured and each model")

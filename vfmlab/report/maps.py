@@ -102,7 +102,8 @@ def _draw(ctx, rep, items: list[Field], what: str) -> list[str]:
     f = ctx.fields
     shared = rep.strain_scale == "shared"
     steps = figures.map_steps(len(f.positions))
-    flat, maps = [], []
+    flat: list[tuple[Field, float, float]] = []
+    maps: list[tuple[Field, float, float]] = []
     for it in items:
         uniform, signal, noise = uniformity(f, it.values, steps, it.min_span / it.scale / 2)
         (flat if uniform else maps).append((it, signal, noise))

@@ -35,7 +35,7 @@ def absent(sentence: str) -> str:
     return f'<p class="absent">{html.escape(sentence)}</p>'
 
 
-def table(header: list[str], rows: list[list[Any]], numeric: set[int] = frozenset()) -> str:
+def table(header: list[str], rows: list[list[Any]], numeric: frozenset[int] | set[int] = frozenset()) -> str:
     out = ["<table><tr>" + "".join(f"<th>{html.escape(str(h))}</th>" for h in header) + "</tr>"]
     for row in rows:
         cells = []
