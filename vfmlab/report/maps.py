@@ -76,7 +76,7 @@ def summary_figure(fields, items: list[Field]) -> tuple[Figure, dict]:
     """Median and 5–95 % spatial spread of each near-uniform field against pressure, one series per stretch."""
     n = len(items)
     ncols = min(n, 3)
-    fig = Figure(figsize=(4.2 * ncols, 3.3 * int(np.ceil(n / ncols))), dpi=110, layout="constrained")
+    fig = Figure(figsize=(max(4.2 * ncols, 6.0), 3.3 * int(np.ceil(n / ncols))), dpi=110, layout="constrained")
     axes = np.atleast_1d(fig.subplots(int(np.ceil(n / ncols)), ncols, squeeze=False)).ravel()
     p = fields.pressure / curves.MMHG
     data: dict = {"pressure_Pa": fields.pressure, "stretch_imposed": fields.stretch, "fields": {}}
@@ -94,7 +94,7 @@ def summary_figure(fields, items: list[Field]) -> tuple[Figure, dict]:
         data["fields"][it.key] = {"median": q[1] / it.scale, "p05": q[0] / it.scale, "p95": q[2] / it.scale}
     for ax in axes[n:]:
         ax.set_visible(False)
-    fig.suptitle("Near-uniform fields: median over the surface (5–95 % spread as bars)")
+    fig.suptitle("Near-uniform fields: median over the surface, 5–95 % spread as bars")
     return fig, data
 
 
