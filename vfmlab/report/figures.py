@@ -324,56 +324,6 @@ def _vw_arrays(result: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray, list[
     return ivw, evw, names
 
 
-def pressure_radius(pressure: np.ndarray, radius: np.ndarray, stretch: np.ndarray) -> Figure:
-    """Pressure (kPa, mmHg on the right axis) against the mid-span radius (mm), one curve per axial stretch."""
-    fig = _figure(5.5, 3.8)
-    ax = fig.add_subplot()
-    for j, lam in enumerate(np.unique(np.round(stretch, 4))):
-        sel = np.round(stretch, 4) == lam
-        if lam == 1.0 and sel.sum() == 1:
-            ax.plot(radius[sel] * 1e3, pressure[sel] / 1e3, "k*", ms=10, label="reference")
-            continue
-        ax.plot(radius[sel] * 1e3, pressure[sel] / 1e3, "o-", color=f"C{j}", label=f"λz = {lam:.3f}")
-    ax.set_xlabel("mid-span radius (mm)")
-    ax.set_ylabel("pressure (kPa)")
-    sec = ax.secondary_yaxis("right", functions=(lambda kpa: kpa * 1e3 / MMHG, lambda mm: mm * MMHG / 1e3))
-    sec.set_ylabel("pressure (mmHg)")
-    ax.grid(alpha=0.3)
-    ax.legend()
-    ax.set_title("Pressure–radius at mid-span")
-    return fig
-
-
-def stress_strain(strain: Mapping[str, np.ndarray], laplace: Mapping[str, np.ndarray],
-                  models: Mapping[str, Mapping[str, np.ndarray]], stretch: np.ndarray) -> Figure:
-    """Mean Cauchy stress (kPa) against mean Green-Lagrange strain (%), circumferential and axial.
-
-    ``strain``: E11, E22 (n_steps,); ``laplace``: s11, s22 (n_steps,) global-equilibrium estimates;
-    ``models``: {label: {"s11", "s22"} (n_steps,)} model stresses at the measured strains of each step (both
-    E11 and E22: the loading path), drawn in loading order for every stretch;
-    ``stretch`` (n_steps,) imposed axial stretch (one curve per stretch).
-    """
-    fig = _figure(9.0, 3.8)
-    axes = fig.subplots(1, 2)
-    for ax, (e, s, name) in zip(axes, (("E11", "s11", "circumferential"), ("E22", "s22", "axial"))):
-        groups = np.unique(np.round(stretch, 4))
-        for g, lam in enumerate(groups):
-            sel = np.flatnonzero(np.round(stretch, 4) == lam)  # in loading order: the path the specimen took
-            label = "reference" if len(sel) == 1 and lam == 1.0 else f"Laplace law, λz {lam:.3f}"
-            ax.plot(strain[e][sel] * 100, laplace[s][sel] / 1e3, ls="none", color="k", mfc="none",
-                    marker="*" if label == "reference" else "os^vD"[g % 5], label=label)
-            for j, (model, st) in enumerate(models.items()):
-                ax.plot(strain[e][sel] * 100, st[s][sel] / 1e3, "-", color=f"C{j}", marker=".",
-                        label=model if g == len(groups) - 1 else None)
-        ax.set_xlabel(f"{name} strain {e} (%)")
-        ax.set_ylabel(f"{name} Cauchy stress (kPa)")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
-        ax.set_title(f"{name.capitalize()} direction")
-    fig.suptitle("Stress–strain at mid-span: identified models along the measured path vs Laplace-law estimates")
-    return fig
-
-
 def correlation_matrix(result: Mapping[str, Any]) -> Figure | None:
     """Heat map of the parameter correlation matrix of one identification."""
     a = result["arrays"]
