@@ -163,7 +163,8 @@ def session_board_detections(session: Any, spec: Any, advance: Callable[[], None
 def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str = "membrane", ends: str | None = None,
                     optimizer: str = "lsq", smoothing: str | tuple[int, int] | None = "auto", markers: str | None = None,
                     uncertainty: str = "bootstrap", check: bool = True, weighting: str = "paper",
-                    invoked_by: str = "pipeline") -> tuple[str, Any, dict[str, Any]]:
+                    invoked_by: str = "pipeline",
+                    progress: Callable[[int, int, str], None] | None = None) -> tuple[str, Any, dict[str, Any]]:
     """Identify ``model`` from the session's marker tracks with the VFM and store an "identification" result.
 
     Parameters
@@ -214,6 +215,8 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
     weighting = weighting if optimizer == "lsq" else "paper"  # Nelder-Mead: the paper's method, for comparison
     data = read_identification_inputs(path, markers)
     ends, ends_source, ends_notes, warnings = resolve_ends(data["session_ends"], ends)
+    if progress is not None:
+        progress(0, 1, f"fitting {model}")
     force_notes = list(data["notes"])
     data["notes"] = force_notes + ends_notes
     try:
@@ -223,7 +226,7 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
                               "marker_sigma": data["uncertainty"], "pressure_noise": PRESSURE_NOISE,
                               "force_noise": FORCE_NOISE,
                               # the re-identifications on both cores: the same results, ~half the time idle
-                              "map_replicates": fork_map} if uncertainty == "bootstrap" else None)
+                              "map_replicates": fork_map, "progress": progress} if uncertainty == "bootstrap" else None)
     except (IdentificationError, ValueError) as exc:
         raise StageError(f"{path}: cannot identify {model}: {exc}") from None
     used = data["positions"] if result.steps is None else data["positions"][list(result.steps)]

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from vfmlab.stages.errors import StageError, StageFailed
+from vfmlab.stages.feedback import ProgressFactory, no_progress
 from vfmlab.stages.settings import ExportSettings, ReportSettings, settings_with
 
 __all__ = ["ExportOutcome", "ReportOutcome", "default_out", "export", "hdf5_signature_offset", "latest_markers", "marker_labels",
@@ -91,14 +92,18 @@ class ReportOutcome:
                 "seconds": self.seconds}
 
 
-def report(session_path: str | os.PathLike, settings: ReportSettings | None = None, **overrides: Any) -> ReportOutcome:
-    """Write a self-contained HTML report of the session (figures embedded) and the figures as PNG files
-    (``vfmlab report``; defaults: :class:`ReportSettings`)."""
+def report(session_path: str | os.PathLike, settings: ReportSettings | None = None, *,
+           progress: ProgressFactory = no_progress, **overrides: Any) -> ReportOutcome:
+    """Write a self-contained HTML report of the session (figures embedded) and each figure as SVG, 300 dpi PNG
+    and JSON data (``vfmlab report``; defaults: :class:`ReportSettings`). An earlier report in the output folder is
+    replaced whole, atomically; ``progress`` counts the sections."""
     from vfmlab.report import build_report
 
     s = settings_with(ReportSettings, settings, overrides)
     t0 = time.perf_counter()
-    html = build_report(session_path, default_out(session_path, s.out, "report"), strain_scale=s.strain_scale)
+    with progress("report", None) as update:
+        html = build_report(session_path, default_out(session_path, s.out, "report"), strain_scale=s.strain_scale,
+                            progress=lambda done, total, what: update(done, total, f"report: {what}" if done < total else None))
     figures = sorted(Path(html).parent.glob("fig*.png"))
     return ReportOutcome(Path(html), figures, time.perf_counter() - t0)
 
