@@ -96,7 +96,7 @@ def command(session, as_json, force, **options):
     """
     from vfmlab.cli._feedback import notify, progress_bar
     from vfmlab.stages.calibrate import calibrate
-    from vfmlab.stages.calibrate_views import board_lines, import_lines
+    from vfmlab.views.calibrate import board_lines, import_lines
     from vfmlab.stages.settings import CalibrateSettings
 
     out = options["out"]
