@@ -313,6 +313,16 @@ def _statistics(J: np.ndarray, cost: float, x: np.ndarray, model: Model, tr: _Tr
     return stderr, corr, resolution
 
 
+def _n_stretches(data: VFMData) -> int:
+    """Distinct axial stretches among the loaded steps (``verdict.axial_stretches``, imported late: it imports us)."""
+    from .verdict import axial_stretches
+
+    try:
+        return axial_stretches(data)
+    except (AttributeError, IndexError, ValueError):
+        return 1
+
+
 def _flags(model: Model, data: VFMData, tr: _Transform, x, params, stderr, resolution, res, ok, msg) -> list[str]:
     """Plain-words warnings about the fit (identifiability, bounds, fit quality, data)."""
     flags = []
@@ -321,7 +331,8 @@ def _flags(model: Model, data: VFMData, tr: _Transform, x, params, stderr, resol
             unit = "relative" if model.positive[model.parameter_names.index(nm)] else f"x {TYPICAL.get(nm, 1.0):g}"
             flags.append(f"{nm} is poorly identifiable: a change of {value:.2g} ({unit}) can be compensated by the "
                          f"other parameters within a {GAP_FOR_FLAGS:.0%} virtual-work gap; do not trust its value"
-                         + (" (load at two or more axial stretches to constrain it)" if nm == "alpha12" else ""))
+                         + (" (load at two or more axial stretches to constrain it)"
+                            if nm == "alpha12" and _n_stretches(data) < 2 else ""))
     for nm, se in stderr.items():
         i = model.parameter_names.index(nm)
         if model.positive[i] and se > 0.3 * abs(params[nm]):

@@ -14,6 +14,7 @@ from typing import Mapping
 
 import numpy as np
 
+from .errors import IdentificationError
 from .fit import IdentificationResult, identify_prepared
 from .models import Model
 from .noise_weights import weighted_flags, in_physical_units, used_positions, gap_noise, weighted_data, weights_from_noise
@@ -170,7 +171,14 @@ def identify_noise_weighted(positions, pressure, axial_force, *, thickness: floa
                                                                       "marker_weights", "wall", "ends", "n_starts")}
     sd = gap_noise(data, used_positions(first, positions), first.parameters, model,
                    n_replicates=n_weight_replicates, seed=weight_seed, prepare_options=options)
-    w = weights_from_noise(sd)
+    try:
+        w = weights_from_noise(sd)
+    except IdentificationError as exc:
+        said = (f"weighting='noise' not applied: {exc}",)
+        if uncertainty == "bootstrap":
+            first = identify(positions, pressure, axial_force, thickness=thickness, model=model,
+                             uncertainty=uncertainty, uncertainty_options=uncertainty_options, **prepare_options)
+        return dataclasses.replace(first, flags=first.flags + said)
     wdata = weighted_data(data, w)
     result = dataclasses.replace(identify_prepared(wdata, model, initial=first.parameters),
                                  smoothing=data.smoothing, data=wdata, steps=first.steps)

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import json
+
 from typing import Any
 
 import numpy as np
 
 from acquisition.session import Session, SessionError
 
-__all__ = ["summarize_result", "list_results", "compare_results", "identification_parameters"]
+__all__ = ["summarize_result", "list_results", "compare_results", "identification_parameters", "stored_verdict"]
 
 
 def parameter_units(model: str, names: list[str]) -> list[str]:
@@ -42,6 +44,19 @@ def _scalar(value: Any) -> Any:
     return value
 
 
+def stored_verdict(attrs: dict[str, Any]) -> dict[str, Any]:
+    """The verdict stored with an identification result (``verdict``, ``verdict_reasons`` list,
+    ``parameter_verdicts`` and ``parameter_reasons`` dicts); empty values for results stored before verdicts."""
+    def load(key, empty):
+        try:
+            return json.loads(attrs[key]) if key in attrs else empty
+        except (TypeError, ValueError):
+            return empty
+
+    return {"verdict": str(attrs.get("verdict", "")), "verdict_reasons": load("verdict_reasons", []),
+            "parameter_verdicts": load("parameter_verdicts", {}), "parameter_reasons": load("parameter_reasons", {})}
+
+
 def summarize_result(result: dict[str, Any]) -> dict[str, Any]:
     """One row describing a result: name, kind, date, version, settings and the key figures of its kind."""
     attrs = result["attrs"]
@@ -54,7 +69,8 @@ def summarize_result(result: dict[str, Any]) -> dict[str, Any]:
     if kind == "identification":
         row.update(model=str(attrs.get("model", "")), wall=str(attrs.get("wall", "")),
                    cost=_scalar(attrs.get("cost")), converged=bool(attrs.get("converged", False)),
-                   flags=attrs.get("flags", {}), parameters=identification_parameters(result))
+                   flags=attrs.get("flags", {}), parameters=identification_parameters(result),
+                   **stored_verdict(attrs))
     elif kind == "markers" and "positions" in a:
         pos = np.asarray(a["positions"])
         visible = np.asarray(a.get("visible", np.isfinite(pos).all(axis=-1)), bool)

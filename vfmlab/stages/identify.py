@@ -69,11 +69,20 @@ class IdentifyOutcome:
     def to_dict(self) -> dict[str, Any]:
         """What ``vfmlab identify --json`` prints (SI)."""
         r, settings = self.result, self.data.get("settings", {})
-        return {"model": self.settings.model, "wall": self.settings.wall, "ends": settings.get("ends"),
+        return {"model": self.settings.model, "wall": settings.get("wall", self.settings.wall),
+                "ends": settings.get("ends"),
                 "ends_source": settings.get("ends_source"), "parameters": r.parameters, "stderr": r.stderr,
                 "interval_95": (None if r.uncertainty is None else {k: list(v) for k, v in r.uncertainty.interval.items()}),
                 "units": self.units, "cost": r.cost, "converged": r.converged, "flags": list(r.flags),
+                "verdict": r.verdict, "verdict_reasons": list(r.verdict_reasons),
+                "parameter_verdicts": dict(r.parameter_verdicts), "parameter_reasons": dict(r.parameter_reasons),
+                "hypotheses": [{**h, "parameters": dict(h["parameters"])} for h in r.hypotheses],
                 "result_group": self.group}
+
+    @property
+    def wall(self) -> str:
+        """The wall form used (stated, or chosen by the data)."""
+        return str(self.data.get("settings", {}).get("wall", self.settings.wall))
 
 
 @dataclass(frozen=True)
