@@ -68,8 +68,8 @@ def identify(
     *,
     thickness: float,
     model: str | Model = "fung",
-    wall: str = "membrane",
-    ends: str = "clamped",
+    wall: str,
+    ends: str,
     optimizer: str = "lsq",
     initial: Mapping[str, float] | None = None,
     n_starts: int = 3,
@@ -78,7 +78,10 @@ def identify(
     weighting: str = "paper",
     **prepare_options,
 ) -> IdentificationResult:
-    """Identify constitutive parameters from marker positions, pressure and axial force.
+    """Identify constitutive parameters from marker positions, pressure and axial force under one stated setting.
+
+    The fit alone: ``identification.identify`` (``judged.identify``) is the entry with the defaults
+    (``identification.DEFAULTS``) that decides the settings not given and judges the result.
 
     Parameters
     ----------
