@@ -35,6 +35,8 @@ class IdentifyDefaults:
     pressure_noise, force_noise : float
         Standard deviation of a pressure reading (Pa, ~0.02 mmHg: a controller-grade transducer averaged
         over the dwell) and of a load-cell reading (N), simulated by the bootstrap.
+    load_noise_fraction : float
+        Further noise of each reading as a fraction of it (0.1 %, a transducer's accuracy), in quadrature.
     """
 
     model: str = "fung"
@@ -46,6 +48,7 @@ class IdentifyDefaults:
     weighting: str = "paper"
     pressure_noise: float = 3.0
     force_noise: float = 0.002
+    load_noise_fraction: float = 1e-3
 
 
 #: The one set of defaults.

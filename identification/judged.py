@@ -27,7 +27,8 @@ _D = DEFAULTS
 
 def _uncertainty_options(options: Mapping | None) -> dict:
     """The bootstrap's options with the default sensor noise where not given."""
-    out = {"pressure_noise": _D.pressure_noise, "force_noise": _D.force_noise}
+    out = {"pressure_noise": _D.pressure_noise, "force_noise": _D.force_noise,
+           "load_noise_fraction": _D.load_noise_fraction}
     out.update(options or {})
     return out
 
@@ -81,8 +82,8 @@ def identify(
     ends : {"clamped", "free"} or None
         None (default): the data decide; where they cannot, the result is doubtful with both in ``hypotheses``.
     optimizer, uncertainty, uncertainty_options, weighting :
-        As ``optimize.identify``; the bootstrap simulates ``DEFAULTS.pressure_noise`` / ``force_noise``
-        unless ``uncertainty_options`` says otherwise.
+        As ``optimize.identify``; the bootstrap simulates ``DEFAULTS.pressure_noise`` / ``force_noise`` /
+        ``load_noise_fraction`` unless ``uncertainty_options`` says otherwise.
     smoothing : "auto" (default), None or (axial degree, harmonics)
     judged : bool
         False: only the fit under the stated setting (``ends`` and ``wall`` must be given), no verdict.
