@@ -106,7 +106,7 @@ def identify(
                             uncertainty_options=unc_options, weighting=weighting, **common)
 
     if not judged:
-        if not (stated["ends"] and stated["wall"]):
+        if wall is None or ends is None:
             raise ValueError(f"judged=False needs ends and wall; got ends={ends!r}, wall={wall!r}")
         return final(wall, ends)
     cheap = uncertainty == "gauss-newton" and weighting == "paper"

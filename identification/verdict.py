@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, replace
-from typing import Mapping
+from typing import Any, Mapping
 
 import numpy as np
 
@@ -54,7 +54,7 @@ class Hypothesis:
     wall: str
     ends: str
     data: VFMData
-    fit: object
+    fit: Any  # IdentificationResult
     sd: np.ndarray
     chi2: float
 
@@ -176,7 +176,9 @@ def _option(h: Hypothesis, chosen: Hypothesis) -> str:
 
 def _settings_reasons(result, chosen: Hypothesis, others, stated: dict) -> tuple[list, list, dict]:
     """Reasons (doubt, notes) and per-parameter doubts from the settings the user did not state."""
-    doubts, notes, per = [], [], {}
+    doubts: list[str] = []
+    notes: list[str] = []
+    per: dict[str, str] = {}
     for h in others:
         delta = h.chi2 - chosen.chi2
         what = _said(h, chosen)
@@ -245,10 +247,11 @@ def judge(result, chosen: Hypothesis, others, *, stated: dict, laws: Mapping[str
                          "bootstrap (uncertainty='bootstrap', --uncertainty bootstrap)")
     if not result.converged:
         all_doubt.append("the optimiser did not converge")
-    for name in names:
-        if any(f.startswith(name) and "search bounds" in f for f in result.flags) or any(
-                name in f.split(" ended on")[0].split(", ") for f in result.flags if "ended on the search" in f):
-            per.setdefault(name, f"{name} ended on the search bounds")
+    for flag in result.flags:  # "a, b ended on the search bounds: ..." (fit._flags)
+        if " ended on the search bounds" in flag:
+            for name in flag.split(" ended on")[0].split(", "):
+                if name in names:
+                    per.setdefault(name, f"{name} ended on the search bounds: its value is not a minimum")
     if paper_fit is not None:
         for name in names:
             half = _half_width(result, name)
