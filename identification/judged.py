@@ -18,7 +18,7 @@ from .defaults import DEFAULTS, PREFERRED_WALL
 from .models import Model
 from .noise_weights import used_positions
 from .optimize import identify as identify_one
-from .verdict import Hypothesis, fit_hypotheses, judge, law_gaps
+from .verdict import Hypothesis, fit_hypotheses, force_gaps, judge, law_gaps
 
 __all__ = ["identify"]
 
@@ -124,7 +124,7 @@ def identify(
     others = [h for h in hypotheses if h is not chosen]
     laws = law_gaps(chosen)
     paper = chosen.fit if weighting == "noise" else None
-    result = judge(result, chosen, others, stated=stated, laws=laws, paper_fit=paper)
+    result = judge(result, chosen, others, stated=stated, laws=laws, paper_fit=paper, forces=force_gaps(chosen))
     return replace(result, flags=tuple(_true_flags(result)))
 
 

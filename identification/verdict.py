@@ -29,7 +29,7 @@ from .noise_weights import gap_noise
 from .vfm import VFMData, prepare
 
 __all__ = ["AGREE", "DECIDES", "LAWS", "NOISE_FLOOR", "POOR_FIT", "Hypothesis", "axial_stretches", "fit_hypotheses",
-           "gap_spread", "judge", "law_gaps", "noise_units"]
+           "force_gaps", "gap_spread", "judge", "law_gaps", "noise_units", "with_force"]
 
 log = logging.getLogger(__name__)
 
@@ -138,6 +138,43 @@ def law_gaps(h: Hypothesis, laws=LAWS) -> dict[str, float]:
     return out
 
 
+def with_force(data: VFMData, axial_force: np.ndarray) -> VFMData:
+    """The same virtual-work data with another wall force (n_steps,) N at the load-cell end (only the end work
+    changes)."""
+    f = np.asarray(axial_force, dtype=float)
+    n_end = f + (data.strip_force if data.ends == "clamped" and data.strip_force is not None else 0.0)
+    k = int(np.argmax(np.abs(data.end_force)))  # end_work = load_end (per field) x end force
+    load_end = data.end_work[:, k] / data.end_force[k] if data.end_force[k] != 0 else np.zeros(len(data.scale))
+    end_work = load_end[:, None] * n_end[None]
+    evw = data.pressure_work + end_work
+    scale = np.sqrt(np.mean(evw**2, axis=1))
+    return replace(data, axial_force=f, end_force=n_end, end_work=end_work, evw=evw,
+                   scale=np.where(scale > 0, scale, data.scale))
+
+
+def force_gaps(h: Hypothesis) -> dict[str, float]:
+    """``chi2`` (in the chosen hypothesis's noise units) if the force given were not the wall force: a total
+    reading behind a closed cannula (the wall force is the reading + p pi r_i^2, decision 0003), or a wall force
+    already corrected that was not a total reading (- p pi r_i^2); r_i the reference lumen radius."""
+    mesh, data = h.data.mesh, h.data
+    used = mesh.used & np.isfinite(mesh.r)
+    if not used.any():
+        return {}
+    r_i = float(np.median(mesh.r[used])) - data.thickness
+    lumen = data.pressure * np.pi * r_i**2
+    out = {}
+    for label, sign in (("a total reading (wall force = reading + p pi r_i^2)", 1.0),
+                        ("the wall force minus the pressure on the lumen (a wall reading corrected as total)", -1.0)):
+        try:
+            d = with_force(data, data.axial_force + sign * lumen)
+            fit = _best_fit(d, h.fit.model, h.fit.parameters)
+            # the gaps against the same external-work scale as the chosen hypothesis's
+            out[label] = noise_units(fit.residuals * (d.scale / data.scale)[:, None], h.sd)
+        except (IdentificationError, ValueError) as exc:
+            log.debug("force reading %s not tried: %s", label, exc)
+    return out
+
+
 def axial_stretches(data: VFMData, tolerance: float = 0.02) -> int:
     """Number of distinct axial stretches among the loaded steps (median over the points of each step)."""
     c22 = np.asarray(data.c)[1:, :, 1]
@@ -224,11 +261,12 @@ def _law_reasons(result, chosen: Hypothesis, laws: Mapping[str, float], n_stretc
 
 
 def judge(result, chosen: Hypothesis, others, *, stated: dict, laws: Mapping[str, float] | None = None,
-          paper_fit=None):
+          paper_fit=None, forces: Mapping[str, float] | None = None):
     """``result`` (the fit under ``chosen``) with ``verdict``, ``verdict_reasons``, ``parameter_verdicts``,
     ``parameter_reasons`` and ``hypotheses`` set.
 
-    ``stated``: ``{"ends": bool, "wall": bool}``, whether the user gave them. ``laws``: ``law_gaps``.
+    ``stated``: ``{"ends": bool, "wall": bool}``, whether the user gave them. ``laws``: ``law_gaps``;
+    ``forces``: ``force_gaps`` (what the load cell measures).
     ``paper_fit``: the paper's (unweighted) fit when ``result`` was noise-weighted, to check they agree.
     """
     names = list(result.parameters)
@@ -239,6 +277,11 @@ def judge(result, chosen: Hypothesis, others, *, stated: dict, laws: Mapping[str
                  f"{chosen.ends} ends, {chosen.wall} wall)"] if others and not all(stated.values()) else []
         all_doubt.append(f"poor fit: the virtual-work gaps are {chosen.noise_units:.1f}x their noise (bootstrap "
                          f"spread of the gaps); the {result.model} law or a setting does not describe these data")
+    for label, chi2 in (forces or {}).items():
+        if chi2 < chosen.chi2 - DECIDES:
+            all_doubt.append(f"assumption contradicted: the force given fits as {label} "
+                             f"({np.sqrt(chi2 / chosen.dof):.1f} against {chosen.noise_units:.1f} noise units); "
+                             "check what the load cell measures (import-markers --force-is wall|total)")
     law_doubts, law_notes = _law_reasons(result, chosen, laws or {}, axial_stretches(chosen.data))
     all_doubt += law_doubts
     notes += law_notes

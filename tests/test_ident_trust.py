@@ -175,3 +175,14 @@ def test_no_alpha12_advice_when_the_data_have_two_stretches():
     r1 = identify(one.positions, one.pressure, one.axial_force, thickness=one.thickness, model="fung",
                   wall="membrane", ends="free", uncertainty="gauss-newton")
     assert any("two or more axial stretches" in f for f in r1.flags), r1.flags
+
+
+def test_a_total_force_reading_given_as_the_wall_force_is_contradicted():
+    """What the load cell measures is an assumption too: a total reading (behind a closed cannula) given as the
+    wall force is caught by the gaps in noise units, with the option to pass."""
+    sim = simulate_test("fung", PAPER_PARAMETERS["fung"], clamped=False, wall="thick", n_markers=150,
+                        noise_std=0.05e-3, seed=8)
+    total = sim.axial_force - sim.pressure * np.pi * (sim.reference_radius - sim.thickness) ** 2
+    r = identify(sim.positions, sim.pressure, total, thickness=sim.thickness, model="fung", uncertainty="gauss-newton")
+    assert r.verdict == "doubtful"
+    assert any("total reading" in x and "--force-is" in x for x in r.verdict_reasons), r.verdict_reasons
