@@ -124,8 +124,8 @@ def identify(
     others = [h for h in hypotheses if h is not chosen]
     laws = law_gaps(chosen)
     paper = chosen.fit if weighting == "noise" else None
-    result = judge(result, chosen, others, stated=stated, laws=laws, paper_fit=paper, forces=force_gaps(chosen))
-    return replace(result, flags=tuple(_true_flags(result)))
+    result = replace(result, flags=tuple(_true_flags(result)))
+    return judge(result, chosen, others, stated=stated, laws=laws, paper_fit=paper, forces=force_gaps(chosen))
 
 
 def _true_flags(result) -> list[str]:

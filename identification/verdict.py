@@ -290,6 +290,13 @@ def judge(result, chosen: Hypothesis, others, *, stated: dict, laws: Mapping[str
                          "bootstrap (uncertainty='bootstrap', --uncertainty bootstrap)")
     if not result.converged:
         all_doubt.append("the optimiser did not converge")
+    for flag in result.flags:  # "NAME is poorly identifiable ..." that the bootstrap did not resolve either
+        name = flag.split(" ")[0]
+        if " is poorly identifiable" in flag and name in names:
+            per.setdefault(name, f"{name} is poorly identifiable: the other parameters compensate a change of it "
+                                 "within the noise, and its interval is not to be relied on"
+                                 + (" (load at two or more axial stretches to constrain it)"
+                                    if name == "alpha12" and axial_stretches(chosen.data) < 2 else ""))
     for flag in result.flags:  # "a, b ended on the search bounds: ..." (fit._flags)
         if " ended on the search bounds" in flag:
             for name in flag.split(" ended on")[0].split(", "):

@@ -70,7 +70,7 @@ def test_the_stage_settings_take_the_library_defaults():
 def test_library_defaults_are_the_commands(tmp_path, capsys):
     """The numbers of ``vfmlab identify S.h5`` are those of ``identification.identify`` called as its docstring
     shows, and of ``vfmlab.identify``: bit for bit."""
-    sim = simulate_test("fung", PAPER_PARAMETERS["fung"], clamped=False, wall="thick", n_markers=150,
+    sim = simulate_test("fung", PAPER_PARAMETERS["fung"], clamped=False, wall="thick", n_markers=100,
                         noise_std=0.01e-3, seed=2)
     path = _import(tmp_path, sim, *_loads_noise(sim))
     capsys.readouterr()
@@ -121,10 +121,10 @@ def test_papers_case_is_right_or_doubtful(seed):
         assert r.verdict_reasons and all(isinstance(x, str) and x for x in r.verdict_reasons)
 
 
-@pytest.mark.parametrize("noise_mm", [0.01, 0.05])
-def test_a_thick_wall_by_default(noise_mm):
+def test_a_thick_wall_by_default():
+    """The issue: at 0.05 mm the wall-form check fired in 0 of 5 fits and the membrane default was 39-45 % off."""
     sim = simulate_test("fung", PAPER_PARAMETERS["fung"], clamped=False, wall="thick", n_markers=200,
-                        noise_std=noise_mm * 1e-3, seed=4)
+                        noise_std=0.05e-3, seed=4)
     r = identify(sim.positions, *_loads_noise(sim), thickness=sim.thickness, model="fung")
     assert r.data.wall == "thick"
     _honest(r.parameters, r.parameter_verdicts, r.parameter_reasons, r.uncertainty.interval, PAPER_PARAMETERS["fung"])
@@ -135,7 +135,7 @@ def test_a_thick_wall_by_default(noise_mm):
 
 def test_a_wrong_law_does_not_look_fine():
     """HGO fitted to a Fung specimen at one stretch: never a trusted result."""
-    sim = simulate_test("fung", PAPER_PARAMETERS["fung"], clamped=False, wall="thick", n_markers=200,
+    sim = simulate_test("fung", PAPER_PARAMETERS["fung"], clamped=False, wall="thick", n_markers=150,
                         noise_std=0.01e-3, seed=5)
     r = identify(sim.positions, *_loads_noise(sim), thickness=sim.thickness, model="hgo")
     assert r.verdict == "doubtful"
