@@ -296,7 +296,7 @@ def _table_cases(sources):
                 yield "FE", ends, "thick", law, (1.1,)
 
 
-def bench_table(n_seeds: int, sources=("cf", "fe"), noises=TABLE_NOISES, fine=False):
+def bench_table(n_seeds: int, sources=("cf", "fe"), noises=TABLE_NOISES, fine=False, first_seed: int = 0):
     from identification import identify
 
     print(f"\n### Verdicts on independent data imported without the ends or the wall ({n_seeds} seed(s) per row)\n")
@@ -310,7 +310,7 @@ def bench_table(n_seeds: int, sources=("cf", "fe"), noises=TABLE_NOISES, fine=Fa
             row = {"fits": 0, "trusted_fits": 0, "trusted": 0, "params": 0, "off": 0, "covered": 0,
                    "ends": {"right": 0, "could not tell": 0, "wrong": 0},
                    "wall": {"right": 0, "could not tell": 0, "wrong": 0}, "t": 0.0}
-            for seed in range(n_seeds):
+            for seed in range(first_seed, first_seed + n_seeds):
                 pos, p, f, thickness = _table_data(source, ends, wall, law, stretches, noise, seed, fine)
                 t0 = time.perf_counter()
                 try:
@@ -353,12 +353,13 @@ def main(argv=None):
     ap.add_argument("--seeds", type=int, default=10, help="noise seeds per row (table, hygiene, checks)")
     ap.add_argument("--sources", default="cf,fe", help="table: closed form (cf) and/or felupe FE (fe)")
     ap.add_argument("--noises", default="0.01,0.05,0.17", help="table: marker noise levels, mm")
+    ap.add_argument("--first-seed", type=int, default=0, help="table: the first seed (runs split over machines)")
     ap.add_argument("--fine", action="store_true", help="finer FE meshes (80 x 8 clamped, 8 x 8 free)")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)
     if args.part in ("table", "all"):
         bench_table(args.seeds, tuple(args.sources.split(",")),
-                    tuple(float(v) * 1e-3 for v in args.noises.split(",")), args.fine)
+                    tuple(float(v) * 1e-3 for v in args.noises.split(",")), args.fine, args.first_seed)
     if args.part in ("hygiene", "all"):
         bench_hygiene(args.seeds)
     if args.part in ("checks", "all"):
