@@ -24,7 +24,7 @@ import numpy as np
 
 from .checks import with_ends
 from .errors import IdentificationError
-from .fit import identify_prepared
+from .fit import axial_stretches, identify_prepared
 from .noise_weights import gap_noise
 from .vfm import VFMData, prepare
 
@@ -173,15 +173,6 @@ def force_gaps(h: Hypothesis) -> dict[str, float]:
         except (IdentificationError, ValueError) as exc:
             log.debug("force reading %s not tried: %s", label, exc)
     return out
-
-
-def axial_stretches(data: VFMData, tolerance: float = 0.02) -> int:
-    """Number of distinct axial stretches among the loaded steps (median over the points of each step)."""
-    c22 = np.asarray(data.c)[1:, :, 1]
-    with np.errstate(invalid="ignore"):
-        lz = np.sqrt(np.nanmedian(np.where(c22 > 0, c22, np.nan), axis=1))
-    lz = np.sort(lz[np.isfinite(lz)])
-    return int(1 + np.sum(np.diff(lz) > tolerance)) if lz.size else 0
 
 
 def _half_width(result, name: str) -> float:

@@ -99,6 +99,7 @@ def _print(outcome) -> None:
     from rich.table import Table
 
     from vfmlab.cli._common import console  # rich: only for the table (not for --json)
+    from vfmlab.stages.identify import verdict_lines
 
     result, model, wall, units = outcome.result, outcome.settings.model, outcome.wall, outcome.units
     table = Table(title=f"{model} ({WALL_NOTE[wall]})")
@@ -122,7 +123,9 @@ def _print(outcome) -> None:
             interval = [f"{num(lo, 4)} to {num(hi, 4)}"]
         table.add_row(esc(n), num(v, 4), num(s, 2), *interval, unit or "–", *([verdicts[n]] if verdicts else []))
     console.print(table)
-    _print_verdict(console, result)
+    for line in verdict_lines(result.verdict, result.verdict_reasons, result.parameter_verdicts,
+                              result.parameter_reasons):
+        console.print(esc(line), style="bold yellow" if "doubtful" in line else None)
     console.print(f"cost {num(result.cost, 3)}, RMS gap per field "
                   + ", ".join(f"{esc(f)}: {g:.2%}" for f, g in zip(result.field_names, result.residual_per_field))
                   + f", {result.n_evaluations} evaluations, converged: {result.converged}")
@@ -132,19 +135,3 @@ def _print(outcome) -> None:
         console.print(f"[yellow]warning:[/] {esc(flag)}")
     console.print(f"stored as {esc(outcome.group)}")
 
-
-def _print_verdict(console, result) -> None:
-    """The verdict in one line, then each reason (a doubtful number never without its reason)."""
-    if result.verdict is None:
-        return
-    style = "green" if result.verdict == "trusted" else "bold yellow"
-    console.print(f"[{style}]verdict: {result.verdict}[/{style}]")
-    by_reason: dict[str, list[str]] = {}
-    for name, reason in (result.parameter_reasons or {}).items():
-        if result.parameter_verdicts.get(name) == "doubtful" and reason:
-            by_reason.setdefault(reason, []).append(name)
-    for reason, names in by_reason.items():
-        console.print(f"  {esc(', '.join(names))} doubtful: {esc(reason)}")
-    for reason in result.verdict_reasons:
-        if reason not in by_reason:
-            console.print(f"  - {esc(reason)}")

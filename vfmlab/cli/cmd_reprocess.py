@@ -61,6 +61,7 @@ def command(sessions, stages, models, walls, ends, optimizer, smooth, weighting,
     """
     from vfmlab.pipeline import STAGES
     from vfmlab.stages.batch import plan, reprocess, split_list
+    from vfmlab.stages.identify import verdict_lines
     from vfmlab.stages.settings import ReprocessSettings
 
     split_list(stages, "--stages", tuple(STAGES))
@@ -95,12 +96,10 @@ def command(sessions, stages, models, walls, ends, optimizer, smooth, weighting,
             table.add_row(esc(o.path), esc(o.specimen), esc(", ".join(o.results) or "–"), f"{o.seconds:.1f}",
                           "ok" if o.ok else f"[red]{len(o.errors)} error(s)[/]")
         console.print(table)
-        for o in outcomes:
-            for ident in o.identifications:
-                if ident.get("verdict"):
-                    console.print(f"{esc(o.path)} {esc(ident['result'])} ({esc(ident['model'])}, {esc(ident['wall'])}): "
-                                  f"{esc(ident['verdict'])}" + "".join(f"\n  - {esc(r)}" for r in ident["verdict_reasons"]
-                                                                       if ident["verdict"] == "doubtful"))
+        for o, ident in ((o, i) for o in outcomes for i in o.identifications if i.get("verdict")):
+            console.print(esc(f"{o.path} {ident['result']} ({ident['model']}, {ident['wall']}): " + "\n".join(
+                verdict_lines(ident["verdict"], ident["verdict_reasons"], ident["parameter_verdicts"],
+                              ident["parameter_reasons"]))))
         n_bad = sum(not o.ok for o in outcomes)
         console.print(f"{len(outcomes) - n_bad} of {len(outcomes)} sessions processed without error."
                       + (f" Summary: {esc(path)}" if summary else ""))

@@ -53,6 +53,8 @@ def command(session, kind, compare, as_json):
 
 
 def _print_row(row: dict) -> None:
+    from vfmlab.stages.identify import verdict_lines
+
     console.print(f"[bold cyan]{esc(row['name'])}[/]  {esc(row['date'][:19].replace('T', ' '))} UTC  "
                   f"vfmlab {esc(row['version'])}")
     console.print(f"    settings: {esc(_settings_text(row['kind'], row['settings']))}")
@@ -62,12 +64,9 @@ def _print_row(row: dict) -> None:
         state = "converged" if row["converged"] else "[red]NOT converged[/]"
         console.print(f"    {esc(row['model'])} ({esc(row['wall'])}), cost {num(row['cost'], 3)}, {state}: {params}")
         flags = row["flags"] if isinstance(row["flags"], list) else [f"{k}: {v}" for k, v in row["flags"].items()]
-        if row.get("verdict"):
-            doubtful = {n: r for n, r in row["parameter_reasons"].items() if row["parameter_verdicts"].get(n) == "doubtful"}
-            console.print(f"    verdict: {esc(row['verdict'])}"
-                          + (f" ({esc(', '.join(doubtful))} doubtful)" if doubtful else ""))
-            for reason in row["verdict_reasons"]:
-                console.print(f"      - {esc(reason)}")
+        for line in verdict_lines(row.get("verdict"), row.get("verdict_reasons", ()), row.get("parameter_verdicts"),
+                                  row.get("parameter_reasons")):
+            console.print(f"    {esc(line)}")
         for flag in flags:
             console.print(f"    [yellow]warning:[/] {esc(flag)}")
     elif row["kind"] == "markers" and "n_markers" in row:

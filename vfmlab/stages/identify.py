@@ -15,7 +15,21 @@ from typing import Any
 from vfmlab.stages.errors import StageError, StageFailed
 from vfmlab.stages.settings import IdentifySettings, RegionalSettings, settings_with
 
-__all__ = ["IdentifyOutcome", "RegionalOutcome", "identify", "si_unit", "parse_smooth", "regional"]
+__all__ = ["IdentifyOutcome", "RegionalOutcome", "identify", "si_unit", "parse_smooth", "regional", "verdict_lines"]
+
+
+def verdict_lines(verdict: str | None, reasons=(), parameter_verdicts=None, parameter_reasons=None) -> list[str]:
+    """The verdict of an identification as lines to show: "verdict: trusted|doubtful", then each doubtful
+    parameter's reason (names sharing one reason on one line), then the other reasons; [] when not judged
+    (results stored before verdicts)."""
+    if not verdict:
+        return []
+    by_reason: dict[str, list[str]] = {}
+    for name, reason in (parameter_reasons or {}).items():
+        if (parameter_verdicts or {}).get(name) == "doubtful" and reason:
+            by_reason.setdefault(reason, []).append(name)
+    return ([f"verdict: {verdict}"] + [f"  {', '.join(names)} doubtful: {reason}" for reason, names in by_reason.items()]
+            + [f"  - {reason}" for reason in reasons if reason not in by_reason])
 
 
 def parse_smooth(text: str | tuple[int, int] | None):
