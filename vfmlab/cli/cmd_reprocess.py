@@ -96,8 +96,8 @@ def command(sessions, stages, models, walls, ends, optimizer, smooth, weighting,
             table.add_row(esc(o.path), esc(o.specimen), esc(", ".join(o.results) or "–"), f"{o.seconds:.1f}",
                           "ok" if o.ok else f"[red]{len(o.errors)} error(s)[/]")
         console.print(table)
-        for o, ident in ((o, i) for o in outcomes for i in o.identifications if i.get("verdict")):
-            console.print(esc(f"{o.path} {ident['result']} ({ident['model']}, {ident['wall']}): " + "\n".join(
+        for path_, ident in ((o.path, i) for o in outcomes for i in o.identifications if i.get("verdict")):
+            console.print(esc(f"{path_} {ident['result']} ({ident['model']}, {ident['wall']}): " + "\n".join(
                 verdict_lines(ident["verdict"], ident["verdict_reasons"], ident["parameter_verdicts"],
                               ident["parameter_reasons"]))))
         n_bad = sum(not o.ok for o in outcomes)
