@@ -35,8 +35,8 @@ Then: vfmlab identify a1.h5
               help="What axial_force_N is: force carried by the wall, or a total reading behind a pressurised cannula.")
 @click.option("--ends", type=click.Choice(["clamped", "free"]), default=None,
               help="How the specimen was held: clamped (tied on cannulae) or free (uniform up to the load cell); "
-                   "recorded in the session for 'vfmlab identify' [default: not recorded; identify then assumes "
-                   "clamped and says so].")
+                   "recorded in the session for 'vfmlab identify' [default: not recorded; identify then lets the "
+                   "data decide and says whether they could].")
 @click.option("--force", "overwrite", is_flag=True, help="Overwrite OUT if it exists.")
 @click.option("--json", "as_json", is_flag=True, help="Print what was imported as JSON (SI: m).")
 def command(markers_csv, loads_csv, out, thickness_mm, radius_mm, length_mm, specimen_id, notes, force_is, ends,
@@ -92,5 +92,5 @@ def command(markers_csv, loads_csv, out, thickness_mm, radius_mm, length_mm, spe
         f"Imported {len(table.labels)} markers × {len(table.steps)} steps into [bold]{esc(out)}[/] "
         f"(result {esc(name)}; radius {radius * 1e3:.3f} mm, length {length * 1e3:.3f} mm, "
         f"wall thickness {thickness_mm:.3f} mm, load cell measures {force_is} force, "
-        + (f"ends {ends})." if ends else "ends not recorded: identify will assume clamped unless --ends says).")
+        + (f"ends {ends})." if ends else "ends not recorded: identify lets the data decide unless --ends says).")
     )
