@@ -42,7 +42,7 @@ def test_side_by_side_with_and_without_verdicts(tmp_path, capsys):
     assert main(["results", str(session)]) == 0
     out = capsys.readouterr().out
     assert "Models side by side" in out and "beta (Pa)" in out and "doubtful" in out
-    assert "verdict: doubtful (alpha: interval spans a factor of 3)" in out
+    assert "verdict: doubtful" in out and "- alpha: interval spans a factor of 3" in out  # stages.identify.verdict_lines
     line = next(ln for ln in out.splitlines() if "identification_003" in ln and "delfino (thick)" in ln)
     assert "3.1 ± 0.4 ?" in line and "1.2 kPa ± 0.05 kPa" in line
 

@@ -78,10 +78,15 @@ def stored_verdict(attrs: dict[str, Any]) -> dict[str, Any]:
     """The verdict stored with an identification result (``verdict``, ``verdict_reasons`` list,
     ``parameter_verdicts`` and ``parameter_reasons`` dicts); empty values for results stored before verdicts."""
     def load(key, empty):
-        try:
-            return json.loads(attrs[key]) if key in attrs else empty
-        except (TypeError, ValueError):
-            return empty
+        value = attrs.get(key, empty)
+        if isinstance(value, bytes):
+            value = value.decode()
+        if isinstance(value, str):  # stored as JSON text (the contract); an older writer may have stored objects
+            try:
+                value = json.loads(value)
+            except ValueError:
+                return empty
+        return value if isinstance(value, type(empty)) else type(empty)(value) if hasattr(value, "__iter__") else empty
 
     return {"verdict": str(attrs.get("verdict", "")), "verdict_reasons": load("verdict_reasons", []),
             "parameter_verdicts": load("parameter_verdicts", {}), "parameter_reasons": load("parameter_reasons", {})}
@@ -130,7 +135,7 @@ def side_by_side(rows: list[dict[str, Any]]) -> dict[str, Any]:
     for r in idents:
         pv = r.get("parameter_verdicts") or {}
         table.append({"name": r["name"], "model": r["model"], "wall": r["wall"], "cost": r.get("cost"),
-                      "converged": r.get("converged"), "verdict": r.get("verdict"),
+                      "converged": r.get("converged"), "verdict": r.get("verdict") or None,
                       "values": {n: {"value": p["value"], "stderr": p["stderr"], "verdict": pv.get(n)}
                                  for n, p in r["parameters"].items()}})
     return {"parameters": [{"name": n, "unit": u} for n, u in columns.items()], "rows": table}

@@ -7,12 +7,8 @@ import importlib
 
 import click
 
-from vfmlab.cli._common import ModelChoice, display_quantity, esc, num, print_json
+from vfmlab.cli._common import ModelChoice, print_json
 
-WALL_NOTE = {
-    "membrane": "paper's plain membrane form (pressure on the marker surface)",
-    "thick": "thick wall: markers on the outer surface, pressure on the lumen, layered divergence-free fields",
-}
 
 
 EPILOG = """
@@ -90,52 +86,20 @@ def _identify(session_path, as_json, **options):
     outcome = identify(session_path, IdentifySettings(**options), invoked_by="identify",
                        progress=no_progress if as_json else progress_bar)
     if isinstance(outcome, RegionalOutcome):
-        from vfmlab.cli._regional import print_regional
+        if as_json:
+            print_json(outcome.to_dict())
+            return
+        from vfmlab.cli._common import console
+        from vfmlab.views.identify import regional_lines
 
-        return print_regional(outcome, as_json)
+        for line in regional_lines(outcome):
+            console.print(line)
+        return
     if as_json:
         print_json(outcome.to_dict())
         return
-    _print(outcome)
-
-
-def _print(outcome) -> None:
-    from rich.table import Table
-
     from vfmlab.cli._common import console  # rich: only for the table (not for --json)
-    from vfmlab.stages.identify import verdict_lines
+    from vfmlab.views.identify import identify_lines
 
-    result, model, wall, units = outcome.result, outcome.settings.model, outcome.wall, outcome.units
-    table = Table(title=f"{model} ({WALL_NOTE[wall]})")
-    table.add_column("parameter")
-    table.add_column("value", justify="right")
-    table.add_column("std. error", justify="right")
-    unc = result.uncertainty
-    if unc is not None:
-        table.add_column("95 % interval", justify="right")
-    table.add_column("unit")
-    verdicts = dict(result.parameter_verdicts or {})
-    if verdicts:
-        table.add_column("verdict")
-    for n in result.parameters:
-        v, unit = display_quantity(result.parameters[n], units[n])
-        s, _ = display_quantity(result.stderr[n], units[n])
-        interval = []
-        if unc is not None:
-            lo, _ = display_quantity(unc.interval[n][0], units[n])
-            hi, _ = display_quantity(unc.interval[n][1], units[n])
-            interval = [f"{num(lo, 4)} to {num(hi, 4)}"]
-        table.add_row(esc(n), num(v, 4), num(s, 2), *interval, unit or "–", *([verdicts[n]] if verdicts else []))
-    console.print(table)
-    for line in verdict_lines(result.verdict, result.verdict_reasons, result.parameter_verdicts,
-                              result.parameter_reasons):
-        console.print(esc(line), style="bold yellow" if "doubtful" in line else None)
-    console.print(f"cost {num(result.cost, 3)}, RMS gap per field "
-                  + ", ".join(f"{esc(f)}: {g:.2%}" for f, g in zip(result.field_names, result.residual_per_field))
-                  + f", {result.n_evaluations} evaluations, converged: {result.converged}")
-    for note in outcome.data["notes"]:
-        console.print(f"[dim]{esc(note)}[/]")
-    for flag in result.flags:
-        console.print(f"[yellow]warning:[/] {esc(flag)}")
-    console.print(f"stored as {esc(outcome.group)}")
-
+    for line, style in identify_lines(outcome):
+        console.print(line, style=style)
