@@ -44,6 +44,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "export": ("cmd_export", "Export meshes and fields for ParaView (VTK/PLY)."),
     "info": ("cmd_info", "Summarise a session file."),
     "import-markers": ("cmd_import_markers", "Build a session from marker positions measured elsewhere (CSV)."),
+    "import-dic": ("cmd_import_dic", "Build a session from another lab's DIC points (DuoDIC, MultiDIC, VIC-3D, tables)."),
     "export-markers": ("cmd_export_markers", "Write a session's latest marker tracks as CSV."),
     "import-images": ("cmd_import_images", "Build a session from images taken with another rig."),
     "detect-particles": ("cmd_detect_particles", "Detect small particles in grey images (counts, reject reasons, CSV)."),
