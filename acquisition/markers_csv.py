@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from acquisition.errors import InputError
+from acquisition.numbers import strict_float
 
 __all__ = [
     "CsvFormatError",
@@ -36,6 +37,7 @@ __all__ = [
     "read_markers_csv",
     "read_loads_csv",
     "write_markers_csv",
+    "write_loads_csv",
     "PRESSURE_UNITS",
     "MMHG",
 ]
@@ -115,7 +117,7 @@ def _number(path: Path, line: int, column: str, text: str, *, allow_empty: bool 
             return math.nan
         raise CsvFormatError(f"{path}, line {line}, column {column}: missing value")
     try:
-        value = float(text)
+        value = strict_float(text)  # not float(): "1_0.5" would be 10.5
     except ValueError:
         raise CsvFormatError(f"{path}, line {line}, column {column}: {text!r} is not a number") from None
     if math.isinf(value):
@@ -232,3 +234,19 @@ def write_markers_csv(
                 xyz = positions[i, j] / LENGTH_UNITS[units]
                 cells = ["" if np.isnan(v) else fmt.format(v) for v in xyz]
                 writer.writerow([label, int(step), *cells])
+
+
+def write_loads_csv(path: str | os.PathLike, steps: np.ndarray, pressure: np.ndarray, axial_force: np.ndarray,
+                    stretch: np.ndarray) -> None:
+    """Write loads, one row per step (``steps`` (n,) int; ``pressure`` Pa, ``axial_force`` N, ``stretch`` (n,)),
+    as ``step,pressure_Pa,axial_force_N,stretch``: what :func:`read_loads_csv` reads back. Values are written
+    with the shortest text that reads back to the same float (no digits lost); NaN force -> empty cell."""
+    columns = [np.asarray(c) for c in (steps, pressure, axial_force, stretch)]
+    if any(c.shape != columns[0].shape or c.ndim != 1 for c in columns):
+        raise ValueError("write_loads_csv: steps, pressure, axial_force and stretch must have the same shape (n,); "
+                         f"got {[c.shape for c in columns]}")
+    with open(path, "w", newline="", encoding="utf-8") as fh:
+        writer = csv.writer(fh, lineterminator="\n")
+        writer.writerow(["step", "pressure_Pa", "axial_force_N", "stretch"])
+        for step, p, f, lam in zip(*columns):
+            writer.writerow([int(step), repr(float(p)), "" if np.isnan(f) else repr(float(f)), repr(float(lam))])

@@ -16,12 +16,21 @@ import numpy as np
 from acquisition.errors import ImplausibleInputError
 
 __all__ = ["LoadLimits", "check_loads", "check_geometry", "check_marker_cloud", "check_cloud_scale", "check_identifiable",
-           "STRETCH_RANGE", "MIN_MESH_MARKERS"]
+           "STRETCH_RANGE", "MIN_MESH_MARKERS", "SPECIMEN_RANGES", "check_specimen_size", "MAX_IMAGE_SIDE_PX",
+           "check_session_resources", "human_bytes"]
 
 MMHG = 133.322387415  # Pa per mmHg
 STRETCH_RANGE = (0.5, 3.0)  # axial stretch outside this open interval is refused
 MIN_MESH_MARKERS = 8  # fewer reference markers cannot mesh a tube surface (decision 0007)
-_CLOUD_RATIO = 2.0  # marker-cloud radius vs specimen radius: beyond this factor, refused
+#: Plausible specimen sizes, m: (low, high) of radius, wall thickness and length; outside, refused (a unit
+#: mistake or a typo: a 1 nm or a 2 m artery does not exist).
+SPECIMEN_RANGES = {"radius": (1e-4, 0.1), "thickness": (5e-6, 0.05), "length": (5e-4, 1.0)}
+_CLOUD_RATIO = 2.0
+#: Largest image side a camera may have, px (as reconstruction.camera_checks: no sensor comes near).
+MAX_IMAGE_SIDE_PX = 40_000
+#: Working memory of a capture per pixel of the largest frame, bytes: the simulated rig renders in float64
+#: with a few buffers, live detection filters in float32.
+WORK_BYTES_PER_PIXEL = 48  # marker-cloud radius vs specimen radius: beyond this factor, refused
 
 
 @dataclass(frozen=True)
@@ -100,8 +109,20 @@ def check_loads(pressure: np.ndarray, force: np.ndarray, stretch: np.ndarray, *,
     return warnings
 
 
+def check_specimen_size(*, source: str, **sizes: float | None) -> None:
+    """Each given size (``radius=``, ``thickness=``, ``length=``, m) within :data:`SPECIMEN_RANGES`."""
+    for name, value in sizes.items():
+        if value is None or not np.isfinite(value) or value <= 0:
+            continue  # check_geometry's positive-length messages
+        lo, hi = SPECIMEN_RANGES[name]
+        if not lo <= value <= hi:
+            raise ImplausibleInputError(f"{source}: the specimen {name} {value * 1e3:.4g} mm is outside the plausible "
+                                        f"range {lo * 1e3:g}..{hi * 1e3:g} mm (a unit mistake?)")
+
+
 def check_geometry(radius: float, thickness: float, length: float | None = None, *, source: str) -> list[str]:
-    """Reference geometry (m): radius > 0, thickness < radius; a thick wall (e > R/2) is a warning."""
+    """Reference geometry (m): radius > 0, thickness < radius, sizes within :data:`SPECIMEN_RANGES`; a thick
+    wall (e > R/2) is a warning."""
     if not (np.isfinite(radius) and radius > 0):
         raise ImplausibleInputError(f"{source}: the specimen radius must be a positive length; got "
                                     f"{radius * 1e3:.4g} mm")
@@ -111,6 +132,7 @@ def check_geometry(radius: float, thickness: float, length: float | None = None,
     if thickness >= radius:
         raise ImplausibleInputError(f"{source}: the wall thickness {thickness * 1e3:.4g} mm is not smaller than the "
                                     f"radius {radius * 1e3:.4g} mm (the markers sit on the outer wall)")
+    check_specimen_size(source=source, radius=radius, thickness=thickness, length=length)
     warnings = []
     if thickness > 0.5 * radius:
         warnings.append(f"{source}: the wall is thick (thickness {thickness * 1e3:.4g} mm > half the radius "
@@ -176,3 +198,33 @@ def check_identifiable(positions: np.ndarray, *, source: str, steps: np.ndarray 
         raise ImplausibleInputError(f"{source}: steps {empty} have no measured marker; identification needs the "
                                     "reference and at least two loaded steps with markers")
     return [f"{source}: steps {empty} have no measured marker and are left out"] if empty else []
+
+
+def human_bytes(n: float) -> str:
+    """``n`` bytes as ``"123 GB"`` (decimal units)."""
+    for unit, size in (("TB", 1e12), ("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
+        if n >= size:
+            return f"{n / size:.3g} {unit}"
+    return f"{n:.0f} B"
+
+
+def check_session_resources(frames: list[tuple[int, int, int]], n_captures: int, *, free_disk: float,
+                            memory: float, source: str) -> None:
+    """Refuse a recording that cannot fit the machine, before anything moves, with the estimate.
+
+    ``frames``: (width, height, bytes per pixel) of each camera; ``n_captures``: the images each camera takes
+    (steps and calibration views); ``free_disk`` and ``memory`` (physical RAM), bytes.
+    """
+    per_capture = sum(w * h * b for w, h, b in frames)
+    disk = 1.02 * n_captures * per_capture + 16e6  # HDF5 metadata, logs and the runner's reserve
+    if disk > free_disk:
+        raise ImplausibleInputError(
+            f"{source}: the session would need about {human_bytes(disk)} on disk ({n_captures:,} captures x "
+            f"{len(frames)} camera(s) x {human_bytes(per_capture / max(len(frames), 1))} per image) but only "
+            f"{human_bytes(free_disk)} are free there; fewer steps or smaller images, or another disk")
+    largest = max((w * h for w, h, _ in frames), default=0)
+    work = WORK_BYTES_PER_PIXEL * largest + per_capture
+    if work > 0.5 * memory:
+        raise ImplausibleInputError(
+            f"{source}: capturing would need about {human_bytes(work)} of memory (largest frame {largest:,} px) "
+            f"but the machine has {human_bytes(memory)}; use smaller images")

@@ -11,6 +11,7 @@ Typical use::
 
 from .checks import check_setup
 from .curves import StressStrainCurves, laplace_curves
+from .efficient import EfficientSettings
 from .design import PAPER_TABLE1, DesignResult, DesignSpecimen, Suggestion, design, suggest_steps
 from .errors import DegenerateDataError, IdentificationError, MeshError
 from .fit import PAPER_INITIAL_GUESS, identify_prepared
@@ -40,4 +41,6 @@ __all__ = [
     "BoundResult", "DesignResult", "DesignSpecimen", "MeasurementNoise", "PAPER_TABLE1", "Suggestion",
     "TubeExperiment", "TubeFitResult", "TubeGeometry", "TubeObservations", "TubeSteps", "cramer_rao_bound", "design",
     "fit_tube", "simulate_observations", "suggest_steps", "uniform_markers",
+    # generalised least squares over the gaps' full covariance (weighting="efficient", issue 24)
+    "EfficientSettings",
 ]

@@ -118,12 +118,16 @@ class _Projection:
     ``_Transform`` (log scale for positive parameters).
     """
 
-    def __init__(self, data: VFMData, model: Model, tr: _Transform):
+    def __init__(self, data: VFMData, model: Model, tr: _Transform, whitening: np.ndarray | None = None):
         self.data, self.model, self.tr = data, model, tr
         self.lin = np.flatnonzero(model.linear)
         self.nl = np.flatnonzero(~np.array(model.linear))
         self.scale = data.scale[:, None]
         self.y = (data.evw / self.scale).ravel()
+        # generalised least squares (``efficient``): residuals W (IVW - EVW) / scale, W (n_res, n_res)
+        self.whitening = None if whitening is None else np.asarray(whitening, dtype=float)
+        if self.whitening is not None:
+            self.y = self.whitening @ self.y
         # bounds of the linear parameters in parameter space (to_p is monotonic)
         self.p_lo = tr.to_p(tr.lower)[self.lin]
         self.p_hi = tr.to_p(tr.upper)[self.lin]
@@ -152,6 +156,8 @@ class _Projection:
         n_res = self.y.size
         A = np.moveaxis(A / self.scale, 0, -1).reshape(n_res, len(self.lin))
         dA = np.moveaxis(dA / self.scale, (0, 1), (-2, -1)).reshape(n_res, len(self.lin), len(self.nl))
+        if self.whitening is not None:
+            A, dA = self.whitening @ A, np.einsum("qr,rlj->qlj", self.whitening, dA)
         if not (np.all(np.isfinite(A)) and np.all(np.isfinite(dA))):
             return None, None
         return A, dA
@@ -355,6 +361,7 @@ def identify_prepared(
     optimizer: str = "lsq",
     n_starts: int = 3,
     max_evaluations: int = 20000,
+    whitening: np.ndarray | None = None,
 ) -> IdentificationResult:
     """Identify the parameters of ``model`` from prepared virtual-work data.
 
@@ -375,13 +382,19 @@ def identify_prepared(
         the first start only.
     max_evaluations : int
         Evaluation budget of Nelder-Mead.
+    whitening : ndarray, shape (n_fields * n_steps, n_fields * n_steps), optional
+        Generalised least squares (``optimizer="lsq"``): the residual vector ``(IVW - EVW) / scale`` (field-major,
+        ``ravel`` of (n_fields, n_steps)) is multiplied by this matrix, e.g. the inverse Cholesky factor of the
+        gaps' covariance (``efficient.GapCovariance``); ``residuals`` and ``cost`` are then whitened ones.
     """
     model = get_model(model)
     if optimizer not in ("lsq", "nelder-mead"):
         raise ValueError(f"optimizer must be 'lsq' or 'nelder-mead'; got {optimizer!r}")
     starts = _default_starts(model, initial, n_starts if optimizer == "lsq" else 1)
     tr = _Transform(model, starts[0])
-    vp = _Projection(data, model, tr)
+    if whitening is not None and optimizer != "lsq":
+        raise ValueError(f"whitening needs optimizer='lsq'; got optimizer={optimizer!r}")
+    vp = _Projection(data, model, tr, whitening)
     counter = [0]
     if optimizer == "lsq":
         best = _fit_projected(vp, starts)

@@ -14,14 +14,21 @@ from typing import Mapping
 
 import numpy as np
 
+from .efficient import EfficientSettings, identify_efficient
+from .reference import refine_reference
+from .resimulation import remeasured_mesh
 from .fit import IdentificationResult, identify_prepared
 from .models import Model
 from .noise_weights import weighted_flags, in_physical_units, used_positions, gap_noise, weighted_data, weights_from_noise
 from .uncertainty import with_uncertainty
 from .vfm import prepare
 
-__all__ = ["identify", "identify_noise_weighted", "drop_partial_steps", "per_step_rows", "MIN_COVERAGE",
+__all__ = ["identify", "identify_noise_weighted", "identify_gls", "WEIGHTINGS", "drop_partial_steps", "per_step_rows", "MIN_COVERAGE",
            "MISSING_AREA"]
+
+
+#: ``identify``'s weightings of the virtual-work gaps.
+WEIGHTINGS = ("paper", "noise", "efficient")
 
 
 #: Fraction of the reference markers a loaded step must observe to enter the balance (``identify``).
@@ -75,6 +82,7 @@ def identify(
     uncertainty: str = "gauss-newton",
     uncertainty_options: Mapping | None = None,
     weighting: str = "paper",
+    efficient: EfficientSettings | None = None,
     **prepare_options,
 ) -> IdentificationResult:
     """Identify constitutive parameters from marker positions, pressure and axial force.
@@ -105,7 +113,12 @@ def identify(
         "paper": the paper's cost (one scale per field). "noise": each virtual-work gap weighted by
         the inverse of its measured noise (``noise_weights.identify_noise_weighted``; smoothed data
         only, ``optimizer="lsq"``): at 0.17 mm marker noise Fung beta within 5 % in 80 % of seeds
-        instead of 38 % (docs/validation/identification.md "Noise").
+        instead of 38 % (docs/validation/identification.md "Noise"). "efficient": generalised least squares
+        over the full first-order covariance of the gaps (marker noise through the smoothing basis, the reference
+        step treated as measured, the readings' noise; ``efficient``), iterated; ``optimizer="lsq"`` only
+        (docs/validation/efficiency.md).
+    efficient : EfficientSettings, optional
+        Noise model of the readings, marker noise and iterations of ``weighting="efficient"``.
     prepare_options
         Passed to ``prepare`` (fields, mesh, n_layers, quadrature, clamp_radius, smoothing...).
         ``smoothing="auto"`` smooths with a basis chosen from the data (generalised
@@ -113,8 +126,15 @@ def identify(
     """
     if uncertainty not in ("gauss-newton", "bootstrap"):
         raise ValueError(f"uncertainty must be 'gauss-newton' or 'bootstrap'; got {uncertainty!r}")
-    if weighting not in ("paper", "noise"):
-        raise ValueError(f"weighting must be 'paper' or 'noise'; got {weighting!r}")
+    if weighting not in WEIGHTINGS:
+        raise ValueError(f"weighting must be one of {WEIGHTINGS}; got {weighting!r}")
+    if weighting == "efficient":
+        if optimizer != "lsq" or initial is not None:
+            raise ValueError(f"weighting='efficient' needs optimizer='lsq' and no initial guess; got "
+                             f"optimizer={optimizer!r}, initial={initial!r}")
+        return identify_gls(positions, pressure, axial_force, thickness=thickness, model=model, wall=wall, ends=ends,
+                            uncertainty=uncertainty, uncertainty_options=uncertainty_options, n_starts=n_starts,
+                            settings=efficient, **prepare_options)
     if weighting == "noise":
         if optimizer != "lsq" or initial is not None:
             raise ValueError(f"weighting='noise' needs optimizer='lsq' and no initial guess; got "
@@ -181,3 +201,28 @@ def identify_noise_weighted(positions, pressure, axial_force, *, thickness: floa
         result = with_uncertainty(result, data, used_positions(first, positions), prepare_options=options,
                                   gap_weights=w, **(per_step_rows(uncertainty_options, n_input, dropped) or {}))
     return in_physical_units(result, data, model)
+
+
+def identify_gls(positions, pressure, axial_force, *, thickness: float, model="fung",
+                 uncertainty: str = "gauss-newton", uncertainty_options: Mapping | None = None,
+                 settings: EfficientSettings | None = None, **prepare_options):
+    """``identify`` with ``weighting="efficient"``: the paper's fit, then generalised least squares over the full
+    covariance of the gaps (``efficient.identify_efficient``). Returns an ``IdentificationResult`` whose ``data``,
+    ``ivw``, ``evw`` and ``residuals`` are the paper's (unweighted), like ``identify_noise_weighted``; its
+    ``stderr`` are the generalised least squares' (from the covariance model, not the residual scatter).
+    ``uncertainty="bootstrap"`` is not available yet for this weighting."""
+    if uncertainty != "gauss-newton":
+        raise ValueError(f"weighting='efficient' supports uncertainty='gauss-newton' only; got {uncertainty!r}")
+    settings = settings or EfficientSettings()
+    first = identify(positions, pressure, axial_force, thickness=thickness, model=model, **prepare_options)
+    options = {k: v for k, v in prepare_options.items() if k not in ("n_starts",)}
+    x = used_positions(first, positions)
+    if settings.refine_reference and first.data.smoothing is not None:
+        x = refine_reference(x, first.data.mesh, first.data.smoothing)
+        given = {k: v for k, v in prepare_options.items() if k not in ("mesh", "smoothing")}
+        first = replace(identify(x, first.data.pressure, first.data.axial_force, thickness=thickness, model=model,
+                                 mesh=remeasured_mesh(first.data.mesh, x[0]), smoothing=first.data.smoothing,
+                                 **given), steps=first.steps, flags=first.flags)
+    result, _ = identify_efficient(first, x, model, settings, options)
+    result = dataclasses.replace(result, flags=weighted_flags(result, first, first.data, model))
+    return in_physical_units(result, first.data, model)

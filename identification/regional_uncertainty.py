@@ -29,6 +29,7 @@ Pure functions over arrays; SI units.
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -89,11 +90,14 @@ class BandUncertainty:
         return int(self.shared_replicates.shape[0]) + self.n_failed
 
 
-def _replicate_fits(rd: RegionalData, result: RegionalResult, positions, options):
-    """Profiles, shared values and RMS gaps of the re-simulated replicates; number failed."""
+def _replicate_fits(rd: RegionalData, result: RegionalResult, positions, options, progress=None):
+    """Profiles, shared values and RMS gaps of the re-simulated replicates; number failed.
+    ``progress(done, n_replicates, "bootstrap")`` after each replicate."""
     level, reps = resimulated_measurements(rd.data, positions, **options)
     profiles, shared, rms, failed = {n: [] for n in result.regional}, [], [], 0
-    for pos, p, f, mesh in reps:
+    tell = progress or (lambda done, total, what: None)
+    for i, (pos, p, f, mesh) in enumerate(reps):
+        tell(i, int(options["n_replicates"]), "bootstrap")
         if mesh is None:
             failed += 1
             continue
@@ -148,7 +152,8 @@ def smoothing_shift(result: RegionalResult, rd: RegionalData, positions: np.ndar
 
 def with_bootstrap(result: RegionalResult, rd: RegionalData, positions: np.ndarray, *,
                    marker_sigma: np.ndarray | None = None, pressure_noise: float = 0.0, force_noise: float = 0.0,
-                   n_replicates: int = 16, seed: int = 0) -> RegionalResult:
+                   n_replicates: int = 16, seed: int = 0,
+                   progress: Callable[[int, int, str], None] | None = None) -> RegionalResult:
     """``result`` with bootstrap standard errors and 95 % intervals of its profiles (and shared parameters); the
     z-scores, differing bands and flags follow them.
 
@@ -159,13 +164,15 @@ def with_bootstrap(result: RegionalResult, rd: RegionalData, positions: np.ndarr
     rd : RegionalData
     positions : ndarray, shape (n_steps, n_markers, 3)
         The measured positions (m) ``rd`` was prepared from.
-    marker_sigma, pressure_noise, force_noise, n_replicates, seed : as ``uncertainty.bootstrap``.
+    marker_sigma, pressure_noise, force_noise, n_replicates, seed, progress : as ``uncertainty.bootstrap``.
     """
     model = get_model(result.model)
     positive = dict(zip(model.parameter_names, model.positive))
     options = dict(marker_sigma=marker_sigma, pressure_noise=pressure_noise, force_noise=force_noise,
                    n_replicates=n_replicates, seed=seed)
-    level, profiles, shared, rms, failed = _replicate_fits(rd, result, positions, options)
+    level, profiles, shared, rms, failed = _replicate_fits(rd, result, positions, options, progress)
+    if progress is not None:
+        progress(n_replicates, n_replicates, "bootstrap")
     n_ok = len(rms)
     flags = []
     if failed > MAX_FAILED * n_replicates:
@@ -234,17 +241,20 @@ def _step_misfit(y: np.ndarray, sd: np.ndarray, centres: np.ndarray, edges: np.n
 
 def choose_bands(positions: np.ndarray, pressure: np.ndarray, axial_force: np.ndarray, *, thickness: float,
                  model: str = "fung", n_max: int = 6, bootstrap_options: dict | None = None,
-                 **prepare_options) -> BandChoice:
+                 progress: Callable[[int, int, str], None] | None = None, **prepare_options) -> BandChoice:
     """Choose the number of equal axial bands (1..``n_max``) from the data (module docstring).
 
     Parameters are those of ``prepare_regional`` (positions (n_steps, n_markers, 3) m, pressure (n_steps,) Pa,
-    axial_force (n_steps,) N, thickness m) and ``with_bootstrap`` (``bootstrap_options``).
+    axial_force (n_steps,) N, thickness m) and ``with_bootstrap`` (``bootstrap_options``). ``progress(done, total,
+    what)`` is told of the finest fit ("fitting N bands", done 0 of 1) and of its bootstrap.
     """
     if isinstance(n_max, bool) or not isinstance(n_max, (int, np.integer)) or not 2 <= n_max <= 12:
         raise ValueError(f"n_max must be an integer number of bands from 2 to 12; got {n_max!r}")
+    if progress is not None:
+        progress(0, 1, f"fitting {int(n_max)} bands")
     rd = prepare_regional(positions, pressure, axial_force, thickness=thickness, n_bands=int(n_max), **prepare_options)
     fine = identify_regional(rd, model)
-    fine = with_bootstrap(fine, rd, positions, **(bootstrap_options or {}))
+    fine = with_bootstrap(fine, rd, positions, **(bootstrap_options or {}), progress=progress)
     m = get_model(model)
     positive = {n: m.positive[m.parameter_names.index(n)] for n in fine.regional}
     candidates = np.arange(1, int(n_max) + 1)

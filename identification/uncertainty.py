@@ -120,6 +120,7 @@ def bootstrap(
     prepare_options: Mapping | None = None,
     gap_weights: np.ndarray | None = None,
     map_replicates: Callable | None = None,
+    progress: Callable[[int, int, str], None] | None = None,
 ) -> Uncertainty:
     """Parametric bootstrap of an identification (see the module docstring).
 
@@ -150,6 +151,8 @@ def bootstrap(
         ``map``-like ``(function, replicates) -> results in order`` that runs the independent
         re-identifications, e.g. on several cores (``vfmlab.parallel.fork_map``); the builtin ``map``
         by default. The replicates are drawn in order before, so the result is the same either way.
+    progress : callable, optional
+        Called as ``progress(done, n_replicates, "bootstrap")`` before the first and after each replicate.
     """
     model = get_model(result.model)
     level, replicates = resimulated_measurements(data, positions, marker_sigma=marker_sigma,
@@ -159,7 +162,10 @@ def bootstrap(
     estimate = np.array([result.parameters[n] for n in model.parameter_names])
     reps, rms, failed = [], [], 0
     fit = functools.partial(_replicate_fit, data, model, result.parameters, options, gap_weights)
-    for values, value_rms in (map_replicates or map)(fit, replicates):
+    tell = progress or (lambda done, total, what: None)
+    tell(0, n_replicates, "bootstrap")
+    for i, (values, value_rms) in enumerate((map_replicates or map)(fit, replicates)):
+        tell(i + 1, n_replicates, "bootstrap")
         if values is None:
             failed += 1
             continue

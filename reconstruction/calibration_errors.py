@@ -5,7 +5,7 @@ on nothing here.
 
 from __future__ import annotations
 
-__all__ = ["CalibrationError", "CalibrationFileError"]
+__all__ = ["CalibrationError", "CalibrationFileError", "CameraError"]
 
 
 class CalibrationError(RuntimeError):
@@ -14,3 +14,15 @@ class CalibrationError(RuntimeError):
 
 class CalibrationFileError(ValueError):
     """A calibration file is malformed or uses an unsupported model."""
+
+
+class CameraError(CalibrationFileError):
+    """A calibration describes no possible camera (K = 0, a negative focal length, a non-finite rotation, ...).
+
+    Attributes ``camera`` (its name, or where in the file) and ``field`` (``matrix``, ``size``, ``rotation``, ...).
+    """
+
+    def __init__(self, message: str, *, camera: str = "", field: str = "") -> None:
+        super().__init__(message)
+        self.camera = camera
+        self.field = field

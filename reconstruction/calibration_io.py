@@ -30,6 +30,7 @@ import numpy as np
 import tomli_w
 
 from .calibration_errors import CalibrationFileError
+from .camera_checks import check_number_values, validate_camera
 from .calibration_openptv import OpenPTVControl, camera_from_openptv, camera_to_openptv, parse_ptv_par
 from .cameras import Camera
 from .refraction import Window
@@ -68,7 +69,7 @@ def _cam_from_parts(name, size, K, dist, rvec, tvec, scale, where) -> Camera:
         dist = np.asarray(dist, float).ravel()
         rvec = np.asarray(rvec, float)
         if rvec.shape == (3, 3):
-            rvec = cv2.Rodrigues(rvec)[0]
+            rvec = _rotation_vector(rvec, where)
         rvec = rvec.ravel()
         tvec = np.asarray(tvec, float).ravel()
         size = tuple(int(v) for v in np.asarray(size).ravel())
@@ -78,7 +79,16 @@ def _cam_from_parts(name, size, K, dist, rvec, tvec, scale, where) -> Camera:
         raise CalibrationFileError(f"{where}: rotation/translation need 3 values and size 2; got {rvec.size}, {tvec.size}, {len(size)}")
     if dist.size > 5 and np.any(dist[5:] != 0):
         raise CalibrationFileError(f"{where}: only the 5-coefficient OpenCV model (k1, k2, p1, p2, k3) is supported; got {dist.size}")
-    return Camera(str(name), K, dist[:5], rvec, tvec * scale, size)
+    if K.size and not np.all(np.isfinite(K)):
+        raise CalibrationFileError(f"{where}: matrix must be finite numbers; got {K.tolist()}")
+    return validate_camera(Camera(str(name), K, dist[:5], rvec, tvec * scale, size), where)
+
+
+def _rotation_vector(R: np.ndarray, where: str) -> np.ndarray:
+    """The Rodrigues vector of a rotation matrix; a CalibrationFileError when ``R`` is no rotation."""
+    if not np.all(np.isfinite(R)) or not np.allclose(R.T @ R, np.eye(3), atol=1e-3) or np.linalg.det(R) < 0:
+        raise CalibrationFileError(f"{where}: rotation matrix must be a rotation (orthonormal, det +1); got {R.tolist()}")
+    return cv2.Rodrigues(R)[0]
 
 
 # ---------------------------------------------------------------------------------------------- TOML
@@ -147,6 +157,9 @@ def cameras_from_toml(text: str, *, units: str | None = None) -> tuple[list[Came
         dist = d.get("distortions", d.get("distortion"))
         if missing or dist is None:
             raise CalibrationFileError(f"calibration TOML [{k}]: missing {missing + ([] if dist is not None else ['distortions'])}")
+        for field, value in (("size", d["size"]), ("matrix", d["matrix"]), ("distortions", dist),
+                             ("rotation", d["rotation"]), ("translation", d["translation"])):
+            check_number_values(value, field, f"calibration TOML [{k}]")
         cams.append(_cam_from_parts(d.get("name", k), d["size"], d["matrix"], dist, d["rotation"], d["translation"], scale, f"[{k}]"))
     return cams, meta
 
@@ -347,5 +360,6 @@ def cameras_from_arrays(arrays: dict) -> list[Camera]:
         K, dist, rvec, tvec, size = (np.asarray(arrays[k]) for k in ("K", "dist", "rvec", "tvec", "image_size"))
     except KeyError as exc:
         raise CalibrationFileError(f"calibration arrays: missing {exc.args[0]!r}") from None
-    return [Camera(names[i], K[i], dist[i], rvec[i], tvec[i], tuple(size[i]), window=_window_from_arrays(arrays, i))
+    return [validate_camera(Camera(names[i], K[i], dist[i], rvec[i], tvec[i], tuple(size[i]),
+                                   window=_window_from_arrays(arrays, i)), principal_point=False)
             for i in range(len(names))]

@@ -28,6 +28,7 @@ import cv2
 import numpy as np
 
 from reconstruction.calibration_errors import CalibrationFileError
+from reconstruction.camera_checks import validate_camera
 from reconstruction.cameras import Camera
 from reconstruction.refraction import Window
 
@@ -118,7 +119,8 @@ def camera_from_openptv(name: str, ori_text: str, addpar_text: str | None, contr
     rvec = cv2.Rodrigues(R)[0].ravel()
     window = _window_from_glass(name, g, control)
     meta = {"source": "openptv", "pixel_size_mm": (px, py), "shear_rad": float(she)}
-    return Camera(name, K, dist, rvec, -R @ X0_m, (imx, imy), meta=meta, window=window)
+    return validate_camera(Camera(name, K, dist, rvec, -R @ X0_m, (imx, imy), meta=meta, window=window),
+                           principal_point=False)
 
 
 def _window_from_glass(name: str, g: np.ndarray, control: OpenPTVControl) -> Window | None:

@@ -79,6 +79,7 @@ def test_report_and_calibrate_outputs_need_force(session, tmp_path, capsys):
     folder = tmp_path / "rep"
     folder.mkdir()
     (folder / "report.html").write_text("old")
+    (folder / "notes.txt").write_text("mine")  # not a report folder (an earlier report alone is replaced: issue 28)
     assert main(["report", str(session), "-o", str(folder)]) == 1
     assert "pass --force" in capsys.readouterr().err
     assert (folder / "report.html").read_text() == "old"

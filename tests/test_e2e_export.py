@@ -59,7 +59,7 @@ def _parse_vtk(text: str) -> dict:
 
 
 def test_export_vtk_round_trip(session, tmp_path, capsys):
-    assert main(["export", str(session), "-o", str(tmp_path / "vtk")]) == 0
+    assert main(["export", str(session), "-o", str(tmp_path / "vtk"), "--format", "vtk"]) == 0
     assert "Exported 7 steps" in capsys.readouterr().out
     with open_session(session) as s:
         fields = compute_fields(s.latest("markers"), s.steps)
@@ -99,3 +99,61 @@ def test_export_errors(tmp_path, capsys):
     assert main(["export", str(bare)]) == 2
     assert "no marker tracks yet" in capsys.readouterr().err
     assert main(["export", str(tmp_path / "nope.h5")]) == 2
+
+
+def _pvd(path) -> list[tuple[float, str]]:
+    """(time, file) of a ParaView collection, read with the standard library (independent of the writer)."""
+    import xml.etree.ElementTree as ET
+
+    root = ET.parse(path).getroot()
+    assert root.get("type") == "Collection"
+    return [(float(d.get("timestep")), d.get("file")) for d in root.iter("DataSet")]
+
+
+def test_export_vtu_series_reads_with_meshio(session, tmp_path, capsys):
+    """The default export: VTU per step read by meshio; .pvd series with time = pressure per block and clock time;
+    fields named by model and component."""
+    import meshio
+
+    assert main(["export", str(session), "-o", str(tmp_path / "vtu")]) == 0
+    assert "Exported 7 steps" in capsys.readouterr().out
+    with open_session(session) as s:
+        idents = [s.result(n) for n in s.results("identification")]
+        fields = compute_fields(s.latest("markers"), s.steps, idents)
+        steps = s.steps
+    out = tmp_path / "vtu"
+    block = np.asarray(steps["block"])[fields.steps]
+    clock = np.asarray(steps["t_monotonic"], float)[fields.steps]
+    for b in (0, 1):
+        series = _pvd(out / f"surface_block{b}.pvd")
+        rows = np.flatnonzero(block == b)
+        assert [f for _, f in series] == [f"surface_{k:03d}.vtu" for k in rows]
+        np.testing.assert_array_equal([t for t, _ in series], fields.pressure[rows])  # time = pressure in Pa
+    clock_series = _pvd(out / "surface_clock.pvd")
+    assert [f for _, f in clock_series] == [f"surface_{k:03d}.vtu" for k in range(7)]
+    np.testing.assert_allclose([t for t, _ in clock_series], clock - clock[0])
+    models = sorted({str(r["attrs"]["model"]) for r in idents})
+    assert len(models) >= 2
+    for k in (0, 6):
+        mesh = meshio.read(out / f"surface_{k:03d}.vtu")
+        assert [c.type for c in mesh.cells] == ["triangle"]
+        names = set(mesh.cell_data)
+        assert {"E_theta", "E_z", "E_theta_z", "area_m2", "triangle"} <= names
+        for model in models:
+            assert {f"{model}_sigma_theta_Pa", f"{model}_sigma_z_Pa"} <= names
+        tri_index = mesh.cell_data["triangle"][0].astype(int)
+        np.testing.assert_array_equal(mesh.cells[0].data, fields.mesh.triangles[tri_index])
+        np.testing.assert_array_equal(mesh.cell_data["E_theta"][0], fields.kin["E11"][k][tri_index])
+        np.testing.assert_array_equal(mesh.cell_data["E_z"][0], fields.kin["E22"][k][tri_index])
+        stress = next(st for st in fields.stress.values() if st["model"] == models[0])
+        np.testing.assert_array_equal(mesh.cell_data[f"{models[0]}_sigma_theta_Pa"][0], stress["s11"][k][tri_index])
+        visible = mesh.point_data["visible"].astype(bool)
+        np.testing.assert_array_equal(mesh.points[visible], fields.positions[k][visible])
+        assert mesh.point_data["displacement_m"].shape == (len(mesh.points), 3)
+        used = np.unique(mesh.cells[0].data)
+        np.testing.assert_allclose(np.linalg.norm(mesh.point_data["normal"][used], axis=1), 1.0, atol=1e-9)
+        assert np.isnan(np.delete(mesh.point_data["normal"], used, axis=0)).all()  # in no cell: no normal
+        assert np.all(mesh.cell_data["area_m2"][0] > 0)
+        np.testing.assert_allclose(float(mesh.field_data["pressure_Pa"][0]), fields.pressure[k])
+        np.testing.assert_allclose(float(mesh.field_data["clock_s"][0]), clock[k] - clock[0])
+        assert int(mesh.field_data["step"][0]) == k

@@ -218,7 +218,7 @@ def test_profile_in_report_and_export(weak_session, stored_regional, tmp_path, c
 
     from acquisition.session import open_session, write_result
     from vfmlab.cli import main
-    from vfmlab.report.build import _Report
+    from vfmlab.report.output import ReportFiles as _Report
     from vfmlab.report.profile import section
 
     from acquisition.session import copy_session

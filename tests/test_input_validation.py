@@ -354,7 +354,8 @@ def test_ctrl_c_during_report_exits_130_without_traceback(tmp_path, full_session
     proc = subprocess.Popen([sys.executable, "-m", "vfmlab", "report", str(full_session), "-o", str(out)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
-    while not out.exists() and proc.poll() is None:  # the report directory is made first, then the work
+    # the report is built in a staging folder beside its place (renamed into place when complete): made first
+    while not (out.exists() or any(tmp_path.glob(".report.*.part"))) and proc.poll() is None:
         time.sleep(0.05)
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=120)

@@ -75,8 +75,8 @@ def test_settings_defaults_are_the_command_line_defaults(command):
         if option is None:
             continue
         default = option.default if type(option.default).__name__ != "Sentinel" else None
-        if option.is_flag and default is None:  # a flag without a default is off
-            default = False
+        if option.is_flag and default is None and not option.secondary_opts:  # a flag without a default is off
+            default = False  # (an --on/--off pair without a default passes None: neither given)
         if option.multiple and default is None:
             default = ()
         value = getattr(settings, f.name)

@@ -68,6 +68,27 @@ def test_capture_all_reports_each_failed_camera():
     assert "c1" in str(info.value) and "c3" in str(info.value)
 
 
+def test_simulated_cameras_are_not_timed_out_by_a_slow_machine():
+    """A simulated camera's frame takes what its rendering takes (a loaded machine): capture_all waits for it;
+    a real-time camera that slow is a timeout."""
+    def slow(settings):
+        time.sleep(0.4)
+        return _ramp(settings)
+
+    class RealTime(FunctionCamera):
+        real_time = True
+
+    sims = [FunctionCamera(f"s{i}", slow, {"width": 32, "height": 24}).open() for i in range(2)]
+    res = capture_all(sims, timeout=0.05)
+    assert sorted(res.frames) == ["s0", "s1"]
+    with pytest.raises(CaptureError) as info:
+        capture_all([RealTime("r", slow, {"width": 32, "height": 24}).open(), sims[0]], timeout=0.05)
+    assert sorted(info.value.failures) == ["r"] and isinstance(info.value.failures["r"], CameraTimeout)
+    sims[1].stalled = True  # a simulated stall is still a timeout
+    with pytest.raises(CaptureError, match="s1"):
+        capture_all(sims, timeout=0.05)
+
+
 def test_folder_camera_replays_in_order(tmp_path):
     for i in range(3):
         cv2.imwrite(str(tmp_path / f"img_{i:03d}.png"), np.full((20, 30), 10 * i, np.uint8))

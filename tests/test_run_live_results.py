@@ -59,6 +59,10 @@ def test_run_identifies_while_running_and_stores_the_result(tmp_path):
             assert any("were left out" in fl for fl in result["attrs"]["flags"]), result["attrs"]["flags"]
         values = dict(zip(result["arrays"]["parameter_names"], result["arrays"]["parameters"]))
         stderr = dict(zip(result["arrays"]["parameter_names"], result["arrays"]["stderr"]))
+        # reproducible from the session: the markers and calibration it came from are stored with it
+        markers = s.result(result["parameters"]["markers_result"])
+        assert markers["arrays"]["step_index"].tolist() == rows.tolist()
+        assert s.result(result["parameters"]["calibration_result"])["kind"] == "calibration"
     truth = PAPER_PARAMETERS["fung"]
     # 120 markers, 4 cameras at 0.55 Mpx, 2 x 3 loaded levels: beta, alpha11, alpha22 within a few %
     # (the demo's own reconstruction of the same kind of session is within ~2-6 %)

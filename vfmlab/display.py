@@ -9,7 +9,8 @@ from __future__ import annotations
 import math
 from typing import Any
 
-__all__ = ["LOG_TIME_FORMAT", "UNLIMITED_WIDTH", "num", "fixed", "display_quantity", "quantity", "settings_text"]
+__all__ = ["LOG_TIME_FORMAT", "UNLIMITED_WIDTH", "num", "fixed", "display_quantity", "quantity", "settings_text",
+           "printable", "side_by_side_table"]
 
 #: ISO 8601 time stamps in every log line (never the locale's month/day order).
 LOG_TIME_FORMAT = "%Y-%m-%d %H:%M:%S"
@@ -97,3 +98,40 @@ def _setting(value: Any) -> str:
     if isinstance(value, dict):
         return "{" + settings_text(value) + "}"
     return str(value)
+
+
+#: Characters that act on a terminal instead of printing: C0 controls but tab and newline, DEL, C1 controls
+#: (0x9b is a one-byte CSI) and the bidirectional overrides that reorder what a line shows.
+_UNPRINTABLE = {c: (f"\\x{c:02x}" if c < 0x100 else f"\\u{c:04x}")
+                for c in [*range(0x00, 0x09), *range(0x0b, 0x20), *range(0x7f, 0xa0), *range(0x202a, 0x202f),
+                          *range(0x2066, 0x206a)]}
+
+
+def printable(text: str) -> str:
+    """``text`` with every character that a terminal would act on written as a visible escape
+    (ESC -> ``\\x1b``, CR -> ``\\x0d``): text read from files can neither clear the screen, retitle the
+    window nor overwrite a line. Tabs and newlines are kept."""
+    return text.translate(_UNPRINTABLE)
+
+
+def side_by_side_table(table: dict[str, Any]):
+    """A ``rich`` table of :func:`vfmlab.results.side_by_side`: a row per identification, a column per parameter
+    (value +- standard error in display units; "?" marks a parameter judged doubtful), cost and verdict."""
+    from rich.markup import escape
+    from rich.table import Table
+
+    t = Table(title="Models side by side (± standard error; ? = parameter judged doubtful)")
+    for col in ("result", "model", *(f"{p['name']} ({p['unit'] or '1'})" for p in table["parameters"]), "cost",
+                "verdict"):
+        t.add_column(escape(col), justify="left" if col in ("result", "model", "verdict") else "right")
+    for r in table["rows"]:
+        cells = []
+        for p in table["parameters"]:
+            v = r["values"].get(p["name"])
+            cells.append("" if v is None else f"{quantity(v['value'], p['unit'])} ± "
+                         f"{quantity(v['stderr'], p['unit'], 2)}" + (" ?" if v["verdict"] == "doubtful" else ""))
+        verdict = escape(r["verdict"] or "–")
+        t.add_row(escape(r["name"]), escape(f"{r['model']} ({r['wall']})"), *[escape(c) for c in cells],
+                  num(r["cost"], 3) + ("" if r["converged"] else " [red](not converged)[/]"),
+                  f"[yellow]{verdict}[/]" if r["verdict"] == "doubtful" else verdict)
+    return t

@@ -1,38 +1,48 @@
-"""Export the deformed marker mesh and its fields, one file per step, in formats ParaView reads.
+"""Export the deformed marker mesh and its fields, one file per step, in formats ParaView, PyVista and meshio read.
 
-- ``vtk``: legacy ASCII VTK polydata, written here by hand (no dependency). Points are the marker
-  positions of the step (m); cells are the mesh triangles whose three markers were measured in that
-  step. Cell data: ``E11``, ``E22``, ``E12`` (Green-Lagrange, reference circumferential/axial frame),
-  ``<result>_s11``, ``<result>_s22`` (Cauchy stress of each identified model, Pa), ``triangle``
-  (index in the full mesh). Point data: ``marker_id``, ``visible`` (0/1; unmeasured markers are
-  written at their reference position), vector ``displacement`` (m). A ``<prefix>.vtk.series``
-  file (ParaView's JSON file-series format, time = step index) groups the steps; ParaView also
-  groups ``<prefix>_NNN.vtk`` files as a series by their names.
+- ``vtu`` (default): VTK XML unstructured grids (:mod:`vfmlab.vtkxml`), one ``<prefix>_NNN.vtu`` per step. Points
+  are the marker positions of the step (m; unmeasured markers at their reference position); cells are the mesh
+  triangles whose three markers were measured in that step. Cell data, named by quantity, component and unit:
+  ``E_theta``, ``E_z``, ``E_theta_z`` (Green-Lagrange, reference circumferential/axial frame, dimensionless),
+  ``<model>_sigma_theta_Pa``, ``<model>_sigma_z_Pa`` (Cauchy stress of each identified model; ``<model>`` is
+  the model name, with the wall model appended when it is not the membrane, e.g. ``fung_thick``),
+  ``area_m2`` (deformed triangle area, trimesh), ``triangle`` (index in the full mesh). Point data: ``marker_id``,
+  ``visible`` (0/1), ``displacement_m`` (3 components), ``normal`` (unit vertex normal, trimesh; NaN off the cells). Field data (one
+  value per file): ``pressure_Pa``, ``force_N``, ``stretch``, ``clock_s`` (seconds since the first exported step),
+  ``step``, ``session_row``, ``block``. Collections (``.pvd``, ParaView and PyVista play them as time series):
+  ``<prefix>_block<B>.pvd`` per loading block (one axial stretch) with time = pressure in Pa, and
+  ``<prefix>_clock.pvd`` with every step at time = clock seconds.
+- ``vtk``: legacy ASCII VTK polydata, written here by hand, for old readers (meshio cannot read it). Cell data
+  ``E11``, ``E22``, ``E12``, ``<result>_s11``, ``<result>_s22`` (Pa), ``triangle``; point data ``marker_id``,
+  ``visible``, vector ``displacement`` (m). A ``<prefix>.vtk.series`` file (ParaView's JSON file-series format,
+  time = step index) groups the steps.
 - profiles (``export_profile``, a stored "regional" result): ``<prefix>_profile.csv`` (one row per band or
   profile point: axial position Z in m, world x/y/z in m, each regional parameter, its standard error and 95 %
   interval in Pa, whether the band differs; units in the header names and a leading ``#`` comment) and
   ``<prefix>_profile.vtk``, a legacy VTK polyline along the specimen axis through the band centres (world frame, m)
   with the same values as point data, to show beside the surface in ParaView.
-- ``ply``: binary PLY through trimesh: the same geometry with face colours from E11 and the scalar
-  fields as extra float face properties (ParaView shows the colours; the scalars are read by
-  trimesh, plyfile, Open3D, MeshLab).
+- ``ply``: binary PLY through trimesh: the same geometry with face colours from the hoop strain (ParaView shows
+  the colours) and the ``vtu`` cell fields as extra float face properties (ParaView's PLY reader ignores them;
+  trimesh, plyfile, Open3D and MeshLab read them). Use ``vtu`` to see the fields in ParaView.
 """
 
 from __future__ import annotations
 
 import json
 import logging
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from vfmlab.fields import SurfaceFields
+from vfmlab.vtkxml import write_pvd, write_vtu
 
 log = logging.getLogger(__name__)
 
-__all__ = ["FORMATS", "export_fields", "export_profile", "write_vtk_polydata"]
+__all__ = ["FORMATS", "StepTimes", "export_fields", "export_profile", "field_names", "write_vtk_polydata"]
 
-FORMATS = ("vtk", "ply")
+FORMATS = ("vtu", "vtk", "ply")
 
 
 def _cell_fields(fields: SurfaceFields, step: int) -> dict[str, np.ndarray]:
@@ -91,32 +101,125 @@ def _step_geometry(fields: SurfaceFields, step: int):
     return points, visible, keep, np.where(visible[:, None], x - ref, 0.0)
 
 
-def export_fields(fields: SurfaceFields, out_dir: str | Path, *, fmt: str = "vtk", prefix: str = "surface",
-                  specimen: str = "") -> list[Path]:
+@dataclass(frozen=True)
+class StepTimes:
+    """When each exported step was taken: ``block`` (n_steps,) int, the loading block (one axial stretch) of the
+    step; ``clock_s`` (n_steps,) float, seconds since the first exported step (monotonic clock)."""
+
+    block: np.ndarray
+    clock_s: np.ndarray
+
+
+def _model_labels(fields: SurfaceFields) -> dict[str, str]:
+    """Result name -> the label its fields carry: the model name, or ``<model>_<result>`` when two results
+    share a model (e.g. membrane and thick wall)."""
+    models = [str(st["model"]) for st in fields.stress.values()]
+    return {result: (m if models.count(m) == 1 else f"{m}_{result}") for result, m in zip(fields.stress, models)}
+
+
+def _vtu_cells(fields: SurfaceFields, step: int, labels: dict[str, str]) -> dict[str, np.ndarray]:
+    out = {"E_theta": fields.kin["E11"][step], "E_z": fields.kin["E22"][step], "E_theta_z": fields.kin["E12"][step]}
+    for result, st in fields.stress.items():
+        out[f"{labels[result]}_sigma_theta_Pa"] = st["s11"][step]
+        out[f"{labels[result]}_sigma_z_Pa"] = st["s22"][step]
+    return out
+
+
+def field_names(fields: SurfaceFields, fmt: str = "vtu") -> list[str]:
+    """The cell fields an export in ``fmt`` writes (the stress fields name their model)."""
+    if fmt == "vtk":
+        return list(_cell_fields(fields, 0)) + ["triangle"]
+    return list(_vtu_cells(fields, 0, _model_labels(fields))) + ["area_m2", "triangle"]
+
+
+def _surface(points: np.ndarray, tri: np.ndarray):
+    import trimesh
+
+    return trimesh.Trimesh(vertices=points, faces=tri, process=False, validate=False)
+
+
+def _write_vtu_step(path: Path, fields: SurfaceFields, k: int, times: StepTimes, labels: dict[str, str]) -> None:
+    points, visible, keep, disp = _step_geometry(fields, k)
+    tri = fields.mesh.triangles[keep]
+    surface = _surface(points, tri)
+    cells = {name: v[keep] for name, v in _vtu_cells(fields, k, labels).items()}
+    cells["area_m2"] = surface.area_faces
+    cells["triangle"] = np.flatnonzero(keep).astype(np.int32)
+    normals = np.full_like(points, np.nan)  # a marker in no measured triangle has no normal
+    used = np.unique(tri)
+    if len(tri):
+        normals[used] = surface.vertex_normals[used]
+    write_vtu(path, points, tri,
+              point_data={"marker_id": np.asarray(fields.marker_id, np.int32), "visible": visible.astype(np.uint8),
+                          "displacement_m": disp, "normal": normals},
+              cell_data=cells,
+              field_data={"pressure_Pa": fields.pressure[k], "force_N": fields.force[k], "stretch": fields.stretch[k],
+                          "clock_s": times.clock_s[k], "step": np.int32(k), "session_row": np.int32(fields.steps[k]),
+                          "block": np.int32(times.block[k])})
+
+
+def _write_vtu_series(fields: SurfaceFields, out: Path, prefix: str, times: StepTimes, specimen: str) -> list[Path]:
+    labels = _model_labels(fields)
+    written = []
+    for k in range(len(fields.positions)):
+        path = out / f"{prefix}_{k:03d}.vtu"
+        _write_vtu_step(path, fields, k, times, labels)
+        written.append(path)
+    what = f"vfmlab {specimen}: marker mesh per step; SI units (m, Pa)"
+    for b in np.unique(times.block):
+        rows = np.flatnonzero(times.block == b)
+        if len(np.unique(fields.pressure[rows])) < len(rows):
+            log.warning("block %d has steps at the same pressure: ParaView shows one of them in %s_block%d.pvd "
+                        "(every step is in %s_clock.pvd)", b, prefix, b, prefix)
+        written.append(write_pvd(out / f"{prefix}_block{int(b)}.pvd", [written[i] for i in rows],
+                                 fields.pressure[rows],
+                                 comment=f"{what}; block {int(b)} (stretch {fields.stretch[rows[0]]:.6g}); "
+                                         "time = pressure in Pa"))
+    written.append(write_pvd(out / f"{prefix}_clock.pvd", written[:len(fields.positions)], times.clock_s,
+                             comment=f"{what}; every step; time = clock seconds since the first step"))
+    return written
+
+
+def export_fields(fields: SurfaceFields, out_dir: str | Path, *, fmt: str = "vtu", prefix: str = "surface",
+                  specimen: str = "", times: StepTimes | None = None) -> list[Path]:
     """Write one file per step (``<prefix>_NNN.<fmt>``) into ``out_dir``; returns the paths written.
 
-    For ``vtk`` a ``<prefix>.vtk.series`` index is written too (last in the returned list).
+    ``vtu``: the ``.pvd`` collections follow the step files (module docstring); ``times`` default: one block,
+    clock = step index. ``vtk``: a ``<prefix>.vtk.series`` index is written too (last in the returned list).
     """
     if fmt not in FORMATS:
         raise ValueError(f"fmt must be one of {FORMATS}; got {fmt!r}")
     out = Path(out_dir)
     out.mkdir(exist_ok=True)  # the CLI checked that its parent exists
-    written = []
     n_steps = len(fields.positions)
+    if times is None:
+        times = StepTimes(np.zeros(n_steps, int), np.arange(n_steps, dtype=float))
+    if np.shape(times.block) != (n_steps,) or np.shape(times.clock_s) != (n_steps,):
+        raise ValueError(f"times.block and times.clock_s must have shape ({n_steps},); "
+                         f"got {np.shape(times.block)} and {np.shape(times.clock_s)}")
+    if fmt == "vtu":
+        written = _write_vtu_series(fields, out, prefix, times, specimen)
+        log.info("exported %d steps as vtu to %s", n_steps, out)
+        return written
+    labels = _model_labels(fields)
+    written = []
     for k in range(n_steps):
         points, visible, keep, disp = _step_geometry(fields, k)
         tri = fields.mesh.triangles[keep]
-        cells = {name: v[keep] for name, v in _cell_fields(fields, k).items()}
-        cells["triangle"] = np.flatnonzero(keep).astype(float)
         path = out / f"{prefix}_{k:03d}.{fmt}"
-        title = (f"vfmlab {specimen} step {k} (session row {int(fields.steps[k])}): pressure {fields.pressure[k]:.6g} Pa, "
-                 f"force {fields.force[k]:.6g} N, stretch {fields.stretch[k]:.6g}; SI units (m, Pa)")
         if fmt == "vtk":
+            cells = {name: v[keep] for name, v in _cell_fields(fields, k).items()}
+            cells["triangle"] = np.flatnonzero(keep).astype(float)
+            title = (f"vfmlab {specimen} step {k} (session row {int(fields.steps[k])}): pressure "
+                     f"{fields.pressure[k]:.6g} Pa, force {fields.force[k]:.6g} N, stretch {fields.stretch[k]:.6g}; "
+                     "SI units (m, Pa)")
             write_vtk_polydata(path, points, tri, title=title,
                                point_data={"marker_id": np.asarray(fields.marker_id, int),
                                            "visible": visible.astype(int)},
                                cell_data=cells, vectors={"displacement": disp})
         else:
+            cells = {name: v[keep] for name, v in _vtu_cells(fields, k, labels).items()}
+            cells["triangle"] = np.flatnonzero(keep).astype(float)
             _write_ply(path, points, tri, cells, np.asarray(fields.marker_id, np.int32), visible)
         written.append(path)
     if fmt == "vtk":
@@ -134,8 +237,8 @@ def _write_ply(path: Path, points, tri, cells, marker_id, visible) -> None:
     from matplotlib import colormaps
     from matplotlib.colors import Normalize
 
-    mesh = trimesh.Trimesh(vertices=points, faces=tri, process=False, validate=False)
-    e11 = cells["E11"]
+    mesh = _surface(points, tri)
+    e11 = cells["E_theta"]
     finite = e11[np.isfinite(e11)]
     norm = Normalize(*(np.percentile(finite, [1, 99]) if finite.size else (0.0, 1.0)))
     mesh.visual.face_colors = (colormaps["viridis"](norm(np.nan_to_num(e11))) * 255).astype(np.uint8)

@@ -174,8 +174,8 @@ def stress_strain_curves(fields: SurfaceFields, force: np.ndarray, thickness: fl
     every step).
 
     ``force`` (n_steps,) N is the load-cell reading; a "total" reading is corrected to the wall force.
-    Returns ``E11, E22, s11, s22, radius`` (n_steps,) and ``models`` {label: {"s11", "s22"}}, and
-    ``source``.
+    Returns ``E11, E22, s11, s22, radius``, ``thickness`` (current, m), ``wall_force`` (N) (n_steps,) and
+    ``models`` {label: {"s11", "s22"}}, and ``source``.
     """
     p = fields.pressure
     mesh = fields.mesh
@@ -196,11 +196,12 @@ def stress_strain_curves(fields: SurfaceFields, force: np.ndarray, thickness: fl
             log.warning("no model curve for %s: %s", ident.get("name"), exc)
             continue
         base = base or c
-        models[f"{ident['name']} ({model})"] = {"s11": c.sigma11_path, "s22": c.sigma22_path}
+        models[f"{ident['name']} ({model})"] = {"s11": c.sigma11_path, "s22": c.sigma22_path, "result": ident["name"],
+                                                 "model": model}
     if base is None:  # the Laplace estimates do not depend on the model
         base = laplace_curves(mesh.raw, fields.positions, p, wall_force, thickness=thickness, model="neohookean",
                               parameters={"mu": 1.0}, band=band)
     return {"E11": base.E11, "E22": base.E22, "s11": base.sigma11_laplace, "s22": base.sigma22_laplace,
-            "radius": base.radius, "models": models,
+            "radius": base.radius, "thickness": base.thickness, "wall_force": wall_force, "models": models,
             "source": "identification.laplace_curves (models evaluated at the measured E11 and E22 of each "
                       "step)"}

@@ -10,7 +10,9 @@ with :class:`reconstruction.SeriesTracker` (guided detection, step by step) and 
 into the test. The cameras are the given calibration or, by default, a calibration computed from
 the session's board views (read from the session file while it is being written, SWMR). After
 the run, :meth:`LiveResults.store` writes the final identifications as normal "identification"
-results (``invoked_by = "run (live)"``).
+results (``invoked_by = "run (live)"``), with the calibration and the marker tracks they came from (a
+"calibration" and a "markers" result, named in the identification's settings), so that every stored result can
+be reproduced from the session.
 """
 
 from __future__ import annotations
@@ -49,6 +51,8 @@ class LiveEstimate:
     cost: float
     flags: tuple[str, ...]
     result: object = field(repr=False, default=None)  # the identification result object
+    positions: np.ndarray | None = field(repr=False, default=None)  # (n_steps, n_markers, 3) m, NaN: not tracked
+    marker_id: np.ndarray | None = field(repr=False, default=None)  # (n_markers,)
 
 
 @dataclass(frozen=True)
@@ -125,6 +129,8 @@ class LiveResults:
         self.thickness, self.radius, self.marker_diameter = float(thickness), radius, float(marker_diameter)
         self.load_cell_measures = load_cell_measures
         self._cameras = cameras
+        self._calibration_source = "given to the run" if cameras is not None else (
+            "the session's board views (ChArUco defaults, k3 fixed)" if calibrate is None else "computed by the run")
         self._calibrate = calibrate or (lambda: calibrate_from_session(self.session))
         self._queue: queue.SimpleQueue = queue.SimpleQueue()
         self._lock = threading.Lock()
@@ -134,6 +140,7 @@ class LiveResults:
         self._readings: list[tuple[int, float, float]] = []  # (row, pressure Pa, wall force N) per step
         self._cancel = threading.Event()
         self._queued_rows: list[int] = []  # every test step handed to the worker
+        self.stored_inputs: list[str] = []  # the calibration and markers results :meth:`store` wrote
         self._thread = threading.Thread(target=self._work, name="live-results", daemon=True)
         self._thread.start()
 
@@ -170,20 +177,60 @@ class LiveResults:
         return self.status()
 
     def store(self, path: str | Path | None = None) -> list[str]:
-        """Write the final estimates as "identification" results of the session; their names."""
+        """Write the final estimates as "identification" results of the session, after the calibration and the
+        marker tracks they came from ("calibration" and "markers" results, their names in ``self.stored_inputs``
+        and in each identification's settings); the identification results' names."""
         from acquisition.session import write_result
         from vfmlab.pipeline import identification_arrays
+        from vfmlab.results import round_floats
 
+        path = path or self.session
+        estimates = self.status().estimates
+        if not estimates:
+            return []
+        calibration = self._store_calibration(path)
+        self.stored_inputs = [calibration]
+        markers: dict[tuple[int, ...], str] = {}
         names = []
-        for model, est in self.status().estimates.items():
+        for model, est in estimates.items():
+            key = tuple(int(r) for r in est.rows)
+            if key not in markers:
+                markers[key] = self._store_markers(path, est, calibration)
+                self.stored_inputs.append(markers[key])
             arrays, settings, attrs = identification_arrays(est.result, est.rows)
             settings.update(model=model, wall="membrane", ends=self.ends, optimizer="lsq", smoothing="auto",
-                            markers_result="(live reconstruction)", thickness=self.thickness)
+                            markers_result=markers[key], calibration_result=calibration,
+                            thickness_m=round_floats(self.thickness))
             attrs.update(model=model, wall="membrane", invoked_by="run (live)",
                          flags=list(est.flags) + self._missing_flags(est.rows))
-            names.append(write_result(path or self.session, "identification", arrays, settings, attrs=attrs,
+            names.append(write_result(path, "identification", arrays, settings, attrs=attrs,
                                       units={"ivw": "J", "evw": "J", "residuals": "1"}))
         return names
+
+    def _store_calibration(self, path) -> str:
+        """The cameras the live reconstruction used, as a "calibration" result; its name."""
+        from acquisition.session import write_result
+        from reconstruction import cameras_to_arrays
+        from vfmlab.stages.calibration_files import CALIBRATION_UNITS
+
+        return write_result(path, "calibration", cameras_to_arrays(list(self._cameras or [])),
+                            {"source": "run (live)", "calibration": self._calibration_source},
+                            attrs={"invoked_by": "run (live)"}, units=CALIBRATION_UNITS)
+
+    def _store_markers(self, path, est: LiveEstimate, calibration: str) -> str:
+        """The marker tracks an estimate was identified from, as a "markers" result; its name."""
+        from acquisition.session import write_result
+
+        positions = np.asarray(est.positions, float)
+        n_markers = positions.shape[1]
+        arrays = {"positions": positions, "visible": np.isfinite(positions).all(axis=-1),
+                  "uncertainty": np.full(positions.shape[:2], np.nan),
+                  "marker_id": np.asarray(est.marker_id if est.marker_id is not None else np.arange(n_markers)),
+                  "step_index": np.asarray(est.rows, np.int64)}
+        params = {"source": "run (live)", "calibration": calibration, "frame": "specimen",
+                  "marker_diameter_mm": round(self.marker_diameter * 1e3, 9)}
+        return write_result(path, "markers", arrays, params, attrs={"invoked_by": "run (live)"},
+                            units={"positions": "m", "uncertainty": "m"})
 
     # ---------------------------------------------------------------- worker
     def _set(self, **changes) -> None:
@@ -236,7 +283,7 @@ class LiveResults:
                   message="waiting for two loaded steps" if n < 3 else f"identifying after step row {row}")
         self._check_partial(row, tracked, int(result.visible[0].sum()))
         if n >= 3:
-            self._identify(result.positions, np.array(self._readings))
+            self._identify(result.positions, np.array(self._readings), result.marker_id)
 
     def _check_partial(self, row: int, tracked: int, reference: int) -> None:
         """Say so (log and live view) when a step was seen only in part."""
@@ -259,7 +306,7 @@ class LiveResults:
                 f"worker, see the log; {len(missing) - len(failed)} not reconstructed before the run ended): "
                 "'vfmlab reconstruct' and 'vfmlab identify' use every step"]
 
-    def _identify(self, positions: np.ndarray, readings: np.ndarray) -> None:
+    def _identify(self, positions: np.ndarray, readings: np.ndarray, marker_id: np.ndarray | None = None) -> None:
         from identification import identify
 
         estimates = dict(self.status().estimates)
@@ -275,5 +322,6 @@ class LiveResults:
             names = tuple(res.parameters)
             estimates[model] = LiveEstimate(model, names, np.array([res.parameters[k] for k in names]),
                                             np.array([res.stderr[k] for k in names]), readings[:, 0].astype(int),
-                                            float(res.cost), tuple(res.flags), res)
+                                            float(res.cost), tuple(res.flags), res, np.array(positions, copy=True),
+                                            None if marker_id is None else np.asarray(marker_id))
         self._set(estimates=estimates, message=f"{positions.shape[0]} steps reconstructed and identified")

@@ -10,6 +10,8 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+import math
+import os
 import signal
 import threading
 from dataclasses import dataclass
@@ -22,6 +24,7 @@ from rich.console import Console
 from rich.markup import escape as esc
 
 from acquisition.cameras import CameraError
+from acquisition.errors import ImplausibleInputError
 from acquisition.protocol import (MMHG, ConfigError, Protocol, RigConfig, SpecimenFile, load_protocol, load_rig,
                                   load_specimen, parse_protocol, parse_rig)
 from acquisition.runner import AutoOperator, RunnerState, SessionRunner, completed_steps
@@ -58,11 +61,17 @@ class Outcome:
     elapsed_s: float
     reason: str = ""  # why an aborted or failed run stopped ('' for complete or an operator's quit)
     resumable: bool = False
+    ctrl_c: bool = False  # an unattended run (--yes) stopped by Ctrl-C: exit code 130 (decision 0007)
 
     @property
     def failed(self) -> bool:
         """Exit code 1: aborted, or stopped by a fault (disk full) although resumable."""
         return self.status == "aborted" or bool(self.reason)
+
+    @property
+    def exit_code(self) -> int:
+        """0 complete (or an operator's quit), 1 failed, 130 an unattended run interrupted by Ctrl-C."""
+        return 1 if self.failed else 130 if self.ctrl_c and self.status == "interrupted" else 0
 
 
 def _sim_bench(rig: RigConfig, specimen: SpecimenFile, protocol: Protocol, sim_speed: float):
@@ -99,6 +108,24 @@ def _with_sim_seed(rig: RigConfig, seed: int) -> RigConfig:
     return parse_rig(text, text=text, source=rig.source)
 
 
+def _check_resources(protocol: Protocol, specs: list[CameraSpec], out: Path, console: Console) -> None:
+    """Refuse (exit 2) a recording beyond the free disk or the memory, with the estimate; say how long it takes."""
+    import shutil
+
+    from acquisition.plausibility import check_session_resources
+
+    frames = [(s.width, s.height, np.dtype(s.dtype).itemsize) for s in specs]
+    memory = float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")) if hasattr(os, "sysconf") else math.inf
+    try:
+        check_session_resources(frames, protocol.n_steps + protocol.calibration.views, source=protocol.source,
+                                free_disk=float(shutil.disk_usage(out.resolve().parent).free), memory=memory)
+    except ImplausibleInputError as exc:
+        raise OperateError(str(exc), exit_code=2) from None
+    hours = protocol.min_duration_s(len(specs)) / 3600
+    if hours >= 1:
+        console.print(f"[yellow]This protocol takes at least {hours:.3g} h[/] (dwell and capture alone).")
+
+
 def _camera_specs(bench: Bench) -> list[CameraSpec]:
     """Grab one frame per camera (they must all work before anything moves) -> CameraSpec."""
     specs = []
@@ -113,12 +140,12 @@ def _camera_specs(bench: Bench) -> list[CameraSpec]:
 
 
 @contextlib.contextmanager
-def _sigint_pauses(runner: SessionRunner, console: Console):
-    """Ctrl-C -> pause at the next safe point; a second Ctrl-C before it is handled -> hard stop."""
+def _sigint_pauses(runner: SessionRunner, console: Console, pending: dict[str, int]):
+    """Ctrl-C -> pause at the next safe point; a second Ctrl-C before it is handled -> hard stop.
+    ``pending["n"]`` counts the Ctrl-Cs."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    pending = {"n": 0}
 
     def handler(signum, frame):
         pending["n"] += 1
@@ -137,7 +164,9 @@ def _sigint_pauses(runner: SessionRunner, console: Console):
 def _execute(runner_kwargs: dict[str, Any], protocol: Protocol, writer: SessionWriter, bench: Bench,
              console: Console, yes: bool, start_step: int, precondition: bool, calibrate: bool,
              detector: Callable[[np.ndarray], int] | None,
-             observer: Callable[[RunnerState, Bench], None] | None = None, results: Any = None) -> SessionRunner:
+             observer: Callable[[RunnerState, Bench], None] | None = None,
+             results: Any = None) -> tuple[SessionRunner, bool]:
+    """Run the protocol; the runner and whether an unattended run (``yes``) was stopped by Ctrl-C."""
     live = console.is_terminal
     view = (LiveView(console, title=f"vfmlab run · {esc(writer.path.name)}",
                      results=results.status if results else None) if live else None)
@@ -165,10 +194,11 @@ def _execute(runner_kwargs: dict[str, Any], protocol: Protocol, writer: SessionW
                            operator=operator, pressure_mode=bench.config.pressure.mode, stage=bench.stage,
                            safety=bench.config.safety, detector=detector, on_update=on_update,
                            on_step_captured=results.on_step if results is not None else None, **runner_kwargs)
-    with _sigint_pauses(runner, console), (view if view is not None else contextlib.nullcontext()):
+    pending = {"n": 0}
+    with _sigint_pauses(runner, console, pending), (view if view is not None else contextlib.nullcontext()):
         runner.run(start_step=start_step, precondition=precondition, calibrate=calibrate)
     runner.state.message = runner.status
-    return runner
+    return runner, yes and pending["n"] > 0
 
 
 def specimen_ends(rig, specimen, sim: bool, console: Console | None = None) -> tuple[str, str]:
@@ -244,6 +274,7 @@ def run_session(protocol_path: str, specimen_path: str, out: str, *, rig_path: s
         names = protocol.camera_names(rig)
         specs = [s for s in specs if s.name in names]
         bench.cameras = [c for c in bench.cameras if c.name in names]
+        _check_resources(protocol, specs, out_path, console)
         _stage_for_run(bench, specimen, protocol, console, yes, home=False)
         check = preflight(bench, rig, console, yes, check_seconds)
         if not yes and not TerminalOperator(console).choose("Start the test? Nothing has moved yet.",
@@ -265,13 +296,13 @@ def run_session(protocol_path: str, specimen_path: str, out: str, *, rig_path: s
         if results is not None and on_live_results is not None:
             on_live_results(results)
         try:
-            runner = _execute(runner_kwargs, protocol, writer, bench, console, yes, 0, True, True, detector,
-                              observer, results)
+            runner, ctrl_c = _execute(runner_kwargs, protocol, writer, bench, console, yes, 0, True, True, detector,
+                                      observer, results)
         except BaseException:
             if results is not None:
                 results.close(cancel=True)
             raise
-    outcome = _report(runner, out_path, console)
+    outcome = _report(runner, out_path, console, ctrl_c)
     if check is not None:
         keep_check(check, out_path, console)
     if results is not None:
@@ -379,9 +410,9 @@ def resume_session(path: str, *, rig_path: str | None = None, sim: bool = False,
             raise OperateError(str(exc)) from None
         writer.add_event("resume", f"resuming at step {start}/{protocol.n_steps}; instruments "
                                    f"{bench.pressure.identity!r}, {bench.load_cell.identity!r}")
-        runner = _execute(runner_kwargs, protocol, writer, bench, console, yes, start, not done_pre, not done_cal,
-                          detector, observer)
-    return _report(runner, Path(path), console)
+        runner, ctrl_c = _execute(runner_kwargs, protocol, writer, bench, console, yes, start, not done_pre,
+                                  not done_cal, detector, observer)
+    return _report(runner, Path(path), console, ctrl_c)
 
 
 def device_endpoints(rig: RigConfig) -> list[str]:
@@ -424,7 +455,7 @@ def _stage_for_run(bench: Bench, specimen: SpecimenFile, protocol: Protocol, con
         raise OperateError(str(exc), exit_code=exc.exit_code) from None
 
 
-def _report(runner: SessionRunner, path: Path, console: Console) -> Outcome:
+def _report(runner: SessionRunner, path: Path, console: Console, ctrl_c: bool = False) -> Outcome:
     with open_session(path) as s:
         n = s.n_steps
     status = runner.status
@@ -436,7 +467,7 @@ def _report(runner: SessionRunner, path: Path, console: Console) -> Outcome:
     if status == "interrupted" or runner.resumable:
         console.print(f"Continue with: vfmlab resume {esc(str(path))}")
     return Outcome(status, path, n, runner.state.elapsed_s, runner.stop_reason,
-                   status == "interrupted" or runner.resumable)
+                   status == "interrupted" or runner.resumable, ctrl_c)
 
 
 def detector_from_reconstruction() -> Callable[[np.ndarray], int] | None:

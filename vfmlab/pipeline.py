@@ -21,10 +21,12 @@ from typing import Any
 import numpy as np
 
 from acquisition.errors import ImplausibleInputError
-from acquisition.plausibility import check_identifiable
+from acquisition.plausibility import check_geometry, check_identifiable
 from acquisition.session import SessionError, SessionWriteError, open_session, write_result
 from vfmlab.parallel import fork_map
+from vfmlab.results import round_floats
 from vfmlab.stages.errors import StageError, StageUnavailable
+from vfmlab.stages.imports import marker_outliers
 
 log = logging.getLogger(__name__)
 
@@ -65,14 +67,18 @@ def load_identification_inputs(session, markers: str | None = None) -> dict[str,
     if rows.size != positions.shape[0] or (rows.size and (rows.max() >= session.n_steps or rows.min() < 0)):
         raise StageError(f"{session.path}: markers result {result['name']} refers to steps {rows.tolist()} but the "
                          f"session has {session.n_steps} steps")
+    specimen = session.specimen
     try:
         notes = check_identifiable(positions, source=f"{session.path}: {result['name']}")
+        check_geometry(specimen.radius, specimen.thickness, specimen.length, source=f"{session.path}: specimen")
+        labels = arrays.get("marker_label", arrays.get("marker_id", np.arange(positions.shape[1])))
+        marker_outliers(positions, _labels(labels, positions.shape[1]), rows, radius=specimen.radius,
+                        source=f"{session.path}: {result['name']}")
     except ImplausibleInputError as exc:
         raise StageError(str(exc)) from None
     steps = session.steps
     pressure = np.asarray(steps["pressure"], float)[rows]
     force = np.asarray(steps["force"], float)[rows]
-    specimen = session.specimen
     ends = {"ends": specimen.ends, "source": specimen.ends_source}
     if session.load_cell_measures == "total":
         r_i = specimen.radius - specimen.thickness
@@ -84,6 +90,14 @@ def load_identification_inputs(session, markers: str | None = None) -> dict[str,
     return {"positions": positions, "pressure": pressure, "force": force, "thickness": float(specimen.thickness),
             "radius": float(specimen.radius), "length": float(specimen.length), "session_ends": ends,
             "markers_result": result["name"], "rows": rows, "notes": notes, "uncertainty": uncertainty}
+
+
+def _labels(labels, n_markers: int) -> np.ndarray:
+    """Marker labels as text for messages (their indices when the stored labels do not fit)."""
+    labels = np.asarray(labels)
+    if labels.shape != (n_markers,):
+        return np.arange(n_markers).astype(str)
+    return np.array([v.decode("utf-8", "replace") if isinstance(v, bytes) else str(v) for v in labels.tolist()])
 
 
 def read_identification_inputs(path: str | os.PathLike, markers: str | None = None) -> dict[str, Any]:
@@ -149,7 +163,8 @@ def session_board_detections(session: Any, spec: Any, advance: Callable[[], None
 def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str = "membrane", ends: str | None = None,
                     optimizer: str = "lsq", smoothing: str | tuple[int, int] | None = "auto", markers: str | None = None,
                     uncertainty: str = "bootstrap", check: bool = True, weighting: str = "paper",
-                    invoked_by: str = "pipeline") -> tuple[str, Any, dict[str, Any]]:
+                    invoked_by: str = "pipeline",
+                    progress: Callable[[int, int, str], None] | None = None) -> tuple[str, Any, dict[str, Any]]:
     """Identify ``model`` from the session's marker tracks with the VFM and store an "identification" result.
 
     Parameters
@@ -200,6 +215,8 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
     weighting = weighting if optimizer == "lsq" else "paper"  # Nelder-Mead: the paper's method, for comparison
     data = read_identification_inputs(path, markers)
     ends, ends_source, ends_notes, warnings = resolve_ends(data["session_ends"], ends)
+    if progress is not None:
+        progress(0, 1, f"fitting {model}")
     force_notes = list(data["notes"])
     data["notes"] = force_notes + ends_notes
     try:
@@ -209,7 +226,7 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
                               "marker_sigma": data["uncertainty"], "pressure_noise": PRESSURE_NOISE,
                               "force_noise": FORCE_NOISE,
                               # the re-identifications on both cores: the same results, ~half the time idle
-                              "map_replicates": fork_map} if uncertainty == "bootstrap" else None)
+                              "map_replicates": fork_map, "progress": progress} if uncertainty == "bootstrap" else None)
     except (IdentificationError, ValueError) as exc:
         raise StageError(f"{path}: cannot identify {model}: {exc}") from None
     used = data["positions"] if result.steps is None else data["positions"][list(result.steps)]
@@ -221,7 +238,7 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
                 "smoothing": smoothing, "markers_result": data["markers_result"],
                 # what was used: exact-looking (unsmoothed) data keep the paper's cost
                 "weighting": weighting if result.smoothing is not None else "paper",
-                "thickness": data["thickness"],
+                "thickness_m": round_floats(data["thickness"]),
                 "force_correction": force_notes}
     arrays, _, attrs = identification_arrays(result, data["rows"], checks)
     attrs.update({"model": model, "wall": wall, "invoked_by": invoked_by, "notes": data["notes"]})

@@ -7,6 +7,7 @@ Units SI in the file (m, Pa), with the unit on every dataset.
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -14,6 +15,7 @@ import numpy as np
 
 from acquisition.session import SessionError, write_result
 from vfmlab.pipeline import FORCE_NOISE, PRESSURE_NOISE, StageError, read_identification_inputs, resolve_ends
+from vfmlab.results import round_floats
 
 __all__ = ["RegionsSpec", "parse_regions", "identify_regional_stored", "AUTO_MAX_BANDS"]
 
@@ -84,8 +86,8 @@ def _result_arrays(model, result, rd, rows, choice) -> tuple[dict, dict]:
     return arrays, out_units
 
 
-def _identify(data, spec: RegionsSpec, model, wall, ends, smoothing, uncertainty):
-    """(RegionalData, RegionalResult with its uncertainty, BandChoice or None)."""
+def _identify(data, spec: RegionsSpec, model, wall, ends, smoothing, uncertainty, progress=None):
+    """(RegionalData, RegionalResult with its uncertainty, BandChoice or None); ``progress(done, total, what)``."""
     from identification.regional import identify_regional, prepare_regional
     from identification.regional_uncertainty import choose_bands, with_bootstrap
 
@@ -94,7 +96,7 @@ def _identify(data, spec: RegionsSpec, model, wall, ends, smoothing, uncertainty
     args = (data["positions"], data["pressure"], data["force"])
     choice = None
     if spec.kind == "auto":
-        choice = choose_bands(*args, model=model, n_max=spec.n, bootstrap_options=boot, **options)
+        choice = choose_bands(*args, model=model, n_max=spec.n, bootstrap_options=boot, progress=progress, **options)
         profile = {"n_bands": choice.n_bands}
     else:
         profile = {"n_bands": spec.n} if spec.kind == "bands" else {"legendre": spec.n}
@@ -102,16 +104,19 @@ def _identify(data, spec: RegionsSpec, model, wall, ends, smoothing, uncertainty
     if choice is not None and choice.n_bands == spec.n:
         result = choice.finest
     else:
+        if progress is not None:
+            progress(0, 1, f"fitting {rd.n_bands} bands")
         result = identify_regional(rd, model)
         if uncertainty == "bootstrap":
-            result = with_bootstrap(result, rd, data["positions"], **boot)
+            result = with_bootstrap(result, rd, data["positions"], **boot, progress=progress)
     return rd, result, choice
 
 
 def identify_regional_stored(path: str | os.PathLike, *, regions: RegionsSpec | int | str, model: str = "fung",
                              wall: str = "membrane", ends: str | None = None,
                              smoothing: str | tuple[int, int] | None = "auto", markers: str | None = None,
-                             uncertainty: str = "bootstrap", invoked_by: str = "pipeline") -> tuple[str, Any, dict]:
+                             uncertainty: str = "bootstrap", invoked_by: str = "pipeline",
+                             progress: Callable[[int, int, str], None] | None = None) -> tuple[str, Any, dict]:
     """Identify profiles of ``model``'s stress-like parameters along the axis from the session; store a "regional"
     result.
 
@@ -121,6 +126,7 @@ def identify_regional_stored(path: str | os.PathLike, *, regions: RegionsSpec | 
     regions : RegionsSpec, or what ``parse_regions`` reads (a band count, "auto", "legendre:K").
     uncertainty : "bootstrap" (default: standard errors and 95 % intervals that cover the truth) or "gauss-newton".
     model, wall, ends, smoothing, markers, invoked_by : as ``pipeline.identify_stored`` (ends None: the session's).
+    progress : called as ``progress(done, total, what)`` by the fits and the bootstrap (which take the time).
 
     Returns
     -------
@@ -137,14 +143,14 @@ def identify_regional_stored(path: str | os.PathLike, *, regions: RegionsSpec | 
     ends, ends_source, ends_notes, ends_warnings = resolve_ends(data["session_ends"], ends)
     data["notes"] = list(data["notes"]) + ends_notes + ends_warnings
     try:
-        rd, result, choice = _identify(data, spec, model, wall, ends, smoothing, uncertainty)
+        rd, result, choice = _identify(data, spec, model, wall, ends, smoothing, uncertainty, progress)
     except (IdentificationError, ValueError) as exc:
         raise StageError(f"{path}: cannot identify regional {model} with --regions {spec}: {exc}") from None
     data["choice"] = choice
     arrays, units = _result_arrays(get_model(model), result, rd, data["rows"], choice)
     settings = {"model": model, "wall": wall, "ends": ends, "ends_source": ends_source, "regions": str(spec),
                 "n_bands": int(result.n_bands), "smoothing": smoothing, "markers_result": data["markers_result"],
-                "thickness": data["thickness"], "force_correction": data["notes"]}
+                "thickness_m": round_floats(data["thickness"]), "force_correction": data["notes"]}
     attrs = {"model": model, "wall": wall, "cost": result.cost, "converged": result.converged,
              "flags": list(result.flags), "message": result.message, "regional": list(result.regional),
              "profile_kind": result.kind, "uncertainty": result.uncertainty, "confidence": 0.95,

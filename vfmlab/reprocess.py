@@ -92,8 +92,10 @@ def plan_runs(stages: Sequence[str], *, models: Sequence[str] = ("fung",), walls
     return runs
 
 
-def process_session(path: str, runs: Sequence[Run], invoked_by: str = "reprocess") -> SessionOutcome:
+def process_session(path: str, runs: Sequence[Run], invoked_by: str = "reprocess",
+                    on_run: Callable[[int, str], None] | None = None) -> SessionOutcome:
     """Run ``runs`` in order on one session. Never raises: failures are recorded in the outcome.
+    ``on_run(i, label)`` is called before run ``i``.
 
     If a reconstruct run fails, the identify runs after it are skipped (they would use stale tracks).
     """
@@ -113,7 +115,9 @@ def process_session(path: str, runs: Sequence[Run], invoked_by: str = "reprocess
         out.seconds = time.perf_counter() - t0
         return out
     failed_stage = None
-    for run in runs:
+    for i, run in enumerate(runs):
+        if on_run is not None:
+            on_run(i, run.label())
         if failed_stage == "reconstruct" and run.stage != "reconstruct":
             out.errors.append(f"{path}: {run.label()} skipped because reconstruct failed")
             continue
@@ -156,8 +160,10 @@ def _unique_paths(paths: Iterable[str | os.PathLike]) -> list[str]:
 
 def reprocess(paths: Iterable[str | os.PathLike], runs: Sequence[Run], *, workers: int = 1,
               scheduler: str | None = None, on_done: Callable[[SessionOutcome], None] | None = None,
-              invoked_by: str = "reprocess") -> list[SessionOutcome]:
+              invoked_by: str = "reprocess",
+              progress: Callable[[int, int, str], None] | None = None) -> list[SessionOutcome]:
     """Process every session; returns the outcomes in the order of ``paths`` (duplicates removed).
+    ``progress(done, total, what)`` counts the runs (session × stage), run by run when serial.
 
     ``workers`` > 1 uses a local process pool (forkserver processes); ``scheduler`` (a Dask scheduler
     address such as ``tcp://host:8786``) sends one task per session to a dask.distributed cluster.
@@ -166,9 +172,12 @@ def reprocess(paths: Iterable[str | os.PathLike], runs: Sequence[Run], *, worker
     if workers < 1:
         raise ValueError(f"workers must be >= 1; got {workers}")
     outcomes: dict[str, SessionOutcome] = {}
+    tell = progress or (lambda done, total, what: None)
+    total = len(paths) * max(len(runs), 1)
 
     def done(outcome: SessionOutcome) -> None:
         outcomes[outcome.path] = outcome
+        tell(len(outcomes) * max(len(runs), 1), total, f"{len(outcomes)} of {len(paths)} sessions")
         if on_done is not None:
             on_done(outcome)
 
@@ -188,8 +197,11 @@ def reprocess(paths: Iterable[str | os.PathLike], runs: Sequence[Run], *, worker
                 except Exception as exc:  # noqa: BLE001 - a crashed worker process
                     done(SessionOutcome(path=futures[fut], errors=[f"{futures[fut]}: worker failed: {exc!r}"]))
     else:
-        for p in paths:
-            done(process_session(p, runs, invoked_by))
+        for k, p in enumerate(paths):
+            def on_run(i: int, label: str, k: int = k, p: str = p) -> None:
+                tell(k * len(runs) + i, total, f"{Path(p).name}: {label}")
+
+            done(process_session(p, runs, invoked_by, on_run=on_run))
     return [outcomes[p] for p in paths]
 
 

@@ -1,4 +1,9 @@
-"""Listing and comparing the derived results stored in a session (``/entry/results/<kind>_NNN``)."""
+"""Listing and comparing the derived results stored in a session (``/entry/results/<kind>_NNN``), and the models
+side by side (parameters with their units, cost, verdicts when stored).
+
+Settings and figures are given with the unit in the key (``thickness_m``, ``rms_px``); floats are rounded to 12
+significant digits (:func:`round_floats`), so that 1.3 mm typed by a user reads 0.0013, not 0.0013000000000000002.
+"""
 
 from __future__ import annotations
 
@@ -8,7 +13,32 @@ import numpy as np
 
 from acquisition.session import Session, SessionError
 
-__all__ = ["summarize_result", "list_results", "compare_results", "identification_parameters"]
+__all__ = ["summarize_result", "list_results", "compare_results", "identification_parameters", "round_floats",
+           "side_by_side", "unit_keys"]
+
+#: stored setting names of older results -> the name with its unit (what newer results store)
+UNIT_KEYS = {"thickness": "thickness_m"}
+
+
+def round_floats(value: Any, digits: int = 12) -> Any:
+    """``value`` with every float (also inside dicts, lists, tuples and numpy scalars) rounded to ``digits``
+    significant digits: the noise of unit conversions (1.3 * 1e-3 = 0.0013000000000000002) removed before a value
+    is stored or shown. Non-finite floats and other values pass through."""
+    if isinstance(value, dict):
+        return {k: round_floats(v, digits) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return type(value)(round_floats(v, digits) for v in value)
+    if isinstance(value, np.floating):
+        value = float(value)
+    if isinstance(value, float) and np.isfinite(value):
+        return float(f"{value:.{digits}g}")
+    return value
+
+
+def unit_keys(settings: dict[str, Any]) -> dict[str, Any]:
+    """Stored settings with the unit in each key (older results' ``thickness`` -> ``thickness_m``), floats
+    rounded (:func:`round_floats`)."""
+    return round_floats({UNIT_KEYS.get(k, k): v for k, v in settings.items()})
 
 
 def parameter_units(model: str, names: list[str]) -> list[str]:
@@ -47,7 +77,7 @@ def summarize_result(result: dict[str, Any]) -> dict[str, Any]:
     attrs = result["attrs"]
     row: dict[str, Any] = {
         "name": result["name"], "kind": result["kind"], "date": str(attrs.get("date", "")),
-        "version": str(attrs.get("version", "")), "settings": dict(result["parameters"]),
+        "version": str(attrs.get("version", "")), "settings": unit_keys(dict(result["parameters"])),
     }
     a = result["arrays"]
     kind = result["kind"]
@@ -55,6 +85,7 @@ def summarize_result(result: dict[str, Any]) -> dict[str, Any]:
         row.update(model=str(attrs.get("model", "")), wall=str(attrs.get("wall", "")),
                    cost=_scalar(attrs.get("cost")), converged=bool(attrs.get("converged", False)),
                    flags=attrs.get("flags", {}), parameters=identification_parameters(result))
+        row.update(_verdicts(attrs))
     elif kind == "markers" and "positions" in a:
         pos = np.asarray(a["positions"])
         visible = np.asarray(a.get("visible", np.isfinite(pos).all(axis=-1)), bool)
@@ -64,6 +95,42 @@ def summarize_result(result: dict[str, Any]) -> dict[str, Any]:
         row.update(cameras=[str(c) for c in a.get("camera_names", [])],
                    rms_px=[float(v) for v in np.asarray(a["rms"], float).ravel()])
     return row
+
+
+def _verdicts(attrs: dict[str, Any]) -> dict[str, Any]:
+    """The verdict attributes of an identification result (HELPERS' contract), those stored; older results have
+    none."""
+    out: dict[str, Any] = {}
+    if "verdict" in attrs:
+        out["verdict"] = str(attrs["verdict"])
+    for key in ("verdict_reasons", "parameter_verdicts", "parameter_reasons"):
+        if key in attrs:
+            out[key] = attrs[key]
+    return out
+
+
+def side_by_side(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """The identification summaries (:func:`summarize_result` rows) as one table: a row per result (model,
+    wall), a column per parameter name (the union, in order of first appearance, each with its unit), the cost,
+    convergence and the verdict when stored.
+
+    Returns ``{"parameters": [{"name", "unit"}], "rows": [{"name", "model", "wall", "cost", "converged",
+    "verdict", "values": {parameter: {"value", "stderr", "verdict"}}}]}`` (absent parameters are missing from
+    ``values``; ``verdict`` None when not stored).
+    """
+    idents = [r for r in rows if r.get("kind") == "identification"]
+    columns: dict[str, str] = {}
+    for r in idents:
+        for n, p in r["parameters"].items():
+            columns.setdefault(n, p.get("unit", ""))
+    table = []
+    for r in idents:
+        pv = r.get("parameter_verdicts") or {}
+        table.append({"name": r["name"], "model": r["model"], "wall": r["wall"], "cost": r.get("cost"),
+                      "converged": r.get("converged"), "verdict": r.get("verdict"),
+                      "values": {n: {"value": p["value"], "stderr": p["stderr"], "verdict": pv.get(n)}
+                                 for n, p in r["parameters"].items()}})
+    return {"parameters": [{"name": n, "unit": u} for n, u in columns.items()], "rows": table}
 
 
 def list_results(session: Session, kind: str | None = None) -> list[dict[str, Any]]:
@@ -88,7 +155,7 @@ def compare_results(session: Session, name_a: str, name_b: str) -> dict[str, Any
             raise SessionError(f"{session.path}: no result {name!r}; results are {known}")
     ra, rb = session.result(name_a), session.result(name_b)
     out: dict[str, Any] = {"a": summarize_result(ra), "b": summarize_result(rb),
-                           "settings_diff": _diff_settings(ra["parameters"], rb["parameters"])}
+                           "settings_diff": _diff_settings(unit_keys(ra["parameters"]), unit_keys(rb["parameters"]))}
     attr_keys = ("model", "wall", "cost", "converged", "version")
     out["attrs_diff"] = {k: {"a": _scalar(ra["attrs"].get(k)), "b": _scalar(rb["attrs"].get(k))} for k in attr_keys
                          if _scalar(ra["attrs"].get(k)) != _scalar(rb["attrs"].get(k))}

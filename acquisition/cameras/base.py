@@ -111,6 +111,11 @@ class Camera(ABC):
     """
 
     backend: str = "?"
+    #: True: a device that delivers in real time, so no frame within the capture timeout is a fault.
+    #: False: a simulation, whose frame takes as long as computing it takes: :func:`capture_all` does not
+    #: time it out on the wall clock, so a slow or busy machine slows a simulated test but never fails it
+    #: (the camera can still raise :class:`CameraTimeout` itself, e.g. a simulated stall).
+    real_time: bool = True
 
     def __init__(self, name: str, settings: dict | None = None):
         self.name = name

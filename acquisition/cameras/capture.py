@@ -53,6 +53,9 @@ class CaptureResult:
 def capture_all(cameras: Sequence[Camera], timeout: float) -> CaptureResult:
     """Grab one frame from every camera in parallel, all within ``timeout`` seconds.
 
+    ``timeout`` bounds the real-time cameras only: a simulated camera (``Camera.real_time`` False) is waited
+    for as long as it computes its frame, so a loaded machine slows a simulated test but does not fail it.
+
     Raises
     ------
     CaptureError
@@ -71,21 +74,28 @@ def capture_all(cameras: Sequence[Camera], timeout: float) -> CaptureResult:
             frame = cam.grab(timeout)
         except Exception as exc:  # noqa: BLE001 - reported per camera
             with lock:
-                failures[cam.name] = exc if isinstance(exc, CameraError) else CameraError(cam.name, repr(exc))
+                failures.setdefault(cam.name, exc if isinstance(exc, CameraError) else CameraError(cam.name, repr(exc)))
             return
         with lock:
-            frames[cam.name] = frame
+            if cam.name not in failures:  # a real-time frame after the deadline stays a timeout
+                frames[cam.name] = frame
 
-    threads = [threading.Thread(target=grab, args=(c,), daemon=True, name=f"capture-{c.name}") for c in cameras]
-    for t in threads:
+    threads = {c.name: threading.Thread(target=grab, args=(c,), daemon=True, name=f"capture-{c.name}")
+               for c in cameras}
+    for t in threads.values():
         t.start()
     deadline = t_start + timeout
-    for t in threads:
-        t.join(max(0.0, deadline - time.monotonic()) + 0.05)
+    for cam in cameras:  # the real-time cameras by the deadline ...
+        if cam.real_time:
+            threads[cam.name].join(max(0.0, deadline - time.monotonic()) + 0.05)
     with lock:
         for cam in cameras:
-            if cam.name not in frames and cam.name not in failures:
+            if cam.real_time and cam.name not in frames and cam.name not in failures:
                 failures[cam.name] = CameraTimeout(cam.name, f"no frame within the capture timeout {timeout:g} s")
+    for cam in cameras:  # ... the simulated ones for as long as they compute
+        if not cam.real_time:
+            threads[cam.name].join()
+    with lock:
         if failures:
             log.warning("capture failed: %s", ", ".join(f"{k}: {v}" for k, v in failures.items()))
             raise CaptureError(failures, frames)

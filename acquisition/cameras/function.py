@@ -36,6 +36,7 @@ class FunctionCamera(Camera):
     """
 
     backend = "sim"
+    real_time = False  # rendering takes what it takes: never timed out by capture_all (Camera.real_time)
 
     def __init__(self, name: str, render: Callable[[dict], np.ndarray], settings: dict | None = None,
                  identity: str = "", latency_s: float = 0.0):

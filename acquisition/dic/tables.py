@@ -19,6 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
+from acquisition.numbers import strict_float
+
 from .result import DICImportError, DICPoints, length_scale
 
 __all__ = ["parse_vic3d_csv", "read_vic3d_csv", "read_point_table", "parse_column_map", "points_from_columns"]
@@ -41,7 +43,7 @@ def _rows(text: str, where: str) -> tuple[list[str], np.ndarray]:
         table = [[c.strip().strip('"') for c in row] for row in reader]
     header, body = table[0], table[1:]
     try:
-        values = np.array([[float(c) for c in row] for row in body], dtype=float).reshape(len(body), len(header))
+        values = np.array([[strict_float(c) for c in row] for row in body], dtype=float).reshape(len(body), len(header))
     except ValueError as exc:
         raise DICImportError(f"{where}: every row must hold {len(header)} numbers ({exc})") from None
     return header, values

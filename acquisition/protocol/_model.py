@@ -9,6 +9,8 @@ from acquisition.protocol._units import MMHG, ConfigError
 
 #: A protocol that would run longer than this is refused before anything moves, s.
 MAX_DURATION_S = 86400.0
+#: Most steps a protocol may have: an inflation/extension test has tens to hundreds.
+MAX_STEPS = 10_000
 #: Shortest preconditioning cycle a pressure controller can follow, s.
 MIN_CYCLE_S = 0.1
 #: Lower bounds of the time one step, one camera frame and one calibration view take, s.
@@ -165,7 +167,8 @@ class Protocol:
         return cycles + steps + views
 
     def check_duration(self, n_cameras: int = 1) -> None:
-        """Raise :class:`ConfigError` if the protocol would take more than a day (estimate in the message)."""
+        """Raise :class:`ConfigError` if the protocol has more than :data:`MAX_STEPS` steps or would take more
+        than a day (estimate in the message)."""
         total = self.min_duration_s(n_cameras)
         if total > MAX_DURATION_S:
             pc = self.preconditioning
@@ -176,6 +179,12 @@ class Protocol:
                 f"{self.calibration.views} calibration views, {n_cameras} camera(s)); the limit is "
                 f"{_human_duration(MAX_DURATION_S)}: split it into several sessions"
             )
+        if self.n_steps > MAX_STEPS:
+            raise ConfigError(
+                f"{self.source}: the protocol has {self.n_steps:,} steps (at most {MAX_STEPS:,}) and would take at "
+                f"least {_human_duration(total)} ({self.n_steps:,} steps x >= "
+                f"{self.stability.dwell_s + _STEP_FLOOR_S + _FRAME_S * n_cameras:g} s with {n_cameras} camera(s)): "
+                "split it into several sessions")
 
     def camera_names(self, rig: RigConfig) -> list[str]:
         """Names of the cameras to capture on ``rig``."""
@@ -189,4 +198,6 @@ def _human_duration(seconds: float) -> str:
         return f"{seconds / (86400 * 365.25):.3g} years"
     if seconds >= 86400:
         return f"{seconds / 86400:.3g} days"
+    if seconds < 3600:
+        return f"{seconds / 60:.3g} min"
     return f"{seconds / 3600:.3g} h"

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from acquisition.plausibility import MAX_IMAGE_SIDE_PX, SPECIMEN_RANGES, WORK_BYTES_PER_PIXEL, human_bytes
 from acquisition.protocol._rig_model import (
     END_CONDITIONS,
     MAX_CAMERAS,
@@ -61,6 +62,7 @@ def parse_rig(data: dict | str, text: str = "", source: str = "<rig>") -> RigCon
         if backend not in _BACKENDS:
             c.fail("backend", f"expected one of {list(_BACKENDS)}; got {backend!r}")
         settings = c.get("settings", {}, dict)
+        _check_frame_size(c, settings)
         c.done()
         _check_referenced_paths(c, settings)
         if any(x.name == cname for x in cams):
@@ -202,6 +204,16 @@ def load_specimen(path: str | Path) -> SpecimenFile:
     return parse_specimen(data, source=source)
 
 
+def _check_frame_size(c: _Table, settings: dict) -> None:
+    """``settings.width``/``height``, when given: whole pixels within 1..MAX_IMAGE_SIDE_PX (memory in the message)."""
+    w, h = settings.get("width", 640), settings.get("height", 480)
+    for key, value in (("width", w), ("height", h)):
+        if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= MAX_IMAGE_SIDE_PX:
+            size = (f" (one {w:,} x {h:,} px frame is {human_bytes(w * h)}, about {human_bytes(WORK_BYTES_PER_PIXEL * w * h)} of "
+                    "memory to capture)" if all(isinstance(v, (int, float)) and v > 0 for v in (w, h)) else "")
+            c.fail("settings", f"{key} must be a whole number of pixels in 1..{MAX_IMAGE_SIDE_PX:,}; got {value!r}{size}")
+
+
 def parse_specimen(data: dict | str, source: str = "<specimen>") -> SpecimenFile:
     if isinstance(data, str):
         data = _loads(data, source)
@@ -211,6 +223,10 @@ def parse_specimen(data: dict | str, source: str = "<specimen>") -> SpecimenFile
     if not sid.strip():
         t.fail("id", "expected a non-empty specimen id")
     dims = [t.number(k, lo=0.0, lo_open=True) * 1e-3 for k in ("radius_mm", "length_mm", "thickness_mm")]
+    for key, value in zip(("radius", "length", "thickness"), dims):
+        lo, hi = SPECIMEN_RANGES[key]
+        if not lo <= value <= hi:
+            t.fail(f"{key}_mm", f"expected a plausible {key} of {lo * 1e3:g}..{hi * 1e3:g} mm; got {value * 1e3:g}")
     if dims[2] >= dims[0]:
         t.fail("thickness_mm", f"wall thickness {dims[2] * 1e3:g} mm must be smaller than the radius "
                                f"{dims[0] * 1e3:g} mm")

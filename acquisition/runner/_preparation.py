@@ -33,7 +33,7 @@ class _Preparation:
                     continue
                 if self.operator.choose(f"Capture failed {failures} times in a row: {exc}",
                                         ["retry", "abort"]) == "abort":
-                    raise SessionAborted(f"aborted after a failed capture: {exc}") from exc
+                    raise SessionAborted(f"aborted after a failed capture: {exc}", resumable=True) from exc
                 failures = 0
 
     def _calibration_views(self) -> None:

@@ -188,7 +188,8 @@ class SessionRunner(_Preparation, _SafetyChecks, _Recording):
             choice = self.operator.choose(f"Capture failed {self._capture_failures} times in a row: {exc}",
                                           ["retry", "abort"])
             if choice == "abort":
-                raise SessionAborted(f"aborted after a failed capture: {exc}") from exc
+                # the completed steps are sound and a camera can be fixed: resumable (SessionAborted)
+                raise SessionAborted(f"aborted after a failed capture: {exc}", resumable=True) from exc
             self._capture_failures = 0
             return "again"
         self._capture_failures = 0

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from acquisition.plausibility import LoadLimits
 from acquisition.protocol import MMHG
 from acquisition.runner._errors import SessionAborted
 
@@ -78,9 +79,27 @@ class _SafetyChecks:
             if rec is None or not len(rec.t_monotonic):
                 continue
             values, times = np.asarray(rec.value, dtype=float), np.asarray(rec.t_monotonic, dtype=float)
+            if ch == "pressure":
+                self._check_negative(values)
             over = [i for i in range(values.size) if self._over_limit(ch, values[i]) is not None]
             for i in over:
                 self._judge(ch, float(values[i]), float(times[i]))
+
+    #: A pressure reading below this (Pa) is no transducer offset: a sign, a vacuum or a wrong zero.
+    NEGATIVE_PRESSURE = LoadLimits().min_pressure
+
+    def _check_negative(self, values: np.ndarray) -> None:
+        """Warn (once per run, stored as a "warning" event) when pressure readings are below -1 kPa."""
+        negative = values < self.NEGATIVE_PRESSURE
+        if not negative.any() or getattr(self, "_negative_warned", False):
+            return
+        self._negative_warned = True
+        low = float(values[negative].min())
+        msg = (f"negative pressure readings: {int(negative.sum())} below {self.NEGATIVE_PRESSURE / MMHG:.1f} mmHg "
+               f"(lowest {low / MMHG:.1f} mmHg = {low / 1e3:.3g} kPa); check the transducer's zero, its sign and "
+               "that the lumen is not under suction")
+        self._warn(msg)
+        self._event("warning", msg)
 
     def _judge(self, ch: str, value: float, t_sample: float) -> None:
         what = self._over_limit(ch, value)

@@ -38,7 +38,7 @@ def _h5_open_read_once(path: Path) -> h5py.File:
     except OSError as exc:
         if "already open for write" in str(exc):
             # A live SWMR writer, or one killed mid-session: SWMR readers see a consistent file.
-            return h5py.File(path, "r", libver="latest", swmr=True)
+            return h5py.File(path, "r", libver=("v110", "v110"), swmr=True)
         raise
 
 

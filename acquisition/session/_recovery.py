@@ -1,6 +1,6 @@
 """Clear the HDF5 file-consistency flags a killed writer leaves behind (what ``h5clear -s`` does).
 
-A file written with ``libver="latest"`` (superblock version 2 or 3) records in its superblock
+A file written with ``libver=("v110", "v110")`` (superblock version 3) records in its superblock
 that a writer has it open. If that writer is killed, the flag stays set and HDF5 refuses to
 open the file for writing again ("file is already open for write"). Readers can still open
 it with ``swmr=True``. To append to it again (resume a session) we reset the flag byte and

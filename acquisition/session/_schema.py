@@ -154,7 +154,8 @@ def _check_result_arrays(kind: str, arrays: Mapping[str, Any]) -> None:
         if pos.ndim != 3 or pos.shape[2] != 3 or pos.dtype.kind not in "fiu":
             raise ValueError(f"positions must be numbers of shape (n_steps, n_markers, 3); found {pos.dtype.name} "
                              f"of shape {pos.shape}")
-        for key, shape in (("visible", pos.shape[:2]), ("step_index", pos.shape[:1]), ("step_number", pos.shape[:1])):
+        for key, shape in (("visible", pos.shape[:2]), ("step_index", pos.shape[:1]), ("step_number", pos.shape[:1]),
+                           ("marker_id", pos.shape[1:2]), ("marker_label", pos.shape[1:2])):
             if key in arrays and np.shape(arrays[key]) != shape:
                 raise ValueError(f"{key} must have shape {shape} to match positions; found {np.shape(arrays[key])}")
     elif kind == "identification" and "parameters" in arrays:

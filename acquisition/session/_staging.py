@@ -114,4 +114,11 @@ def import_failure(path: str | os.PathLike, exc: OSError) -> str:
         free = shutil.disk_usage(target.parent).free
         return (f"{target}: disk full while writing the session ({free / 1e6:.1f} MB free); {before}. "
                 "Free some space and run the command again")
+    import os
+    import re
+
+    found = re.search(r"errno = (\d+)", str(exc))
+    code = exc.errno or (int(found.group(1)) if found else None)
+    if code and not target.exists() and ("create" in str(exc) or code in (errno.EROFS, errno.EACCES, errno.EPERM)):
+        return f"{target}: cannot create the file: {os.strerror(code)}"  # the staging file could not be made
     return f"{target}: cannot write the session ({exc}); {before}"

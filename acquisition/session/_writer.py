@@ -48,7 +48,7 @@ log = logging.getLogger("acquisition.session")
 def _create_h5(tmp: Path, path: Path) -> h5py.File:
     """A new HDF5 file at ``tmp``; a failure names ``path`` (what the user asked for), not the temporary name."""
     try:
-        return h5py.File(tmp, "w", libver="latest")
+        return h5py.File(tmp, "w", libver=("v110", "v110"))
     except OSError as exc:
         found = re.search(r"errno = (\d+)", str(exc))
         code = int(found.group(1)) if found else (exc.errno or errno.EIO)

@@ -7,7 +7,9 @@ Two rules hold for everything the CLI prints (docs/decisions/0004-cli-and-consol
   no ``…`` cropping, no padding to a width, whatever ``COLUMNS`` says. In a terminal it wraps as usual.
 - **Text from users and files is never read as markup.** Every specimen id, note, path, marker id, CSV
   header or error message goes through :func:`esc` (or is printed with ``markup=False``) before it reaches
-  a rich string, so ``[table]`` prints as ``[table]`` and ``[/]`` cannot crash a command.
+  a rich string, so ``[table]`` prints as ``[table]`` and ``[/]`` cannot crash a command; and the consoles
+  show its control characters escaped (:func:`vfmlab.display.printable`), so an escape sequence in a file
+  can neither clear the screen nor retitle the window.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ import click
 
 # re-exported for the commands; the two constants live with the number formats so that _console (which
 # needs them too) does not import this module back
-from vfmlab.display import LOG_TIME_FORMAT, UNLIMITED_WIDTH, display_quantity, fixed, num, quantity  # noqa: F401
+from vfmlab.display import LOG_TIME_FORMAT, UNLIMITED_WIDTH, display_quantity, fixed, num, printable, quantity  # noqa: F401
 
 
 def __getattr__(name: str) -> Any:
@@ -85,7 +87,7 @@ class _EchoHandler(logging.Handler):
     def emit(self, record: logging.LogRecord) -> None:
         try:
             stamp = _dt.datetime.fromtimestamp(record.created).strftime(LOG_TIME_FORMAT)
-            click.echo(f"{stamp} {record.levelname:<8} {self.format(record)}", err=True)
+            click.echo(f"{stamp} {record.levelname:<8} {printable(self.format(record))}", err=True)
         except Exception:  # noqa: BLE001 - logging must never raise
             self.handleError(record)
 

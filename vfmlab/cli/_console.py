@@ -6,7 +6,9 @@ from typing import Any, Iterable
 
 from rich.console import Console, ConsoleDimensions
 
-from vfmlab.display import LOG_TIME_FORMAT, UNLIMITED_WIDTH
+from rich.segment import Segment
+
+from vfmlab.display import LOG_TIME_FORMAT, UNLIMITED_WIDTH, printable
 
 
 class CliConsole(Console):
@@ -14,7 +16,9 @@ class CliConsole(Console):
 
     In a terminal it behaves as :class:`rich.console.Console`. Elsewhere its width is unlimited, long
     text is soft-wrapped (left to the reader), trailing padding is stripped from every line and
-    :meth:`rule` prints a short rule instead of one as wide as the console.
+    :meth:`rule` prints a short rule instead of one as wide as the console. Everywhere, control
+    characters in printed text (an escape sequence in a specimen id) are shown escaped
+    (:func:`vfmlab.display.printable`); only rich's own control segments reach the terminal.
     """
 
     def __init__(self, **kwargs: Any) -> None:
@@ -48,6 +52,7 @@ class CliConsole(Console):
             self.print(f"── {title} ──" if title else "──────")
 
     def _render_buffer(self, buffer: Iterable) -> str:
+        buffer = [seg if seg.control else Segment(printable(seg.text), seg.style) for seg in buffer]
         text = super()._render_buffer(buffer)
         if self.is_terminal:
             return text

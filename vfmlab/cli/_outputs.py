@@ -14,15 +14,12 @@ from typing import Iterable
 
 from vfmlab.cli._common import CliError
 
-_HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
-
 
 def _is_hdf5(path: Path) -> bool:
-    try:
-        with open(path, "rb") as fh:
-            return fh.read(8) == _HDF5_SIGNATURE
-    except OSError:
-        return False
+    """An HDF5 file, with or without a user block before its superblock."""
+    from vfmlab.stages.outputs import hdf5_signature_offset
+
+    return hdf5_signature_offset(path) is not None
 
 
 def _same_file(a: Path, b: Path) -> bool:

@@ -41,7 +41,9 @@ Examples:
 @click.option("--world-view", type=int, default=None,
               help="Express the calibration in the board frame of this view instead (e.g. a view with the board "
                    "aligned to the specimen axis).")
-@click.option("--fix-k3/--free-k3", default=False, show_default=True, help="Keep the 6th-order radial term at zero.")
+@click.option("--fix-k3/--free-k3", default=None,
+              help="Keep the 6th-order radial term at zero, or fit it [default: free only if it predicts held-out "
+                   "board views better; an unphysical distortion is refused either way].")
 @click.option("-o", "--out", "out", type=click.Path(dir_okay=False, path_type=Path),
               help="Write the calibration to this file: .toml (aniposelib) or .yaml/.yml (OpenCV FileStorage).")
 @click.option("--force", is_flag=True, help="Overwrite --out if it exists.")
@@ -94,7 +96,7 @@ def command(session, as_json, force, **options):
     """
     from vfmlab.cli._feedback import notify, progress_bar
     from vfmlab.stages.calibrate import calibrate
-    from vfmlab.stages.calibrate_views import board_lines, import_lines
+    from vfmlab.views.calibrate import board_lines, import_lines
     from vfmlab.stages.settings import CalibrateSettings
 
     out = options["out"]

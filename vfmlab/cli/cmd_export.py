@@ -1,5 +1,5 @@
-"""``vfmlab export``: deformed meshes and fields per step for ParaView (legacy VTK or PLY); the stage is
-:func:`vfmlab.stages.outputs.export`."""
+"""``vfmlab export``: deformed meshes and fields per step for ParaView, PyVista and meshio (VTU + PVD, legacy VTK
+or PLY); the stage is :func:`vfmlab.stages.outputs.export`."""
 
 from __future__ import annotations
 
@@ -23,9 +23,10 @@ Examples:
 @click.argument("session", type=click.Path(dir_okay=False))
 @click.option("-o", "--out", "out", type=click.Path(file_okay=False),
               help="Output directory [default: <SESSION stem>_export next to the session].")
-@click.option("--format", "fmt", type=click.Choice(["vtk", "ply"]), default="vtk", show_default=True,
-              help="vtk: legacy ASCII VTK polydata with strain/stress cell data (+ .vtk.series index); "
-                   "ply: binary PLY with E11 face colours and the fields as face properties.")
+@click.option("--format", "fmt", type=click.Choice(["vtu", "vtk", "ply"]), default="vtu", show_default=True,
+              help="vtu: VTK XML per step with strain/stress cell data named by model and component, and .pvd "
+                   "series (time = pressure in Pa per block; clock time); vtk: legacy ASCII polydata "
+                   "(+ .vtk.series, time = step); ply: binary PLY with hoop-strain face colours.")
 @click.option("--markers", "markers_name", help="Markers result to export [default: the latest].")
 @click.option("--force", is_flag=True, help="Write into an existing, non-empty output folder (its files of the same name are replaced).")
 @click.option("--json", "as_json", is_flag=True, help="Print the files written as JSON.")
@@ -39,7 +40,9 @@ def command(session, out, fmt, markers_name, force, as_json):
     out_dir = default_out(session, out, "export")
     check_output_dir(out_dir, force=force, inputs=[Path(session)])
     o = export(session, ExportSettings(out=out_dir, fmt=fmt, markers_name=markers_name))
-    cell = ["E11", "E22", "E12"] + [f"{n}_s11/_s22 ({st['model']})" for n, st in o.fields.stress.items()]
+    from vfmlab.export import field_names
+
+    cell = field_names(o.fields, fmt)
     if as_json:
         print_json(o.to_dict())
         return
@@ -51,3 +54,7 @@ def command(session, out, fmt, markers_name, force, as_json):
                       f"{esc(o.profile[1].name)} (Z and positions in m, parameters in Pa, 95 % intervals).")
     if fmt == "vtk":
         console.print(f"Open {esc(o.files[-1].name)} (or the {esc(o.files[0].stem[:-4])}_*.vtk group) in ParaView.")
+    elif fmt == "vtu":
+        pvd = [p.name for p in o.files if p.suffix == ".pvd"]
+        console.print(f"Open {esc(', '.join(pvd))} in ParaView or PyVista (time = pressure in Pa per block; "
+                      "clock seconds in the _clock series); each .vtu reads with meshio.")

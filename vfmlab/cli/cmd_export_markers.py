@@ -9,6 +9,7 @@ from acquisition.markers_csv import write_markers_csv
 from vfmlab.cli._common import console, esc, print_json
 from vfmlab.cli._outputs import check_output_path
 from vfmlab.cli._sessions import cli_session, latest_markers
+from vfmlab.stages.outputs import marker_labels
 
 EPILOG = """
 \b
@@ -34,7 +35,7 @@ def command(session, out, result, units, force, as_json):
         res = s.result(result) if result else latest_markers(s)
     arrays = res["arrays"]
     positions = arrays["positions"]
-    labels = arrays.get("marker_label", arrays.get("marker_id", np.arange(positions.shape[1])))
+    labels = marker_labels(res, session)
     steps = arrays.get("step_number", arrays.get("step_index", np.arange(positions.shape[0])))
     write_markers_csv(out, np.asarray(labels).astype(str), np.asarray(steps), positions, units=units)
     if as_json:

@@ -83,7 +83,11 @@ def _identify(session_path, as_json, **options):
     from vfmlab.stages.identify import RegionalOutcome, identify
     from vfmlab.stages.settings import IdentifySettings
 
-    outcome = identify(session_path, IdentifySettings(**options), invoked_by="identify")
+    from vfmlab.cli._feedback import progress_bar
+    from vfmlab.stages.feedback import no_progress
+
+    outcome = identify(session_path, IdentifySettings(**options), invoked_by="identify",
+                       progress=no_progress if as_json else progress_bar)
     if isinstance(outcome, RegionalOutcome):
         from vfmlab.cli._regional import print_regional
 

@@ -11,7 +11,7 @@ from rich.progress import Progress
 from vfmlab.cli._common import CliError, CliInputError, console, err_console, esc, print_json
 from vfmlab.cli._outputs import check_output_path
 from vfmlab.stages.errors import StageError
-from vfmlab.stages.imports import FoundImages, first_images, measure_tube, scan_images, write_imported_session
+from vfmlab.stages.imports import FoundImages, first_images, measure_tube, mm_to_m, scan_images, write_imported_session
 from vfmlab.stages.reconstruct import load_calibration_file
 
 EPILOG = """
@@ -85,8 +85,8 @@ def command(images_dir, calibration, polarity, calibration_units, loads_csv, out
         thickness_mm = 0.1 * radius_mm
         notes_extra.append("thickness not given: 10 % of the radius assumed")
     try:
-        specimen = SpecimenInfo(specimen_id or images_dir.name, radius_mm * 1e-3, length_mm * 1e-3,
-                                thickness_mm * 1e-3, "; ".join([notes] * bool(notes) + notes_extra),
+        specimen = SpecimenInfo(specimen_id or images_dir.name, mm_to_m(radius_mm), mm_to_m(length_mm),
+                                mm_to_m(thickness_mm), "; ".join([notes] * bool(notes) + notes_extra),
                                 ends or "", "import option --ends" if ends else "")
     except ValueError as exc:
         raise CliError(str(exc)) from None
@@ -105,8 +105,8 @@ def command(images_dir, calibration, polarity, calibration_units, loads_csv, out
         raise CliError(str(exc)) from None
     if as_json:
         print_json({"out": str(out), "n_steps": int(steps.size), "cameras": [c.name for c in cams],
-                    "calibration_result": name, "radius_m": radius_mm * 1e-3, "length_m": length_mm * 1e-3,
-                    "thickness_m": thickness_mm * 1e-3})
+                    "calibration_result": name, "radius_m": mm_to_m(radius_mm), "length_m": mm_to_m(length_mm),
+                    "thickness_m": mm_to_m(thickness_mm)})
         return
     console.print(
         f"Imported {steps.size} steps × {len(cams)} cameras into [bold]{esc(out)}[/] (calibration stored as "

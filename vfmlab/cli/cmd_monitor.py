@@ -8,7 +8,7 @@ import time
 import click
 
 from vfmlab.cli._common import CliError, console, err_console, esc
-from vfmlab.stages.monitor import CHANNEL_NAMES as _NAMES
+from vfmlab.views.monitor import CHANNEL_NAMES as _NAMES
 
 def _open(kind: str, port: str, baud: int, timeout: float):
     from acquisition import InstrumentError, open_load_cell, open_pressure
@@ -84,7 +84,7 @@ STALL_S = 5.0
 
 def _monitor(sampler, devices, count, as_json, stall_s: float = STALL_S) -> None:
     from acquisition.sampler import Sample
-    from vfmlab.stages.monitor import readings_table, sample_record
+    from vfmlab.views.monitor import readings_table, sample_record
 
     printed = {ch: 0 for ch in sampler.channels}
     started = time.monotonic()

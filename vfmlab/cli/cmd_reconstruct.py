@@ -7,10 +7,9 @@ from pathlib import Path
 
 import click
 import numpy as np
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from vfmlab.cli._common import console, err_console, esc, print_json
+from vfmlab.cli._common import console, esc, print_json
 
 log = logging.getLogger(__name__)
 
@@ -68,6 +67,8 @@ def command(session, marker_diameter_mm, calibration, calibration_units, frame, 
     result; markers not seen in a step are NaN there.
     """
     from vfmlab.cli._common import show_warning
+    from vfmlab.cli._feedback import progress_bar
+    from vfmlab.stages.feedback import no_progress
     from vfmlab.stages.reconstruct import reconstruct, resolve_cameras
     from vfmlab.stages.settings import ReconstructSettings
 
@@ -76,16 +77,9 @@ def command(session, marker_diameter_mm, calibration, calibration_units, frame, 
                                    normals=normals, epipolar_px=epipolar_px, max_reprojection_px=max_reprojection_px,
                                    include_superseded=include_superseded, store=store)
     cameras = resolve_cameras(session, settings, show_warning)  # before the progress bars, as its messages
-    with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total} steps"),
-                  TimeElapsedColumn(), console=err_console, transient=True, disable=as_json) as progress:
-        tasks = {}
-
-        def report(step: int, n: int, stage: str) -> None:
-            if stage not in tasks:
-                tasks[stage] = progress.add_task(stage, total=n)
-            progress.update(tasks[stage], completed=step + 1)
-
-        outcome = reconstruct(session, settings, progress=report, cameras=cameras, invoked_by="reconstruct")
+    with (no_progress if as_json else progress_bar)("reconstruct", None) as update:  # a bar per stage, time left
+        outcome = reconstruct(session, settings, progress=lambda step, n, stage: update(step + 1, n, stage),
+                              cameras=cameras, invoked_by="reconstruct")
     summary = outcome.to_dict()
     if as_json:
         print_json(summary)

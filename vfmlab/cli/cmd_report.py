@@ -6,14 +6,14 @@ from pathlib import Path
 
 import click
 
-from vfmlab.cli._common import console, err_console, esc, print_json
+from vfmlab.cli._common import console, esc, print_json
 from vfmlab.cli._outputs import check_output_dir
 
 EPILOG = """
 \b
 Examples:
   vfmlab report a1.h5                          # into a1_report/ next to the session
-  vfmlab report a1.h5 -o reports/a1 --strain-scale per-step --force
+  vfmlab report a1.h5 -o reports/a1 --strain-scale per-step   # replaces an earlier report there
 """
 
 
@@ -24,17 +24,22 @@ Examples:
 @click.option("--strain-scale", type=click.Choice(["shared", "per-step"]), default="shared", show_default=True,
               help="Colour scale of the strain and stress maps: one scale for all steps (compare steps) or one per step "
                    "(detail within a step); the figure says which.")
-@click.option("--force", is_flag=True, help="Write into an existing, non-empty output folder (an earlier report there is replaced).")
+@click.option("--force", is_flag=True, help="Write into an existing folder that is not a report folder (its other files "
+                                           "are kept); an earlier report is replaced without it.")
 @click.option("--json", "as_json", is_flag=True, help="Print the files written as JSON.")
 def command(session, out, strain_scale, force, as_json):
-    """Write a self-contained HTML report of SESSION (figures embedded) and the figures as PNG files."""
+    """Write a self-contained HTML report of SESSION (figures embedded) and each figure as SVG, 300 dpi PNG and
+    JSON data. Re-running replaces the earlier report; an interrupted run leaves it as it was."""
+    from vfmlab.cli._feedback import progress_bar
+    from vfmlab.report import is_report_dir
+    from vfmlab.stages.feedback import no_progress
     from vfmlab.stages.outputs import default_out, report
     from vfmlab.stages.settings import ReportSettings
 
     out_dir = default_out(session, out, "report")
-    check_output_dir(out_dir, force=force, inputs=[Path(session)])
-    with (err_console if as_json else console).status("Building the report..."):
-        o = report(session, ReportSettings(out=out_dir, strain_scale=strain_scale))
+    check_output_dir(out_dir, force=force or is_report_dir(out_dir), inputs=[Path(session)])
+    o = report(session, ReportSettings(out=out_dir, strain_scale=strain_scale),
+               progress=no_progress if as_json else progress_bar)
     if as_json:
         print_json(o.to_dict())
         return

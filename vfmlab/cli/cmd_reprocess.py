@@ -5,7 +5,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 from vfmlab.cli._common import CliError, console, err_console, esc, print_json
@@ -61,6 +60,8 @@ def command(sessions, stages, models, walls, ends, optimizer, smooth, weighting,
     """
     from vfmlab.pipeline import STAGES
     from vfmlab.stages.batch import plan, reprocess, split_list
+    from vfmlab.cli._feedback import progress_bar
+    from vfmlab.stages.feedback import no_progress
     from vfmlab.stages.settings import ReprocessSettings
 
     split_list(stages, "--stages", tuple(STAGES))
@@ -73,17 +74,13 @@ def command(sessions, stages, models, walls, ends, optimizer, smooth, weighting,
     where = f"Dask scheduler {scheduler}" if scheduler else (f"{workers} worker processes" if workers > 1 else "serially")
     if not as_json:
         console.print(f"Reprocessing {len(sessions)} session(s) {esc(where)}: " + esc("; ".join(r.label() for r in runs)))
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                  console=err_console, transient=True, disable=as_json) as progress:
-        task = progress.add_task("sessions", total=len(set(sessions)))
 
-        def on_done(outcome):
-            progress.advance(task)
-            if not outcome.ok and not as_json:
-                for err in outcome.errors:
-                    err_console.print(f"[red]failed:[/] {esc(err)}")
+    def on_done(outcome):
+        if not outcome.ok and not as_json:
+            for err in outcome.errors:
+                err_console.print(f"[red]failed:[/] {esc(err)}")
 
-        outcomes = reprocess(sessions, settings, runs=runs, on_done=on_done)
+    outcomes = reprocess(sessions, settings, runs=runs, on_done=on_done, progress=no_progress if as_json else progress_bar)
     path = Path(summary) if summary else None  # as vfmlab.reprocess.write_summary names it
     if as_json:
         print_json({"outcomes": [o.to_dict() for o in outcomes], "summary": summary})

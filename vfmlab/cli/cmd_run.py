@@ -97,7 +97,7 @@ def _web_hooks(out: str, port: int | None, shown):
 
 def finish_session(operate, as_json: bool) -> None:
     """Run ``operate()`` (a run or a resume), print its outcome as JSON if asked, and end with
-    exit code 1 when the session aborted or failed (decision 0007)."""
+    exit code 1 when the session aborted or failed, 130 when Ctrl-C stopped an unattended one (decision 0007)."""
     from vfmlab.operate import OperateError, as_json as outcome_json
 
     try:
@@ -108,5 +108,5 @@ def finish_session(operate, as_json: bool) -> None:
         raise error from None
     if as_json:
         click.echo(outcome_json(outcome))
-    if outcome.failed:
-        raise click.exceptions.Exit(1)
+    if outcome.exit_code:
+        raise click.exceptions.Exit(outcome.exit_code)

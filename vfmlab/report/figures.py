@@ -119,13 +119,14 @@ def markers_per_step(visible: np.ndarray, pressure: np.ndarray) -> Figure:
 
 def mesh_3d(fields: SurfaceFields) -> Figure:
     """3-D view of the surface mesh (the side facing the viewer) in the reference and the last step,
-    coloured by E11 in the last step."""
+    coloured by E11 in the last step; slivers (:func:`well_shaped`) are left out, so the seam shows no spikes."""
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
     fig = _figure(9.0, 4.6)
-    tri = fields.mesh.triangles
+    keep = well_shaped(fields)
+    tri = fields.mesh.triangles[keep]
     last = len(fields.positions) - 1
-    e11 = fields.kin["E11"][last] * 100
+    e11 = fields.kin["E11"][last][keep] * 100
     norm = Normalize(*_limits(e11))
     cmap = colormaps["viridis"]
     for i, (step, title) in enumerate(((0, "Reference (step 0)"), (last, f"Step {last}: "
@@ -134,18 +135,20 @@ def mesh_3d(fields: SurfaceFields) -> Figure:
         x = fields.positions[step] * 1e3
         verts = x[tri]
         ok = np.all(np.isfinite(verts), axis=(1, 2))
-        # back-face culling: the triangles are oriented with outward normals, so drawing only those
-        # facing the viewer avoids matplotlib's painter's-algorithm mixing the far wall into the near one
+        # the far wall (its inside, seen over the near rim) first in grey, then the near wall on top of it: with
+        # the draw order fixed, matplotlib's depth sort cannot mix the walls, and the rim shows no spikes
         elev, azim = np.radians(25.0), np.radians(-60.0)
         view = np.array([np.cos(elev) * np.cos(azim), np.cos(elev) * np.sin(azim), np.sin(elev)])
         normal = np.cross(verts[:, 1] - verts[:, 0], verts[:, 2] - verts[:, 0])
         centre_xy = np.nanmean(x[:, :2], axis=0)
         outward = np.sign(np.einsum("ij,ij->i", normal[:, :2], verts.mean(axis=1)[:, :2] - centre_xy))
-        ok &= (normal @ view) * outward > 0
-        colors = cmap(norm(np.nan_to_num(e11))) if step else np.array([[0.75, 0.75, 0.8, 1.0]])
-        coll = Poly3DCollection(verts[ok], facecolors=colors[ok] if step else colors[0], edgecolors="k",
-                                linewidths=0.15, alpha=0.95)
-        ax.add_collection3d(coll)
+        near = (normal @ view) * outward > 0
+        colors = cmap(norm(np.nan_to_num(e11))) if step else np.tile([0.75, 0.75, 0.8, 1.0], (len(tri), 1))
+        ax.computed_zorder = False
+        ax.add_collection3d(Poly3DCollection(verts[ok & ~near], facecolors=(0.88, 0.88, 0.9, 1.0), edgecolors="0.6",
+                                             linewidths=0.1, zorder=1, rasterized=True))
+        ax.add_collection3d(Poly3DCollection(verts[ok & near], facecolors=colors[ok & near], edgecolors="k",
+                                             linewidths=0.15, zorder=2, rasterized=True))
         pts = x[np.isfinite(x).all(axis=1)]
         lo, hi = pts.min(axis=0), pts.max(axis=0)
         centre, half = (lo + hi) / 2, (hi - lo).max() / 2
@@ -160,6 +163,24 @@ def mesh_3d(fields: SurfaceFields) -> Figure:
         ax.set_title(title)
     fig.colorbar(ScalarMappable(norm, cmap), ax=fig.axes, shrink=0.7, label="E11 circumferential strain (%)")
     return fig
+
+
+def well_shaped(fields: SurfaceFields, min_quality: float = 0.25, max_edge: float = 3.0) -> np.ndarray:
+    """(n_triangles,) bool: triangles that are not slivers on the unrolled reference surface (cylindrical
+    coordinates R θ, z; seam triangles kept whole): shape quality 4√3·area / Σ edge² (1 for an equilateral
+    triangle) at least ``min_quality``, longest edge at most ``max_edge`` times the median longest edge."""
+    t = unrolled_triangulation(fields)
+    p = np.stack([t.x, t.y], axis=-1)[t.triangles]  # (n_tri, 3, 2) mm
+    edges = np.linalg.norm(p - np.roll(p, 1, axis=1), axis=2)
+    d1, d2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+    area = 0.5 * np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        quality = 4 * np.sqrt(3) * area / (edges**2).sum(axis=1)
+    longest = edges.max(axis=1)
+    ok = np.isfinite(quality) & (quality >= min_quality)
+    if ok.any():
+        ok &= longest <= max_edge * np.median(longest[ok])
+    return ok
 
 
 def _limits(values: np.ndarray, min_span: float = 0.0) -> tuple[float, float]:
@@ -301,56 +322,6 @@ def _vw_arrays(result: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray, list[
     if len(names) != ivw.shape[0]:
         names = [f"field {j + 1}" for j in range(ivw.shape[0])]
     return ivw, evw, names
-
-
-def pressure_radius(pressure: np.ndarray, radius: np.ndarray, stretch: np.ndarray) -> Figure:
-    """Pressure (kPa, mmHg on the right axis) against the mid-span radius (mm), one curve per axial stretch."""
-    fig = _figure(5.5, 3.8)
-    ax = fig.add_subplot()
-    for j, lam in enumerate(np.unique(np.round(stretch, 4))):
-        sel = np.round(stretch, 4) == lam
-        if lam == 1.0 and sel.sum() == 1:
-            ax.plot(radius[sel] * 1e3, pressure[sel] / 1e3, "k*", ms=10, label="reference")
-            continue
-        ax.plot(radius[sel] * 1e3, pressure[sel] / 1e3, "o-", color=f"C{j}", label=f"λz = {lam:.3f}")
-    ax.set_xlabel("mid-span radius (mm)")
-    ax.set_ylabel("pressure (kPa)")
-    sec = ax.secondary_yaxis("right", functions=(lambda kpa: kpa * 1e3 / MMHG, lambda mm: mm * MMHG / 1e3))
-    sec.set_ylabel("pressure (mmHg)")
-    ax.grid(alpha=0.3)
-    ax.legend()
-    ax.set_title("Pressure–radius at mid-span")
-    return fig
-
-
-def stress_strain(strain: Mapping[str, np.ndarray], laplace: Mapping[str, np.ndarray],
-                  models: Mapping[str, Mapping[str, np.ndarray]], stretch: np.ndarray) -> Figure:
-    """Mean Cauchy stress (kPa) against mean Green-Lagrange strain (%), circumferential and axial.
-
-    ``strain``: E11, E22 (n_steps,); ``laplace``: s11, s22 (n_steps,) global-equilibrium estimates;
-    ``models``: {label: {"s11", "s22"} (n_steps,)} model stresses at the measured strains of each step (both
-    E11 and E22: the loading path), drawn in loading order for every stretch;
-    ``stretch`` (n_steps,) imposed axial stretch (one curve per stretch).
-    """
-    fig = _figure(9.0, 3.8)
-    axes = fig.subplots(1, 2)
-    for ax, (e, s, name) in zip(axes, (("E11", "s11", "circumferential"), ("E22", "s22", "axial"))):
-        groups = np.unique(np.round(stretch, 4))
-        for g, lam in enumerate(groups):
-            sel = np.flatnonzero(np.round(stretch, 4) == lam)  # in loading order: the path the specimen took
-            label = "reference" if len(sel) == 1 and lam == 1.0 else f"Laplace law, λz {lam:.3f}"
-            ax.plot(strain[e][sel] * 100, laplace[s][sel] / 1e3, ls="none", color="k", mfc="none",
-                    marker="*" if label == "reference" else "os^vD"[g % 5], label=label)
-            for j, (model, st) in enumerate(models.items()):
-                ax.plot(strain[e][sel] * 100, st[s][sel] / 1e3, "-", color=f"C{j}", marker=".",
-                        label=model if g == len(groups) - 1 else None)
-        ax.set_xlabel(f"{name} strain {e} (%)")
-        ax.set_ylabel(f"{name} Cauchy stress (kPa)")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
-        ax.set_title(f"{name.capitalize()} direction")
-    fig.suptitle("Stress–strain at mid-span: identified models along the measured path vs Laplace-law estimates")
-    return fig
 
 
 def correlation_matrix(result: Mapping[str, Any]) -> Figure | None:

@@ -9,6 +9,7 @@ reconstruct        :func:`vfmlab.stages.reconstruct.reconstruct` ``vfmlab recons
 identify           :func:`vfmlab.stages.identify.identify`      ``vfmlab identify``
 regional           :func:`vfmlab.stages.identify.regional`      ``vfmlab identify --regions``
 report, export     :mod:`vfmlab.stages.outputs`                 ``vfmlab report``, ``vfmlab export``
+loads export       :func:`vfmlab.stages.loads.export_loads`     ``vfmlab export-loads``
 run, reprocess     :mod:`vfmlab.stages.batch`                   ``vfmlab run``, ``vfmlab reprocess``
 check-rig          :func:`vfmlab.stages.check.check_rig`        ``vfmlab check-rig``
 =================  ==========================================  ==============================

@@ -8,6 +8,7 @@ from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
 from vfmlab.stages.errors import StageError, StageFailed
+from vfmlab.stages.feedback import ProgressFactory, no_progress
 from vfmlab.stages.settings import ReprocessSettings, RunSettings, settings_with
 
 __all__ = ["check_sim_seed", "parse_set", "plan", "reprocess", "run", "split_list"]
@@ -61,17 +62,21 @@ def plan(s: ReprocessSettings) -> list:
 
 
 def reprocess(sessions: Iterable[str | os.PathLike], settings: ReprocessSettings | None = None, *,
-              runs: list | None = None, on_done: Callable[[Any], None] | None = None, **overrides: Any) -> list:
+              runs: list | None = None, on_done: Callable[[Any], None] | None = None,
+              progress: ProgressFactory = no_progress, **overrides: Any) -> list:
     """Re-run the stages on each session, appending new results (``vfmlab reprocess``; defaults:
     :class:`ReprocessSettings`); the outcomes (:class:`vfmlab.reprocess.SessionOutcome`), and the CSV
-    ``settings.summary`` written when given. A session that fails is reported in its outcome."""
+    ``settings.summary`` written when given. A session that fails is reported in its outcome; ``progress`` counts
+    the runs (session × stage)."""
     from vfmlab.reprocess import reprocess as run_batch, write_summary
 
     s = settings_with(ReprocessSettings, settings, overrides)
     runs = plan(s) if runs is None else runs
     sessions = [str(p) for p in sessions]
     try:
-        outcomes = run_batch(sessions, runs, workers=s.workers, scheduler=s.scheduler, on_done=on_done)
+        with progress("reprocess", None) as update:
+            outcomes = run_batch(sessions, runs, workers=s.workers, scheduler=s.scheduler, on_done=on_done,
+                                 progress=lambda done, total, what: update(done, total, f"reprocess: {what}"))
     except (OSError, RuntimeError, ValueError, TimeoutError) as exc:
         raise StageFailed(f"cannot run the batch: {exc}") from None
     if s.summary:

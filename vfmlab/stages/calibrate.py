@@ -61,11 +61,13 @@ def _calibrate_from_board(session: Path | None, s: CalibrateSettings, progress: 
     found = {c: sum(len(d) > 0 for d in detections[c]) for c in names}
     log.info("board found per camera: %s", ", ".join(f"{c} in {n} views" for c, n in found.items()))
     try:
+        choice = _distortion_model(detections, spec, sizes, ref, window, s.fix_k3)
         result = calibrate_from_detections(detections, spec, sizes, reference=ref, world_view=s.world_view,
-                                           fix_k3=s.fix_k3, windows=window, refine_window=s.refine_window)
+                                           fix_k3=choice.fix_k3, windows=window, refine_window=s.refine_window)
     except CalibrationError as exc:
         raise StageFailed(f"calibration failed: {exc} (board views found per camera: "
                           f"{', '.join(f'{c} {n}' for c, n in found.items())})") from None
+    _refuse_unphysical(result, choice.fix_k3)
     if result.window_fit is not None and not result.window_fit.well_posed:
         raise StageFailed(f"--refine-window: {result.window_fit.message}. Nothing stored; calibrate without "
                           "--refine-window to keep the rig file's window")
@@ -77,16 +79,42 @@ def _calibrate_from_board(session: Path | None, s: CalibrateSettings, progress: 
     if session is not None and s.store:
         params = dict(board=s.board, squares=s.squares, square_size_m=spec.square_size, marker_size_m=spec.marker_size,
                       dictionary=s.dictionary, subpix_window=s.subpix_window, reference=names[ref],
-                      world_view=s.world_view, fix_k3=s.fix_k3, source=source,
+                      world_view=s.world_view, fix_k3=choice.fix_k3, distortion_choice=choice.reason,
+                      heldout_rms_px=choice.heldout_rms_px, source=source,
                       window=None if window is None else window.to_dict(), refine_window=s.refine_window)
         stored = _store_board(session, result, params)
     summary = {"cameras": result.summary(), "rms_total_px": result.rms_total, "n_observations": result.n_observations,
                "n_outliers": result.n_outliers, "converged": result.converged, "views_found": found,
-               "out": str(s.out) if s.out else None, "stored_as": stored}
+               "out": str(s.out) if s.out else None, "stored_as": stored,
+               "fix_k3": choice.fix_k3, "distortion_choice": choice.reason, "heldout_rms_px": choice.heldout_rms_px}
     windows = window_rows(result)
     if windows:
         summary["windows"] = windows
     return CalibrationOutcome(summary, list(result.cameras), stored, result)
+
+
+def _distortion_model(detections, spec, sizes, ref: int, window, fix_k3: bool | None):
+    """The distortion model to calibrate with: as asked (``fix_k3`` True/False), or chosen by held-out views."""
+    from reconstruction.calibration import detections_to_arrays
+    from reconstruction.calibration_select import DistortionChoice, choose_distortion
+
+    if fix_k3 is not None:
+        return DistortionChoice(bool(fix_k3), "k3 fixed at 0 (--fix-k3)" if fix_k3 else "k3 free (--free-k3)")
+    names, uv, obj = detections_to_arrays(detections, spec)
+    choice = choose_distortion(uv, obj, [sizes[n] for n in names], names, reference=ref, windows=window,
+                               resolve_flips=spec.kind in ("chessboard", "circles"))
+    log.info("distortion model: %s", choice.reason)
+    return choice
+
+
+def _refuse_unphysical(result, fix_k3: bool) -> None:
+    """StageFailed when a calibrated camera's distortion is one no lens has (nothing is stored or written)."""
+    from reconstruction.calibration_select import distortion_problem
+
+    problems = [p for p in (distortion_problem(c) for c in result.cameras) if p]
+    if problems:
+        hint = "calibrate with --fix-k3" if not fix_k3 else "check the board views (they should cover the image)"
+        raise StageFailed(f"unphysical lens distortion: {'; '.join(problems)}. Nothing stored; {hint}")
 
 
 def folder_views(images_dir: Path) -> tuple[list[str], list[str], dict[str, dict[str, Path]]]:

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from vfmlab.stages.errors import StageError, StageFailed
+from vfmlab.stages.feedback import ProgressFactory, no_progress
 from vfmlab.stages.settings import IdentifySettings, RegionalSettings, settings_with
 
 __all__ = ["IdentifyOutcome", "RegionalOutcome", "identify", "si_unit", "parse_smooth", "regional"]
@@ -104,12 +105,13 @@ class RegionalOutcome:
 
 
 def identify(session_path: str | os.PathLike, settings: IdentifySettings | None = None, *,
-             invoked_by: str = "python", **overrides: Any) -> IdentifyOutcome | RegionalOutcome:
+             invoked_by: str = "python", progress: ProgressFactory = no_progress,
+             **overrides: Any) -> IdentifyOutcome | RegionalOutcome:
     """Identify ``settings.model`` from the latest marker tracks of the session and store the result in it.
 
     ``vfmlab.identify("a1.h5", model="hgo")`` is ``vfmlab identify a1.h5 --model hgo``; the defaults are the
-    command's (:class:`IdentifySettings`). With ``regions`` set, a :class:`RegionalOutcome`.
-    Raises ``StageError`` (bad input) or ``StageFailed``.
+    command's (:class:`IdentifySettings`). With ``regions`` set, a :class:`RegionalOutcome`. ``progress`` shows
+    the fits and the bootstrap (:mod:`vfmlab.stages.feedback`). Raises ``StageError`` (bad input) or ``StageFailed``.
     """
     from vfmlab.pipeline import identify_stored
 
@@ -118,15 +120,22 @@ def identify(session_path: str | os.PathLike, settings: IdentifySettings | None 
     if s.regions is not None:
         return regional(session_path, RegionalSettings(regions=s.regions, model=s.model, wall=s.wall, ends=s.ends,
                                                        smooth=s.smooth, uncertainty=s.uncertainty),
-                        invoked_by=invoked_by)
-    group, result, data = identify_stored(session_path, model=s.model, wall=s.wall, ends=s.ends, optimizer=s.optimizer,
-                                          smoothing=smoothing, uncertainty=s.uncertainty, weighting=s.weighting,
-                                          invoked_by=invoked_by)
+                        invoked_by=invoked_by, progress=progress)
+    with progress(f"identify {s.model}", None) as update:
+        group, result, data = identify_stored(session_path, model=s.model, wall=s.wall, ends=s.ends,
+                                              optimizer=s.optimizer, smoothing=smoothing, uncertainty=s.uncertainty,
+                                              weighting=s.weighting, invoked_by=invoked_by,
+                                              progress=_told(update, f"identify {s.model}"))
     return IdentifyOutcome(group, result, data, s)
 
 
+def _told(update, prefix: str):
+    """A core's ``progress(done, total, what)`` drawn by a stage's progress ``update``."""
+    return lambda done, total, what: update(done, total, f"{prefix}: {what}")
+
+
 def regional(session_path: str | os.PathLike, settings: RegionalSettings | None = None, *,
-             invoked_by: str = "python", **overrides: Any) -> RegionalOutcome:
+             invoked_by: str = "python", progress: ProgressFactory = no_progress, **overrides: Any) -> RegionalOutcome:
     """Identify the stress-like parameter along the axis (``vfmlab identify --regions``) and store a "regional"
     result. A malformed ``regions`` is a StageError; a failed identification a StageFailed."""
     from identification import get_model
@@ -138,9 +147,11 @@ def regional(session_path: str | os.PathLike, settings: RegionalSettings | None 
     except ValueError as exc:
         raise StageError(str(exc)) from None
     try:
-        group, result, data = identify_regional_stored(session_path, regions=spec, model=s.model, wall=s.wall,
-                                                       ends=s.ends, smoothing=parse_smooth(s.smooth),
-                                                       uncertainty=s.uncertainty, invoked_by=invoked_by)
+        with progress(f"identify {s.model} --regions {spec}", None) as update:
+            group, result, data = identify_regional_stored(session_path, regions=spec, model=s.model, wall=s.wall,
+                                                           ends=s.ends, smoothing=parse_smooth(s.smooth),
+                                                           uncertainty=s.uncertainty, invoked_by=invoked_by,
+                                                           progress=_told(update, f"regional {s.model}"))
     except StageError as exc:
         raise StageFailed(str(exc)) from None
     m = get_model(s.model)

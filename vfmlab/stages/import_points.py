@@ -15,6 +15,7 @@ import numpy as np
 
 from vfmlab.stages.errors import StageError, StageFailed
 from vfmlab.stages.feedback import Notify, log_notes
+from vfmlab.stages.imports import mm_to_m
 
 __all__ = ["DIC_FORMATS", "DICSource", "ImportedPoints", "PointImportSettings", "import_dic", "import_markers",
            "import_point_session", "read_dic_table"]
@@ -61,7 +62,7 @@ class ImportedPoints:
         """The command's ``--json`` (SI)."""
         s = self.settings
         return {"out": str(out), "result": self.name, "n_markers": self.n_markers, "n_steps": self.n_steps,
-                "radius_m": self.radius, "length_m": self.length, "thickness_m": s.thickness_mm * 1e-3,
+                "radius_m": self.radius, "length_m": self.length, "thickness_m": mm_to_m(s.thickness_mm),
                 "load_cell_measures": s.force_is, "ends": s.ends}
 
     def details(self) -> str:
@@ -173,7 +174,7 @@ def import_point_session(out: Path, table: Any, loads: dict, sources: tuple[str,
     radius, length, warnings = check_marker_inputs(table, loads, rows, points_src, loads_src, s.thickness_mm,
                                                    s.radius_mm, s.length_mm, warn)
     try:
-        specimen = SpecimenInfo(s.specimen_id, radius, length, s.thickness_mm * 1e-3, s.notes, s.ends or "",
+        specimen = SpecimenInfo(s.specimen_id, radius, length, mm_to_m(s.thickness_mm), s.notes, s.ends or "",
                                 "import option --ends" if s.ends else "")
     except ValueError as exc:
         raise StageError(str(exc)) from None

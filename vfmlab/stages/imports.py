@@ -14,8 +14,14 @@ from acquisition.errors import ImplausibleInputError
 from vfmlab.stages.errors import StageError, StageFailed
 from vfmlab.stages.feedback import Notify, log_notes
 
-__all__ = ["FoundImages", "check_marker_inputs", "check_tube", "estimate_geometry", "first_images", "measure_tube",
-           "read_image", "scan_images", "write_imported_session"]
+__all__ = ["FoundImages", "OUTLIER_RADII", "check_marker_inputs", "check_tube", "estimate_geometry", "first_images",
+           "marker_outliers", "measure_tube", "mm_to_m", "read_image", "scan_images", "write_imported_session"]
+
+
+def mm_to_m(value_mm: float) -> float:
+    """A length typed in mm, in m, rounded to 12 significant digits: 1.3 mm -> 0.0013 m, not the
+    0.0013000000000000002 that ``1.3 * 1e-3`` gives and the session would store."""
+    return float(f"{value_mm * 1e-3:.12g}")
 
 _IMAGE_SUFFIXES = {".png", ".tif", ".tiff", ".bmp", ".pgm", ".jpg", ".jpeg"}
 
@@ -87,9 +93,16 @@ def estimate_geometry(reference: np.ndarray) -> tuple[float, float]:
     Least-squares cylinder fit (axis point, axis direction, radius), started from each of the
     cloud's principal directions; the best fit wins.
     """
+    points = reference[~np.isnan(reference).any(axis=1)]
+    _, direction, radius, axial = _fit_cylinder(points)
+    return radius, float(axial.max() - axial.min())
+
+
+def _fit_cylinder(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
+    """A point on the axis (3,) m, the axis direction (3,), the radius (m) and the axial coordinates (n,) m
+    of the points (n, 3)."""
     from scipy.optimize import least_squares
 
-    points = reference[~np.isnan(reference).any(axis=1)]
     centre = points.mean(axis=0)
     centred = points - centre
     _, _, vt = np.linalg.svd(centred, full_matrices=False)
@@ -108,7 +121,52 @@ def estimate_geometry(reference: np.ndarray) -> tuple[float, float]:
             best = fit
     _, direction = radial(best.x)
     axial = (centred - best.x[2:5]) @ direction
-    return float(abs(best.x[5])), float(axial.max() - axial.min())
+    return centre + best.x[2:5], direction, float(abs(best.x[5])), axial
+
+
+#: A marker farther from the tube axis than this many radii is a typo, not a measurement: at the reference
+#: step, and (the tube inflates) at a loaded step.
+OUTLIER_RADII = (2.0, 3.0)
+
+
+def marker_outliers(positions: np.ndarray, labels, steps, *, source: str, radius: float | None = None) -> None:
+    """An ImplausibleInputError naming the first marker that lies far off the tube (decision 0007).
+
+    ``positions`` (n_steps, n_markers, 3) m, NaN = not measured; ``labels`` (n_markers,), ``steps`` (n_steps,)
+    for the message. The axis is fitted to the reference markers (step 0) without the markers farthest from
+    their median (a typo must not pull the fit), then to those near that cylinder; ``radius`` (m) the
+    specimen's, else the fitted one. A marker more than :data:`OUTLIER_RADII` radii from the axis is refused,
+    not fitted.
+    """
+    positions = np.asarray(positions, float)
+    ref = positions[0]
+    keep = np.isfinite(ref).all(axis=1)
+    if keep.sum() < 8:
+        return  # too few to fit an axis: check_marker_cloud says so
+    # a typo must not pull the fit: first the 90 % of the markers nearest the cloud's median, then those near it
+    near = np.linalg.norm(np.where(keep[:, None], ref, np.nan) - np.nanmedian(ref[keep], axis=0), axis=1)
+    core = keep & (near <= np.nanpercentile(near, 90))
+    centre, direction, fitted, _ = _fit_cylinder(ref[core])
+    core = keep & (np.abs(_axis_distance(ref, centre, direction) - fitted) <= 0.5 * fitted)
+    if core.sum() >= 8:
+        centre, direction, fitted, _ = _fit_cylinder(ref[core])
+    r = radius if radius else fitted
+    for k in range(positions.shape[0]):
+        d = _axis_distance(positions[k], centre, direction)
+        limit = OUTLIER_RADII[0 if k == 0 else 1] * r
+        bad = np.flatnonzero(np.nan_to_num(d, nan=0.0) > limit)
+        if bad.size:
+            m = int(bad[np.argmax(d[bad])])
+            raise ImplausibleInputError(
+                f"{source}, step {int(np.asarray(steps)[k])}: marker {np.asarray(labels)[m]} lies {d[m] * 1e3:.4g} mm "
+                f"from the tube axis, {d[m] / r:.3g} times the radius {r * 1e3:.4g} mm (at most "
+                f"{OUTLIER_RADII[0 if k == 0 else 1]:g} radii); a typo? Correct or delete it"
+                + (f" (and {bad.size - 1} more marker(s) at this step)" if bad.size > 1 else ""))
+
+
+def _axis_distance(points: np.ndarray, centre: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    rel = points - centre
+    return np.linalg.norm(rel - (rel @ direction)[:, None] * direction, axis=1)
 
 
 def check_marker_inputs(table, loads, rows, markers_csv, loads_csv, thickness_mm, radius_mm, length_mm,
@@ -125,14 +183,16 @@ def check_marker_inputs(table, loads, rows, markers_csv, loads_csv, thickness_mm
                            source=str(loads_csv), steps=table.steps)
     reference = table.positions[0]
     check_marker_cloud(reference, source=str(markers_csv))
+    marker_outliers(table.positions, table.labels, table.steps, source=str(markers_csv),
+                    radius=radius_mm * 1e-3 if radius_mm else None)
     fitted_radius, fitted_length = estimate_geometry(reference)
     if radius_mm:
         check_marker_cloud(reference, source=str(markers_csv), radius=radius_mm * 1e-3, fitted_radius=fitted_radius)
     else:
         check_cloud_scale(fitted_radius, source=str(markers_csv))
-    radius = radius_mm * 1e-3 if radius_mm else fitted_radius
-    length = length_mm * 1e-3 if length_mm else fitted_length
-    warnings += check_geometry(radius, thickness_mm * 1e-3, length, source=str(markers_csv))
+    radius = mm_to_m(radius_mm) if radius_mm else fitted_radius
+    length = mm_to_m(length_mm) if length_mm else fitted_length
+    warnings += check_geometry(radius, mm_to_m(thickness_mm), length, source=str(markers_csv))
     try:
         warnings += check_identifiable(table.positions, source=str(markers_csv), steps=table.steps)
     except ImplausibleInputError as exc:  # importing is fine; identifying will refuse
@@ -192,10 +252,18 @@ def write_imported_session(out: Path, specimen: Any, found: FoundImages, loads: 
                            force_is: str, overwrite: bool, *, warn: Notify = log_notes,
                            advance: Callable[[], None] = lambda: None) -> str:
     """Create the session ``out`` with one step per image step (a missing image stored blank, with a warning) and
-    store the cameras as its first "calibration" result; returns that result's name."""
+    store the cameras as its first "calibration" result; returns that result's name. An implausible geometry
+    (thickness not below the radius, sizes outside the plausible ranges) is refused first."""
+    from acquisition.plausibility import check_geometry
     from acquisition.session import CameraSpec, SessionWriter, StepRecord, write_result
     from reconstruction import cameras_to_arrays
 
+    try:  # before the file exists
+        for message in check_geometry(specimen.radius, specimen.thickness, specimen.length,
+                                      source=str(rig.get("images_dir", out))):
+            warn(message)
+    except ImplausibleInputError as exc:
+        raise StageError(str(exc)) from None
     cams, dtype = found.cams, found.dtype
     specs = [CameraSpec(c.name, "imported", c.image_size[0], c.image_size[1], dtype) for c in cams]
     with SessionWriter.create(out, specimen, cameras=specs, protocol_text="", rig=rig, load_cell_measures=force_is,

@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from acquisition.session import DamagedSessionError
+from vfmlab.stages.outputs import marker_labels
 
 __all__ = ["stored_warnings", "summarise"]
 
@@ -44,6 +45,8 @@ def _results(s, damaged: list[str]) -> tuple[list[dict], int]:
             continue
         results.append({"name": name, "kind": r["kind"], "date": r["attrs"].get("date", ""),
                         "version": r["attrs"].get("version", "")})
+        if r["kind"] == "markers":
+            _part(damaged, lambda r=r: marker_labels(r, s.path))
         positions = r["arrays"].get("positions") if r["kind"] == "markers" else None
         if positions is not None and np.ndim(positions) == 3:
             n_markers = int(positions.shape[1])

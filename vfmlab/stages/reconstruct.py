@@ -16,7 +16,7 @@ from vfmlab.stages.errors import StageError, StageFailed
 from vfmlab.stages.feedback import Notify, log_notes
 from vfmlab.stages.settings import ReconstructSettings, settings_with
 
-__all__ = ["ReconstructOutcome", "load_calibration_file", "reconstruct", "resolve_cameras", "session_cameras"]
+__all__ = ["ReconstructOutcome", "blind_cameras", "load_calibration_file", "reconstruct", "resolve_cameras", "session_cameras"]
 
 
 def load_calibration_file(path: Path, units: str | None = None) -> list:
@@ -30,7 +30,7 @@ def load_calibration_file(path: Path, units: str | None = None) -> list:
         try:
             return openptv.load_cameras(path)
         except (CalibrationFileError, OSError) as exc:
-            raise StageFailed(f"--calibration {path}: {exc}") from None
+            raise (StageError if isinstance(exc, CalibrationFileError) else StageFailed)(f"--calibration {path}: {exc}") from None
     suffix = path.suffix.lower()
     if suffix not in (".toml", ".yaml", ".yml"):
         raise StageError(f"--calibration must be a .toml (aniposelib) or .yaml/.yml (OpenCV) file or an OpenPTV folder; "
@@ -124,4 +124,27 @@ def reconstruct(session_path: str | os.PathLike, settings: ReconstructSettings |
         normals=s.normals, epipolar_px=s.epipolar_px, max_reprojection_px=s.max_reprojection_px,
         include_superseded=s.include_superseded, frame=s.frame, flip_axis=s.flip_axis, store=s.store,
         progress=progress, invoked_by=invoked_by)
+    for line in blind_cameras(cams, res):
+        warn(line)
     return ReconstructOutcome(stored, res, rows, names, source, str(session_path))
+
+
+def blind_cameras(cameras: list, result) -> list[str]:
+    """One warning per camera that projects fewer than half of the reference markers reconstructed from all
+    cameras into its image: its calibration does not describe where it looks, and it contributed (almost)
+    nothing. A camera is never dropped silently."""
+    import numpy as np
+
+    from reconstruction import fraction_in_view
+
+    centres = np.asarray(result.centres)[0] if np.asarray(result.centres).size else np.empty((0, 3))
+    inverse = np.linalg.inv(np.asarray(result.world_to_rig, float))  # returned frame -> calibration world
+    world = centres @ inverse[:3, :3].T + inverse[:3, 3]
+    out = []
+    for cam in cameras:
+        seen = fraction_in_view(cam, world)
+        if seen < 0.5:
+            out.append(f"camera {cam.name!r} sees only {seen:.0%} of the {int(np.isfinite(world).all(1).sum())} "
+                       "reconstructed reference markers in its image: its calibration does not match where it "
+                       "looks, so its images added (almost) nothing; check that camera's calibration")
+    return out

@@ -98,7 +98,7 @@ class CalibrateSettings:
     subpix_window: int = 5
     reference: str | None = None
     world_view: int | None = None
-    fix_k3: bool = False
+    fix_k3: bool | None = None  # None: fixed or free as held-out views decide (reconstruction.calibration_select)
     out: Path | None = None
     units: str = "mm"
     store: bool = True
@@ -133,7 +133,7 @@ class ExportSettings:
     """``vfmlab export``: ``out`` default <SESSION stem>_export next to the session; ``markers_name`` default the latest."""
 
     out: Path | None = None
-    fmt: str = "vtk"
+    fmt: str = "vtu"
     markers_name: str | None = None
 
 

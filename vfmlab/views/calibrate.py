@@ -42,6 +42,8 @@ def board_lines(outcome, session) -> list:
         out.append(line)
     out.append(f"total RMS {result.rms_total:.3f} px over {result.n_observations} observations; "
                   f"{result.n_outliers} outliers rejected; converged: {result.converged}")
+    if "distortion_choice" in summary:
+        out.append(f"distortion: {esc(summary['distortion_choice'])}")
     if summary["out"] is not None:
         out.append(f"wrote {esc(summary['out'])}")
     if outcome.stored:
