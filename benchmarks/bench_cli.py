@@ -139,10 +139,10 @@ _REPLICATE_CPU = """
 import sys, time
 import numpy as np
 from vfmlab.pipeline import FORCE_NOISE, PRESSURE_NOISE, read_identification_inputs, resolve_ends
-from identification import identify
+from identification.optimize import identify
 from identification.uncertainty import bootstrap
 d = read_identification_inputs(sys.argv[1])
-ends = resolve_ends(d["session_ends"], None)[0]
+ends = resolve_ends(d["session_ends"], None)[0] or "clamped"
 result = identify(d["positions"], d["pressure"], d["force"], thickness=d["thickness"], ends=ends, smoothing="auto",
                   uncertainty="gauss-newton")
 positions = d["positions"] if result.steps is None else d["positions"][list(result.steps)]

@@ -176,7 +176,7 @@ def error_persistence(positions, stretch, pressure, scene, match) -> tuple[np.nd
 def diagnose(session: Path, seed: int) -> None:
     """Print recorded vs image-implied pressures and the Fung fit with each (``--diagnose``)."""
     from acquisition.protocol import MMHG
-    from identification import identify
+    from identification.optimize import identify
     from vfmlab.pipeline import FORCE_NOISE, PRESSURE_NOISE, read_identification_inputs
 
     matched = _matched_truth(session, seed)
@@ -193,7 +193,7 @@ def diagnose(session: Path, seed: int) -> None:
         res = identify(data["positions"], pressure, data["force"], thickness=data["thickness"], model="fung",
                        ends=data["session_ends"].get("ends") or "free", smoothing="auto", uncertainty="bootstrap",
                        uncertainty_options={"marker_sigma": data["uncertainty"], "pressure_noise": PRESSURE_NOISE,
-                                            "force_noise": FORCE_NOISE})
+                                            "force_noise": FORCE_NOISE}, wall="membrane")
         print(f"  {name} pressures: " + ", ".join(
             f"{k} {res.parameters[k] / TRUTH[k] - 1:+.2%} (95 %: {res.uncertainty.interval[k][0] / TRUTH[k] - 1:+.2%}"
             f" to {res.uncertainty.interval[k][1] / TRUTH[k] - 1:+.2%})" for k in COVERED))

@@ -422,7 +422,7 @@ def _parse_variant(text):
 
 def _noise_fit(sim, model, pos, variant, seed, **identify_options):
     """One fit of the noise / coverage studies for a variant of ``_parse_variant`` (or a bare smoothing)."""
-    from identification import identify
+    from identification.optimize import identify
     from identification import identify_noise_weighted
 
     if not isinstance(variant, dict):

@@ -1,8 +1,17 @@
-"""Issue 10 part A benchmarks: mesh hygiene, setting checks, finite-element ground truth (prints markdown tables).
+"""Trust benchmarks: the verdict's must-hold table (issue 23); mesh hygiene, setting checks, finite-element ground
+truth (issue 10 part A). Prints markdown tables.
 
     OMP_NUM_THREADS=1 python -m benchmarks.bench_trust --part PART [--seeds N] [--fine]
 
-PART is hygiene, checks, fe, fe-convergence or all:
+PART is table, hygiene, checks, fe, fe-convergence or all:
+
+table   : the verdict on independent data imported WITHOUT the ends or the wall (``identification.identify`` with
+          its defaults, the command's): closed-form tubes (rig_sim.simulate: clamped membrane, free membrane, free
+          thick wall; 1 or 3 axial stretches) and felupe FE tubes (rig_sim/fe_tube.py: thick wall, clamped and
+          free); Fung, Delfino, HGO; 0.01, 0.05, 0.17 mm marker noise; pressure and force with 0.1 % noise.
+          Must hold: no parameter marked trusted off by more than twice its 95 % half-width, and the trusted
+          intervals cover the truth in >= 90 %. Also the power of the settings test: how often the data decided
+          the ends and the wall (right / could not tell / wrong).
 
 hygiene : unsmoothed fits on independent closed-form tubes (rig_sim/homogeneous_tube.py, 300 uniformly random
           markers, 0.01 mm noise on every marker of every step incl. the reference) for a grid of
@@ -29,7 +38,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 
-from identification import build_mesh, identify
+from identification import build_mesh
+from identification.optimize import identify
 from identification.checks import check_setup
 from rig_sim.mechanics import MMHG, PAPER_PARAMETERS, simulate_test
 
@@ -61,7 +71,7 @@ def bench_hygiene(n_seeds, noise=0.01e-3):
             for seed in range(n_seeds):
                 pos, p, f, truth = _closed_form(model, seed, noise)
                 mesh = build_mesh(pos[0], duplicate_fraction=dup, sliver_quality=slq)
-                r = identify(pos, p, f, thickness=E0, model=model, ends="free", mesh=mesh)
+                r = identify(pos, p, f, thickness=E0, model=model, ends="free", mesh=mesh, wall="membrane")
                 errs.append([r.parameters[n] / truth[n] - 1 for n in JUDGED[model]])
                 drops.append(mesh.dropped["duplicate_markers"] + mesh.dropped["sliver_markers"])
             e = np.abs(np.array(errs))
@@ -238,13 +248,118 @@ def _layered_kinematics(fe, distances=(17.5e-3, 12e-3, 10e-3, 8e-3, 6e-3, 5e-3, 
               f"| {at(ri_layered) / at(fe.r_inner[k]) - 1:+.1e} |")
 
 
+TABLE_NOISES = (0.01e-3, 0.05e-3, 0.17e-3)
+TABLE_LAWS = ("fung", "delfino", "hgo")
+#: (name, ends, wall, stretch sets) of the closed-form tubes; the FE tubes are thick, one stretch.
+CLOSED_FORM = (("closed form", "clamped", "membrane", ((1.1,),)),
+               ("closed form", "free", "membrane", ((1.1,), (1.05, 1.1, 1.15))),
+               ("closed form", "free", "thick", ((1.1,), (1.05, 1.1, 1.15))))
+
+
+def _table_data(source, ends, wall, law, stretches, noise, seed, fine=False):
+    """(positions, pressure, force, thickness) of one independent test, loads with 0.1 % noise."""
+    rng = np.random.default_rng([seed, 23])
+    if source == "FE":
+        from rig_sim.fe_tube import solve_fe_tube
+
+        na, nr = {True: (80, 8), False: (8, 8)}[ends == "clamped"] if fine else {True: (40, 4), False: (8, 4)}[
+            ends == "clamped"]
+        fe = solve_fe_tube(law, PAPER_PARAMETERS[law], pressures=FE_PRESSURES, stretch=1.1, clamped=ends == "clamped",
+                           n_axial=na, n_radial=nr, cache_dir=ROOT / "benchmarks" / ".fe-cache")
+        pos = _fe_markers(fe, 4e-3)
+        pos = pos + rng.normal(0.0, noise, pos.shape)
+        p, f, thickness = fe.pressure, fe.wall_force, fe.thickness
+    else:
+        sim = simulate_test(law, PAPER_PARAMETERS[law], clamped=ends == "clamped", wall=wall, stretches=stretches,
+                            noise_std=noise, seed=seed)
+        pos, p, f, thickness = sim.positions, sim.pressure, sim.axial_force, sim.thickness
+    p = np.asarray(p) * (1 + 1e-3 * rng.standard_normal(np.shape(p)))
+    f = np.asarray(f) * (1 + 1e-3 * rng.standard_normal(np.shape(f)))
+    return pos, p, f, thickness
+
+
+def _decided(r, key, truth):
+    """'right', 'could not tell' or 'wrong': how the data decided setting ``key`` ("ends" or "wall")."""
+    if any("cannot tell" in x and key in x.split("not given")[0] for x in r.verdict_reasons):
+        return "could not tell"
+    return "right" if getattr(r.data, key) == truth else "wrong"
+
+
+def _table_cases(sources):
+    for source, ends, wall, stretch_sets in CLOSED_FORM if "cf" in sources else ():
+        for law in TABLE_LAWS:
+            for stretches in stretch_sets:
+                yield source, ends, wall, law, stretches
+    if "fe" in sources:
+        for ends in ("clamped", "free"):
+            for law in ("hgo", "delfino"):
+                yield "FE", ends, "thick", law, (1.1,)
+
+
+def bench_table(n_seeds: int, sources=("cf", "fe"), noises=TABLE_NOISES, fine=False, first_seed: int = 0):
+    from identification import identify
+
+    print(f"\n### Verdicts on independent data imported without the ends or the wall ({n_seeds} seed(s) per row)\n")
+    print("| data | ends | wall | law | stretches | noise | fits trusted | parameters trusted | trusted off > 2 "
+          "half-widths | trusted intervals covering | ends: right / could not tell / wrong | wall: right / could "
+          "not tell / wrong | s per fit |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    totals = {"trusted": 0, "off": 0, "covered": 0, "params": 0, "fits": 0}
+    for source, ends, wall, law, stretches in _table_cases(sources):
+        for noise in noises:
+            row = {"fits": 0, "trusted_fits": 0, "trusted": 0, "params": 0, "off": 0, "covered": 0,
+                   "ends": {"right": 0, "could not tell": 0, "wrong": 0},
+                   "wall": {"right": 0, "could not tell": 0, "wrong": 0}, "t": 0.0}
+            for seed in range(first_seed, first_seed + n_seeds):
+                pos, p, f, thickness = _table_data(source, ends, wall, law, stretches, noise, seed, fine)
+                t0 = time.perf_counter()
+                try:
+                    r = identify(pos, p, f, thickness=thickness, model=law)
+                except Exception as exc:  # noqa: BLE001 - a failed fit is a row entry, not the end of the table
+                    print(f"<!-- {source} {ends} {wall} {law} {noise}: {exc} -->")
+                    continue
+                row["t"] += time.perf_counter() - t0
+                row["fits"] += 1
+                row["trusted_fits"] += r.verdict == "trusted"
+                row["ends"][_decided(r, "ends", ends)] += 1
+                row["wall"][_decided(r, "wall", wall)] += 1
+                truth = PAPER_PARAMETERS[law]
+                for name, v in r.parameters.items():
+                    row["params"] += 1
+                    if r.parameter_verdicts.get(name) != "trusted":
+                        continue
+                    lo, hi = r.uncertainty.interval[name]
+                    half = max(v - lo, hi - v)
+                    row["trusted"] += 1
+                    row["off"] += abs(v - truth[name]) > 2 * half
+                    row["covered"] += lo <= truth[name] <= hi
+            for k in totals:
+                totals[k] += row[k]
+            n = max(row["fits"], 1)
+            print(f"| {source} | {ends} | {wall} | {law} | {len(stretches)} | {noise * 1e3:g} mm "
+                  f"| {row['trusted_fits']}/{row['fits']} | {row['trusted']}/{row['params']} | {row['off']} "
+                  f"| {row['covered']}/{row['trusted']} | {'/'.join(str(v) for v in row['ends'].values())} "
+                  f"| {'/'.join(str(v) for v in row['wall'].values())} | {row['t'] / n:.1f} |", flush=True)
+    cov = totals["covered"] / max(totals["trusted"], 1)
+    print(f"\n**{totals['fits']} fits, {totals['trusted']} of {totals['params']} parameters trusted; trusted off by "
+          f"more than twice the 95 % half-width: {totals['off']}; trusted intervals covering the truth: "
+          f"{totals['covered']}/{totals['trusted']} ({cov:.0%}).**")
+    return totals
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--part", choices=["hygiene", "checks", "fe", "fe-convergence", "all"], default="all")
-    ap.add_argument("--seeds", type=int, default=10, help="noise seeds per row (hygiene, checks)")
+    ap.add_argument("--part", choices=["table", "hygiene", "checks", "fe", "fe-convergence", "all"], default="all")
+    ap.add_argument("--seeds", type=int, default=10, help="noise seeds per row (table, hygiene, checks)")
+    ap.add_argument("--sources", default="cf,fe", help="table: closed form (cf) and/or felupe FE (fe)")
+    ap.add_argument("--noises", default="0.01,0.05,0.17", help="table: marker noise levels, mm")
+    ap.add_argument("--first-seed", type=int, default=0, help="table: the first seed (runs split over machines)")
     ap.add_argument("--fine", action="store_true", help="finer FE meshes (80 x 8 clamped, 8 x 8 free)")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)
+    if args.part in ("table", "all"):
+        bench_table(args.seeds, tuple(args.sources.split(",")),
+                    tuple(float(v) * 1e-3 for v in args.noises.split(",")), args.fine, args.first_seed)
     if args.part in ("hygiene", "all"):
         bench_hygiene(args.seeds)
     if args.part in ("checks", "all"):

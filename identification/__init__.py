@@ -7,9 +7,14 @@ Typical use::
     from identification import identify
     result = identify(positions, pressure, axial_force, thickness=1.3e-3, model="fung")
     result.parameters, result.stderr, result.flags
+    result.verdict, result.parameter_verdicts, result.verdict_reasons   # "trusted" | "doubtful", and why
+
+The defaults (``DEFAULTS``: thick wall unless the data say membrane, ends decided by the data, smoothing
+chosen from the data, bootstrap intervals) are ``vfmlab identify``'s: the same arrays give the same numbers.
 """
 
 from .checks import check_setup
+from .defaults import DEFAULTS, IdentifyDefaults
 from .curves import StressStrainCurves, laplace_curves
 from .efficient import EfficientSettings
 from .design import PAPER_TABLE1, DesignResult, DesignSpecimen, Suggestion, design, suggest_steps
@@ -19,7 +24,8 @@ from .information import BoundResult, TubeExperiment, cramer_rao_bound
 from .kinematics import Kinematics, align_steps, membrane_kinematics
 from .mesh import Axis, SurfaceMesh, build_mesh, describe_dropped, fit_axis, to_cylindrical, to_trimesh
 from .models import Model, available_models, cauchy_stress, get_model, pk2_stress, strain_energy
-from .optimize import identify, identify_noise_weighted
+from .judged import identify
+from .optimize import identify_noise_weighted
 from .regional import RegionalData, RegionalResult, identify_regional, prepare_regional
 from .regional_uncertainty import choose_bands, with_bootstrap
 from .tube_fit import TubeFitResult, TubeObservations, fit_tube, simulate_observations
@@ -30,6 +36,7 @@ from .vfm import PrepareSettings, VFMData, internal_virtual_work, prepare
 from .virtual_fields import VirtualFields, paper_fields
 
 __all__ = [
+    "DEFAULTS", "IdentifyDefaults",
     "Axis", "DegenerateDataError", "IdentificationError", "IdentificationResult", "Kinematics", "MeshError",
     "Model", "PAPER_INITIAL_GUESS", "PrepareSettings", "RegionalData", "RegionalResult", "StressStrainCurves",
     "SurfaceMesh", "Uncertainty", "VFMData", "VirtualFields", "align_steps", "available_models", "bootstrap",

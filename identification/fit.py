@@ -319,6 +319,15 @@ def _statistics(J: np.ndarray, cost: float, x: np.ndarray, model: Model, tr: _Tr
     return stderr, corr, resolution
 
 
+def axial_stretches(data: VFMData, tolerance: float = 0.02) -> int:
+    """Number of distinct axial stretches among the loaded steps (median over the points of each step)."""
+    c22 = np.asarray(data.c)[1:, :, 1]
+    with np.errstate(invalid="ignore"):
+        lz = np.sqrt(np.nanmedian(np.where(c22 > 0, c22, np.nan), axis=1))
+    lz = np.sort(lz[np.isfinite(lz)])
+    return int(1 + np.sum(np.diff(lz) > tolerance)) if lz.size else 0
+
+
 def _flags(model: Model, data: VFMData, tr: _Transform, x, params, stderr, resolution, res, ok, msg) -> list[str]:
     """Plain-words warnings about the fit (identifiability, bounds, fit quality, data)."""
     flags = []
@@ -327,7 +336,8 @@ def _flags(model: Model, data: VFMData, tr: _Transform, x, params, stderr, resol
             unit = "relative" if model.positive[model.parameter_names.index(nm)] else f"x {TYPICAL.get(nm, 1.0):g}"
             flags.append(f"{nm} is poorly identifiable: a change of {value:.2g} ({unit}) can be compensated by the "
                          f"other parameters within a {GAP_FOR_FLAGS:.0%} virtual-work gap; do not trust its value"
-                         + (" (load at two or more axial stretches to constrain it)" if nm == "alpha12" else ""))
+                         + (" (load at two or more axial stretches to constrain it)"
+                            if nm == "alpha12" and axial_stretches(data) < 2 else ""))
     for nm, se in stderr.items():
         i = model.parameter_names.index(nm)
         if model.positive[i] and se > 0.3 * abs(params[nm]):

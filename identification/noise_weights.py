@@ -75,7 +75,12 @@ def gap_noise(data: VFMData, positions: np.ndarray, parameters: Mapping[str, flo
             log.debug("gap-noise replicate failed: %s", exc)
     if len(gaps) < 3:
         raise IdentificationError(f"only {len(gaps)} of {n_replicates} gap-noise replicates could be prepared")
-    return np.std(np.array(gaps), axis=0, ddof=1)
+    with np.errstate(invalid="ignore"):
+        g = np.array(gaps)
+        g = np.where(np.isfinite(g), g, np.nan)  # a replicate's gap that overflowed: left out of that gap's spread
+        n = np.sum(np.isfinite(g), axis=0)
+        sd = np.sqrt(np.nansum((g - np.nanmean(g, axis=0)) ** 2, axis=0) / np.maximum(n - 1, 1))
+    return np.where(n >= 2, sd, np.nan)
 
 
 def weighted_data(data: VFMData, weights: np.ndarray) -> VFMData:
@@ -87,8 +92,9 @@ def weighted_data(data: VFMData, weights: np.ndarray) -> VFMData:
     """
     w = np.asarray(weights, dtype=float)
     if w.shape != data.evw.shape or not np.all(np.isfinite(w) & (w > 0)):
+        bad = int(np.sum(~(np.isfinite(w) & (w > 0)))) if w.shape == data.evw.shape else w.size
         raise ValueError(f"weights must be positive and finite, shape {data.evw.shape} (n_fields, n_steps); "
-                         f"got shape {w.shape}")
+                         f"got shape {w.shape} with {bad} weight(s) not positive and finite")
     evw = data.evw * w
     scale = np.sqrt(np.mean(evw**2, axis=1))  # normalised gaps of order 1 again, as the identifiability checks expect
     return dataclasses.replace(data, evw=evw, work_density=data.work_density * w[:, :, None, None],
@@ -97,8 +103,17 @@ def weighted_data(data: VFMData, weights: np.ndarray) -> VFMData:
 
 
 def weights_from_noise(sd: np.ndarray) -> np.ndarray:
-    """1 / sd (floored at ``WEIGHT_FLOOR`` x the largest), normalised to RMS 1 over the loaded steps."""
-    sd = np.maximum(sd, WEIGHT_FLOOR * float(np.max(sd)))
+    """1 / sd (floored at ``WEIGHT_FLOOR`` x the largest), normalised to RMS 1 over the loaded steps; a spread
+    that is not finite counts as the largest. An IdentificationError when no spread is finite and positive."""
+    sd = np.asarray(sd, dtype=float)
+    finite = np.isfinite(sd) & (sd > 0)
+    if not finite.any():
+        raise IdentificationError("the gap noise could not be measured (no finite, positive spread): the paper's "
+                                  "cost is kept")
+    top = float(np.max(sd[finite]))
+    # a gap whose spread is NaN (a replicate's gap not finite) or 0 gets the largest measured spread: least weight
+    sd = np.where(np.isfinite(sd), sd, top)
+    sd = np.maximum(sd, WEIGHT_FLOOR * top)
     w = 1.0 / sd
     return w / np.sqrt(np.mean(w[:, 1:] ** 2))
 

@@ -17,6 +17,7 @@ import numpy as np
 from .efficient import EfficientSettings, identify_efficient
 from .reference import refine_reference
 from .resimulation import remeasured_mesh
+from .errors import IdentificationError
 from .fit import IdentificationResult, identify_prepared
 from .models import Model
 from .noise_weights import weighted_flags, in_physical_units, used_positions, gap_noise, weighted_data, weights_from_noise
@@ -74,8 +75,8 @@ def identify(
     *,
     thickness: float,
     model: str | Model = "fung",
-    wall: str = "membrane",
-    ends: str = "clamped",
+    wall: str,
+    ends: str,
     optimizer: str = "lsq",
     initial: Mapping[str, float] | None = None,
     n_starts: int = 3,
@@ -85,7 +86,10 @@ def identify(
     efficient: EfficientSettings | None = None,
     **prepare_options,
 ) -> IdentificationResult:
-    """Identify constitutive parameters from marker positions, pressure and axial force.
+    """Identify constitutive parameters from marker positions, pressure and axial force under one stated setting.
+
+    The fit alone: ``identification.identify`` (``judged.identify``) is the entry with the defaults
+    (``identification.DEFAULTS``) that decides the settings not given and judges the result.
 
     Parameters
     ----------
@@ -190,7 +194,14 @@ def identify_noise_weighted(positions, pressure, axial_force, *, thickness: floa
                                                                       "marker_weights", "wall", "ends", "n_starts")}
     sd = gap_noise(data, used_positions(first, positions), first.parameters, model,
                    n_replicates=n_weight_replicates, seed=weight_seed, prepare_options=options)
-    w = weights_from_noise(sd)
+    try:
+        w = weights_from_noise(sd)
+    except IdentificationError as exc:
+        said = (f"weighting='noise' not applied: {exc}",)
+        if uncertainty == "bootstrap":
+            first = identify(positions, pressure, axial_force, thickness=thickness, model=model,
+                             uncertainty=uncertainty, uncertainty_options=uncertainty_options, **prepare_options)
+        return dataclasses.replace(first, flags=first.flags + said)
     wdata = weighted_data(data, w)
     result = dataclasses.replace(identify_prepared(wdata, model, initial=first.parameters),
                                  smoothing=data.smoothing, data=wdata, steps=first.steps)

@@ -108,7 +108,7 @@ def basis_size(smoothing) -> int:
 
 def resimulated_measurements(data: VFMData, positions: np.ndarray, *, marker_sigma: np.ndarray | None = None,
                              pressure_noise: float = 0.0, force_noise: float = 0.0, n_replicates: int = 16,
-                             seed: int = 0):
+                             seed: int = 0, load_noise_fraction: float = 0.0):
     """The measurements ``bootstrap`` re-simulates, for identifications other than ``identify_prepared``
     (e.g. ``identification.regional``): the fitted field plus noise at the level the data show.
 
@@ -130,13 +130,16 @@ def resimulated_measurements(data: VFMData, positions: np.ndarray, *, marker_sig
         if np.isfinite(med) and med > 0:
             shape = np.where(np.isfinite(ms) & (ms > 0), ms / med, 1.0)
     sigma = level * shape
+    # a reading's noise: the sensor's floor and a fraction of the reading (a transducer's accuracy)
+    sd_p = np.hypot(pressure_noise, load_noise_fraction * np.abs(data.pressure))
+    sd_f = np.hypot(force_noise, load_noise_fraction * np.abs(data.axial_force))
 
     def replicates():
         rng = np.random.default_rng(seed)
         for _ in range(int(n_replicates)):
             pos = fitted + sigma[..., None] * rng.standard_normal(fitted.shape)
-            p = data.pressure + pressure_noise * rng.standard_normal(data.pressure.shape) * (data.pressure != 0)
-            f = data.axial_force + force_noise * rng.standard_normal(data.axial_force.shape)
+            p = data.pressure + sd_p * rng.standard_normal(data.pressure.shape) * (data.pressure != 0)
+            f = data.axial_force + sd_f * rng.standard_normal(data.axial_force.shape)
             try:
                 with np.errstate(all="ignore"):
                     mesh = remeasured_mesh(data.mesh, pos[0])

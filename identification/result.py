@@ -52,6 +52,15 @@ class IdentificationResult:
         the step axis of ``residuals``, ``ivw`` and ``evw``.
     data : VFMData or None
         The virtual-work data fitted (set by ``identify``; ``identification.checks`` uses it).
+    verdict : str or None
+        "trusted" or "doubtful" (``identification.identify`` judges every result; None: not judged).
+    verdict_reasons : tuple of str
+        One line each: why the result is doubtful, or what the judgement found (notes).
+    parameter_verdicts, parameter_reasons : dict
+        name -> "trusted" | "doubtful", and name -> one-line reason ("" when trusted).
+    hypotheses : tuple of dict
+        The settings the data were judged under: ``{"ends", "wall", "parameters", "gap_noise_units",
+        "chosen"}`` each (``gap_noise_units``: the RMS virtual-work gap over its noise, the bootstrap spread).
     """
 
     model: str
@@ -75,6 +84,11 @@ class IdentificationResult:
     smoothing: tuple | None = None
     steps: tuple | None = None
     data: Any = field(default=None, repr=False, compare=False)  # the VFMData fitted (set by ``identify``)
+    verdict: str | None = None
+    verdict_reasons: tuple = ()
+    parameter_verdicts: dict = field(default_factory=dict)
+    parameter_reasons: dict = field(default_factory=dict)
+    hypotheses: tuple = field(default=(), compare=False)
 
     @property
     def residual_per_step(self) -> np.ndarray:

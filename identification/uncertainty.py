@@ -121,6 +121,7 @@ def bootstrap(
     gap_weights: np.ndarray | None = None,
     map_replicates: Callable | None = None,
     progress: Callable[[int, int, str], None] | None = None,
+    load_noise_fraction: float = 0.0,
 ) -> Uncertainty:
     """Parametric bootstrap of an identification (see the module docstring).
 
@@ -153,11 +154,15 @@ def bootstrap(
         by default. The replicates are drawn in order before, so the result is the same either way.
     progress : callable, optional
         Called as ``progress(done, n_replicates, "bootstrap")`` before the first and after each replicate.
+    load_noise_fraction : float
+        Noise of a pressure or force reading as a fraction of the reading, added (in quadrature) to
+        ``pressure_noise`` and ``force_noise`` (``identification.DEFAULTS``: 0.1 %).
     """
     model = get_model(result.model)
     level, replicates = resimulated_measurements(data, positions, marker_sigma=marker_sigma,
                                                  pressure_noise=pressure_noise, force_noise=force_noise,
-                                                 n_replicates=n_replicates, seed=seed)
+                                                 n_replicates=n_replicates, seed=seed,
+                                                 load_noise_fraction=load_noise_fraction)
     options = dict(prepare_options or {})
     estimate = np.array([result.parameters[n] for n in model.parameter_names])
     reps, rms, failed = [], [], 0

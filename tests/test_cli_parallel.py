@@ -47,13 +47,13 @@ def test_a_worker_that_dies_has_its_share_recomputed():
 
 
 def test_bootstrap_through_fork_map_is_identical():
-    from identification import identify
+    from identification.optimize import identify
     from identification.uncertainty import bootstrap
     from rig_sim.homogeneous_tube import PAPER, homogeneous
 
     pos, p, f = homogeneous("fung", PAPER["fung"], [1.0, 1.1, 1.2, 1.3], [1.0, 1.1, 1.1, 1.1], n=120, seed=0)
     noisy = pos + np.random.default_rng(1).normal(0.0, 0.02e-3, pos.shape)
-    result = identify(noisy, p, f, thickness=1.3e-3, model="fung", ends="free", smoothing="auto")
+    result = identify(noisy, p, f, thickness=1.3e-3, model="fung", ends="free", smoothing="auto", wall="membrane")
     serial = bootstrap(result.data, result, noisy[list(result.steps)] if result.steps else noisy, n_replicates=6)
     forked = bootstrap(result.data, result, noisy[list(result.steps)] if result.steps else noisy, n_replicates=6,
                        map_replicates=lambda fn, items: fork_map(fn, items, workers=2))

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from identification import identify
+from identification.optimize import identify
 from identification.checks import CHECK_LIMITS, check_setup, end_taper, with_ends
 from rig_sim.mechanics import MMHG, PAPER_PARAMETERS, simulate_test
 

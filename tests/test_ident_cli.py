@@ -39,12 +39,15 @@ def _session(tmp_path, *, measures="wall", force_nan=False, zero_pressure=False,
 @pytest.mark.parametrize("measures", ["wall", "total"])
 def test_identify_json_and_stored_result(tmp_path, capsys, measures):
     path = _session(tmp_path, measures=measures)
-    rc = main(["identify", str(path), "--model", "delfino", "--ends", "free", "--json", "--smooth", "auto"])
+    rc = main(["identify", str(path), "--model", "delfino", "--ends", "free", "--json", "--smooth", "auto",
+               "--wall", "membrane"])
     out = capsys.readouterr().out
     assert rc == 0, out
     doc = json.loads(out)
     assert set(doc) == {"model", "wall", "ends", "ends_source", "parameters", "stderr", "interval_95", "units", "cost",
-                        "converged", "flags", "result_group"}
+                        "converged", "flags", "result_group",
+                        # issue 23: the verdict a program can read
+                        "verdict", "verdict_reasons", "parameter_verdicts", "parameter_reasons", "hypotheses"}
     assert doc["ends"] == "free" and doc["ends_source"] == "--ends option"
     assert doc["units"] == {"beta": "Pa", "alpha": "1"}  # SI, the unit of every parameter said
     # membrane form on membrane data; 'total' readings are corrected with the reference lumen radius
@@ -62,7 +65,7 @@ def test_identify_json_and_stored_result(tmp_path, capsys, measures):
 
 def test_identify_table(tmp_path, capsys):
     path = _session(tmp_path)
-    rc = main(["identify", str(path), "--model", "fung", "--ends", "free", "--smooth", "2,1"])
+    rc = main(["identify", str(path), "--model", "fung", "--ends", "free", "--smooth", "2,1", "--wall", "membrane"])
     out = capsys.readouterr().out
     assert rc == 0
     assert "alpha12" in out and "kPa" in out and "identification_001" in out

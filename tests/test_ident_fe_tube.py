@@ -7,7 +7,8 @@ import pytest
 
 pytest.importorskip("felupe")
 
-from identification import build_mesh, identify  # noqa: E402
+from identification import build_mesh  # noqa: E402
+from identification.optimize import identify  # noqa: E402
 from identification.checks import check_setup  # noqa: E402
 from identification.thick_fields import flat_end_fields  # noqa: E402
 from rig_sim.fe_tube import fe_markers, solve_fe_tube  # noqa: E402

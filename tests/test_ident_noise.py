@@ -8,7 +8,7 @@ regression tests of two measured levers, not the statistics (docs/validation/ide
 import numpy as np
 import pytest
 
-from identification import identify
+from identification.optimize import identify
 from identification import identify_noise_weighted
 from identification.noise_weights import weighted_data
 from identification.vfm import internal_virtual_work, prepare
@@ -39,9 +39,9 @@ def test_reference_radius_noise_no_longer_biases_the_hoop_parameter():
     for seed in range(3):
         noisy = pos.copy()
         noisy[0, :, :2] += np.random.default_rng([seed, 17]).normal(0.0, NOISE, (pos.shape[1], 1)) * radial
-        new.append(_errors(identify(noisy, p, f, thickness=E0, model="fung", ends="free", smoothing="auto")))
+        new.append(_errors(identify(noisy, p, f, thickness=E0, model="fung", ends="free", smoothing="auto", wall="membrane")))
         old.append(_errors(identify(noisy, p, f, thickness=E0, model="fung", ends="free", smoothing="auto",
-                                    smooth_reference=False)))
+                                    smooth_reference=False, wall="membrane")))
     new, old = np.array(new), np.array(old)
     assert np.abs(new).max() < 0.012, new
     assert abs(new[:, 1].mean()) < 0.006, new
@@ -55,9 +55,10 @@ def test_noise_weighted_gaps_halve_the_error_at_the_paper_noise():
     plain, weighted = [], []
     for seed in range(2):
         noisy = pos + np.random.default_rng([seed, 17]).normal(0.0, NOISE, pos.shape)
-        plain.append(_errors(identify(noisy, p, f, thickness=E0, model="fung", ends="free", smoothing="auto")))
+        plain.append(_errors(identify(noisy, p, f, thickness=E0, model="fung", ends="free", smoothing="auto",
+                                      wall="membrane")))
         r = identify_noise_weighted(noisy, p, f, thickness=E0, model="fung", ends="free", smoothing="auto",
-                                    n_weight_replicates=6)
+                                    n_weight_replicates=6, wall="membrane")
         weighted.append(_errors(r))
         # what is stored and checked is the paper's balance at the weighted estimate, in joules
         paper = prepare(noisy, p, f, thickness=E0, ends="free", smoothing="auto")

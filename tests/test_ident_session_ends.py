@@ -82,7 +82,7 @@ def spec_text():
 
 def test_identify_uses_the_recorded_free_ends(tmp_path):
     path, sim = _session_from_sim(tmp_path, clamped=False, recorded="free")
-    group, result, data = identify_stored(path, model="fung")
+    group, result, data = identify_stored(path, model="fung", wall="membrane")
     err = _errors(result, sim.params)
     assert max(abs(e) for e in err.values()) < 0.01, err
     assert not any("ends" in f for f in result.flags), result.flags
@@ -93,7 +93,7 @@ def test_identify_uses_the_recorded_free_ends(tmp_path):
 
 def test_contradicting_ends_option_warns_and_is_stored(tmp_path):
     path, _ = _session_from_sim(tmp_path, clamped=False, recorded="free")
-    group, result, _ = identify_stored(path, model="fung", ends="clamped")
+    group, result, _ = identify_stored(path, model="fung", ends="clamped", wall="membrane")
     assert any("--ends clamped contradicts the session" in f for f in result.flags), result.flags
     with open_session(path) as s:
         stored = s.result(group)
@@ -101,8 +101,9 @@ def test_contradicting_ends_option_warns_and_is_stored(tmp_path):
     assert any("contradicts" in f for f in stored["attrs"]["flags"])
 
 
-def test_unrecorded_ends_assume_clamped_and_say_so():
+def test_unrecorded_ends_are_left_to_the_data_and_say_so():
+    # issue 23: nothing assumed silently; the data decide (identification.identify with ends=None)
     ends, source, notes, warnings = resolve_ends({"ends": "", "source": ""}, None)
-    assert (ends, source, notes) == ("clamped", "assumed", [])
-    assert "assumed clamped" in warnings[0]
+    assert (ends, source, warnings) == (None, "the data", [])
+    assert "the data decide" in notes[0] and "--ends clamped|free" in notes[0]
     assert resolve_ends({"ends": "free", "source": "specimen file"}, "free")[3] == []

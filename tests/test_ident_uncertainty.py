@@ -9,7 +9,8 @@ The full studies (50 seeds, 0.01 / 0.05 / 0.17 mm) are ``python -m benchmarks.be
 import numpy as np
 import pytest
 
-from identification import identify, prepare
+from identification import prepare
+from identification.optimize import identify
 from identification.uncertainty import bootstrap, remeasured_mesh
 from rig_sim.homogeneous_tube import PAPER, homogeneous, lam_t_for_pressures
 
@@ -30,7 +31,7 @@ def _noisy_fit(noise, seed, n_replicates=8):
     rng = np.random.default_rng([seed, 11])
     noisy = pos + rng.normal(0.0, noise, pos.shape)
     return identify(noisy, p, f, thickness=1.3e-3, model="fung", ends="free", smoothing="auto",
-                    uncertainty="bootstrap", uncertainty_options={"n_replicates": n_replicates, "seed": seed})
+                    uncertainty="bootstrap", uncertainty_options={"n_replicates": n_replicates, "seed": seed}, wall="membrane")
 
 
 def test_bootstrap_intervals_cover_the_truth_and_are_not_vacuous():
@@ -66,7 +67,7 @@ def test_auto_smoothing_is_stable_at_low_noise():
         noisy = pos + np.random.default_rng([seed, 13]).normal(0.0, 0.01e-3, pos.shape)
         data = prepare(noisy, p, f, thickness=1.3e-3, ends="free", smoothing="auto")
         assert data.smoothing is not None
-        res = identify(noisy, p, f, thickness=1.3e-3, model="fung", ends="free", smoothing="auto")
+        res = identify(noisy, p, f, thickness=1.3e-3, model="fung", ends="free", smoothing="auto", wall="membrane")
         for name in MAIN:
             assert res.parameters[name] == pytest.approx(TRUTH[name], rel=0.02), res.parameters
 
@@ -81,7 +82,7 @@ def test_remeasured_mesh_keeps_the_triangulation_and_the_field_ends():
     top = np.unique(mesh.top_edges)
     assert mesh.z_top == pytest.approx(np.min(mesh.z[top]))
     with pytest.raises(ValueError, match="n_replicates"):
-        bootstrap(data, identify(pos, p, f, thickness=1.3e-3, model="fung", ends="free"), pos, n_replicates=2)
+        bootstrap(data, identify(pos, p, f, thickness=1.3e-3, model="fung", ends="free", wall="membrane"), pos, n_replicates=2)
 
 
 @pytest.mark.parametrize("weighting", ["paper", "noise"])
@@ -94,7 +95,7 @@ def test_a_step_left_out_is_left_out_of_the_per_step_marker_uncertainty(weightin
     sigma = np.full(noisy.shape[:2], 0.01e-3)
     r = identify(noisy, p, f, thickness=1.3e-3, model="fung", ends="free", smoothing="auto",
                  uncertainty="bootstrap", weighting=weighting,
-                 uncertainty_options={"n_replicates": 5, "seed": 0, "marker_sigma": sigma})
+                 uncertainty_options={"n_replicates": 5, "seed": 0, "marker_sigma": sigma}, wall="membrane")
     assert r.steps is not None and 4 not in r.steps and len(r.steps) == len(p) - 1
     assert any("[4] were left out" in fl for fl in r.flags), r.flags
     for name in MAIN:

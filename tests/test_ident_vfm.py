@@ -3,8 +3,9 @@
 import numpy as np
 import pytest
 
-from identification import (DegenerateDataError, MeshError, build_mesh, fit_axis, identify, identify_prepared,
+from identification import (DegenerateDataError, MeshError, build_mesh, fit_axis, identify_prepared,
                             membrane_kinematics, prepare, to_trimesh)
+from identification.optimize import identify
 from rig_sim.homogeneous_tube import E0, PAPER, R0, homogeneous, lam_t_for_pressures
 from identification.mesh import describe_dropped
 
@@ -89,7 +90,7 @@ def test_exact_homogeneous_data_gives_exact_parameters(model, start):
         initial = {"fung": {"beta": 10e3, "alpha11": 1.0, "alpha22": 1.0, "alpha12": 0.0},
                    "delfino": {"beta": 10e3, "alpha": 1.0},
                    "hgo": {"c": 5e3, "k1": 1e3, "k2": 1.0, "phi": 0.6}}[model]
-    res = identify(pos, p, f, thickness=E0, model=model, ends="free", initial=initial, n_starts=1)
+    res = identify(pos, p, f, thickness=E0, model=model, ends="free", initial=initial, n_starts=1, wall="membrane")
     assert res.converged
     poorly = {name for name in res.parameters if any(fl.startswith(f"{name} is poorly") for fl in res.flags)}
     for name, value in res.parameters.items():
@@ -102,10 +103,10 @@ def test_exact_homogeneous_data_gives_exact_parameters(model, start):
 
 def test_alpha12_flagged_for_one_stretch_not_for_two():
     pos, p, f = _single_stretch("fung")
-    single = identify(pos, p, f, thickness=E0, model="fung", ends="free")
+    single = identify(pos, p, f, thickness=E0, model="fung", ends="free", wall="membrane")
     assert any(fl.startswith("alpha12 is poorly identifiable") for fl in single.flags)
     pos, p, f = _multi_stretch("fung")
-    multi = identify(pos, p, f, thickness=E0, model="fung", ends="free")
+    multi = identify(pos, p, f, thickness=E0, model="fung", ends="free", wall="membrane")
     assert not any(fl.startswith("alpha12") for fl in multi.flags), multi.flags
     assert multi.parameters["alpha12"] == pytest.approx(PAPER["fung"]["alpha12"], rel=5e-3)
     assert single.resolution["alpha12"] > 2 * multi.resolution["alpha12"]
@@ -113,11 +114,11 @@ def test_alpha12_flagged_for_one_stretch_not_for_two():
 
 def test_identification_is_objective():
     pos, p, f = _single_stretch("delfino")
-    base = identify(pos, p, f, thickness=E0, model="delfino", ends="free")
+    base = identify(pos, p, f, thickness=E0, model="delfino", ends="free", wall="membrane")
     moved = pos.copy()
     for k in range(1, len(pos)):
         moved[k] = pos[k] @ _rotation([0.2 * k, -0.1, 0.3]).T + 0.01 * k
-    other = identify(moved, p, f, thickness=E0, model="delfino", ends="free")
+    other = identify(moved, p, f, thickness=E0, model="delfino", ends="free", wall="membrane")
     for name in base.parameters:
         assert other.parameters[name] == pytest.approx(base.parameters[name], rel=1e-8)
 
@@ -173,11 +174,11 @@ def test_smoothing_tames_marker_noise():
     pos, p, f = _single_stretch("fung")
     rng = np.random.default_rng(3)
     noisy = pos + rng.normal(0.0, 0.05e-3, pos.shape)
-    smooth = identify(noisy, p, f, thickness=E0, model="fung", ends="free", smoothing=(4, 2))
+    smooth = identify(noisy, p, f, thickness=E0, model="fung", ends="free", smoothing=(4, 2), wall="membrane")
     raw = prepare(noisy, p, f, thickness=E0, ends="free")
     assert raw.marker_noise == pytest.approx(0.05e-3, rel=0.15)
     assert any("markers look noisy" in fl for fl in identify_prepared(raw, "fung").flags)
-    auto = identify(noisy, p, f, thickness=E0, model="fung", ends="free", smoothing="auto")
+    auto = identify(noisy, p, f, thickness=E0, model="fung", ends="free", smoothing="auto", wall="membrane")
     # homogeneous data: cross-validation picks a low-order basis for every component
     chosen = prepare(noisy, p, f, thickness=E0, ends="free", smoothing="auto").smoothing
     assert chosen is not None and all(nz <= 2 and nt <= 2 for nz, nt in chosen), chosen
@@ -185,7 +186,7 @@ def test_smoothing_tames_marker_noise():
         assert smooth.parameters[name] == pytest.approx(PAPER["fung"][name], rel=0.05), smooth.parameters
         assert auto.parameters[name] == pytest.approx(PAPER["fung"][name], rel=0.05), auto.parameters
     # exact homogeneous data lie in the smoothing basis: smoothing then changes nothing
-    exact = identify(pos, p, f, thickness=E0, model="fung", ends="free", smoothing=(4, 2))
+    exact = identify(pos, p, f, thickness=E0, model="fung", ends="free", smoothing=(4, 2), wall="membrane")
     assert exact.parameters["beta"] == pytest.approx(PAPER["fung"]["beta"], rel=1e-6)
 
 
@@ -239,7 +240,7 @@ def test_user_virtual_fields():
     values[0, :, 0] = np.sin(np.pi * zeta) ** 2  # a different radial bump
     values[1, :, 2] = zeta**2  # a non-linear axial field, still 0 / 1 on the ends
     mine = VirtualFields(names=("bump", "axial2"), values=values, load_end=np.array([0.0, 1.0]))
-    res = identify(pos, p, f, thickness=E0, model="delfino", ends="free", mesh=mesh, fields=mine)
+    res = identify(pos, p, f, thickness=E0, model="delfino", ends="free", mesh=mesh, fields=mine, wall="membrane")
     assert res.field_names == ("bump", "axial2")
     for name, value in PAPER["delfino"].items():
         assert res.parameters[name] == pytest.approx(value, rel=1e-6)

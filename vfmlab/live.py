@@ -60,14 +60,15 @@ def render_live_results(status) -> Group:
     if status.estimates:
         table = Table(box=None, padding=(0, 2), show_edge=False)
         for column, justify in (("model", "left"), ("parameter", "left"), ("value", "right"), ("± std. err.", "right"),
-                                ("steps", "right")):
+                                ("steps", "right"), ("verdict", "left")):
             table.add_column(column, justify=justify)
         for model, est in status.estimates.items():
             for i, name in enumerate(est.names):
                 scale, unit = parameter_unit(model, name)
                 table.add_row(model if i == 0 else "", escape(f"{name} [{unit}]") if unit else name,
                               f"{est.values[i] / scale:.4g}", f"{est.stderr[i] / scale:.2g}",
-                              str(len(est.rows)) if i == 0 else "")
+                              str(len(est.rows)) if i == 0 else "",
+                              (getattr(est.result, "parameter_verdicts", None) or {}).get(name, ""))
         parts.append(table)
     left_out = [f"rows {list(status.skipped_rows)} failed (not in the estimates)" if status.skipped_rows else "",
                 f"rows {list(status.partial_rows)} seen only in part" if status.partial_rows else ""]

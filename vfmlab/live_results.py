@@ -112,7 +112,8 @@ class LiveResults:
         m.
     load_cell_measures : {"wall", "total"}
         A "total" reading is corrected to the wall force (+ p pi r_i^2, decision 0003).
-    ends : {"free", "clamped"}
+    ends : {"free", "clamped"} or None
+        None: the data decide (``identification.DEFAULTS``, as ``vfmlab identify``).
     cameras : list of Camera, optional
         Calibrated cameras; default: :func:`calibrate_from_session` at the reference step.
     calibrate : callable () -> list of Camera, optional
@@ -121,7 +122,7 @@ class LiveResults:
 
     def __init__(self, session: str | Path, *, thickness: float, radius: float | None = None,
                  models: Sequence[str] = ("fung",), marker_diameter: float = 0.4e-3,
-                 load_cell_measures: str = "wall", ends: str = "free", cameras: list | None = None,
+                 load_cell_measures: str = "wall", ends: str | None = None, cameras: list | None = None,
                  calibrate: Callable[[], list] | None = None) -> None:
         if load_cell_measures not in ("wall", "total"):
             raise ValueError(f"load_cell_measures must be 'wall' or 'total'; got {load_cell_measures!r}")
@@ -198,10 +199,12 @@ class LiveResults:
                 markers[key] = self._store_markers(path, est, calibration)
                 self.stored_inputs.append(markers[key])
             arrays, settings, attrs = identification_arrays(est.result, est.rows)
-            settings.update(model=model, wall="membrane", ends=self.ends, optimizer="lsq", smoothing="auto",
-                            markers_result=markers[key], calibration_result=calibration,
+            data = est.result.data
+            wall = data.wall if data is not None else est.result.wall
+            settings.update(model=model, wall=wall, ends=data.ends if data is not None else self.ends, optimizer="lsq",
+                            smoothing="auto", markers_result=markers[key], calibration_result=calibration,
                             thickness_m=round_floats(self.thickness))
-            attrs.update(model=model, wall="membrane", invoked_by="run (live)",
+            attrs.update(model=model, wall=wall, invoked_by="run (live)",
                          flags=list(est.flags) + self._missing_flags(est.rows))
             names.append(write_result(path, "identification", arrays, settings, attrs=attrs,
                                       units={"ivw": "J", "evw": "J", "residuals": "1"}))
@@ -312,9 +315,10 @@ class LiveResults:
         estimates = dict(self.status().estimates)
         for model in self.models:
             try:
-                # the command's defaults (smoothing chosen from the data); Gauss-Newton errors keep pace with the rig
+                # the command's defaults (identification.DEFAULTS: wall and ends judged, smoothing chosen from the
+                # data); Gauss-Newton errors keep pace with the rig (the verdict says they are not meant to cover)
                 res = identify(positions, readings[:, 1], readings[:, 2], thickness=self.thickness, model=model,
-                               ends=self.ends, smoothing="auto")
+                               ends=self.ends, uncertainty="gauss-newton")
             except Exception as exc:  # noqa: BLE001 - one model failing must not hide the others
                 log.info("live results: %s not identified from %d steps: %s", model, positions.shape[0], exc)
                 self._set(error=f"{model}: {exc}")

@@ -325,7 +325,7 @@ def _live_results(path: Path, specimen: SpecimenFile, rig: RigConfig, models: tu
     from vfmlab.live_results import LiveResults
 
     kwargs = dict(thickness=specimen.thickness, radius=specimen.radius, models=tuple(models),
-                  load_cell_measures=rig.load_cell.measures)
+                  load_cell_measures=rig.load_cell.measures, ends=getattr(specimen, "ends", "") or None)
     kwargs.update(options or {})
     return LiveResults(path, **kwargs)
 

@@ -25,6 +25,7 @@ from acquisition.plausibility import check_geometry, check_identifiable
 from acquisition.session import SessionError, SessionWriteError, open_session, write_result
 from vfmlab.parallel import fork_map
 from vfmlab.results import round_floats
+from vfmlab.stages.settings import IDENTIFY_DEFAULTS as _D
 from vfmlab.stages.errors import StageError, StageUnavailable
 from vfmlab.stages.imports import marker_outliers
 
@@ -32,13 +33,13 @@ log = logging.getLogger(__name__)
 
 #: Standard deviation of a pressure reading used for the parameter uncertainty (Pa): ~0.02 mmHg,
 #: a controller-grade transducer averaged over the dwell.
-PRESSURE_NOISE = 3.0
+PRESSURE_NOISE = _D.pressure_noise
 #: Standard deviation of a load-cell reading used for the parameter uncertainty (N).
-FORCE_NOISE = 0.002
+FORCE_NOISE = _D.force_noise
 
 __all__ = ["STAGES", "StageError", "StageUnavailable", "identification_arrays", "identify_session", "identify_stored",
            "load_identification_inputs", "read_identification_inputs", "reconstruct_session", "reconstruct_stored",
-           "resolve_ends", "session_calibrated_cameras", "session_step_rows"]
+           "resolve_ends", "session_calibrated_cameras", "session_step_rows", "verdict_attrs"]
 
 
 def load_identification_inputs(session, markers: str | None = None) -> dict[str, Any]:
@@ -85,8 +86,8 @@ def load_identification_inputs(session, markers: str | None = None) -> dict[str,
         force = force + pressure * np.pi * r_i**2
         notes.append(f"load cell measures total force: wall force = total + p*pi*r_i^2 with r_i = {r_i * 1e3:.3f} mm")
     uncertainty = np.asarray(arrays["uncertainty"], float) if "uncertainty" in arrays else None
-    if uncertainty is not None and uncertainty.shape != positions.shape[:2]:
-        uncertainty = None
+    if uncertainty is not None and (uncertainty.shape != positions.shape[:2] or not np.isfinite(uncertainty).any()):
+        uncertainty = None  # imported markers say no uncertainty (all NaN): none given
     return {"positions": positions, "pressure": pressure, "force": force, "thickness": float(specimen.thickness),
             "radius": float(specimen.radius), "length": float(specimen.length), "session_ends": ends,
             "markers_result": result["name"], "rows": rows, "notes": notes, "uncertainty": uncertainty}
@@ -109,11 +110,7 @@ def read_identification_inputs(path: str | os.PathLike, markers: str | None = No
         raise StageError(str(exc)) from None
 
 
-#: End condition assumed when neither the session nor the user says: real specimens are tied on cannulae.
-ASSUMED_ENDS = "clamped"
-
-
-def resolve_ends(session_ends: dict[str, str], requested: str | None) -> tuple[str, str, list[str], list[str]]:
+def resolve_ends(session_ends: dict[str, str], requested: str | None) -> tuple[str | None, str, list[str], list[str]]:
     """The end condition to identify with, where it comes from, notes and warnings.
 
     Parameters
@@ -123,8 +120,9 @@ def resolve_ends(session_ends: dict[str, str], requested: str | None) -> tuple[s
 
     Returns
     -------
-    (ends, source, notes, warnings): ``source`` says who decided ("session (simulated specimen ...)",
-    "--ends option", "assumed"); a ``requested`` value against the session's record gives a warning.
+    (ends, source, notes, warnings): ``ends`` None when neither says (the data decide,
+    ``identification.identify``); ``source`` says who decided ("session (simulated specimen ...)",
+    "--ends option", "the data"); a ``requested`` value against the session's record gives a warning.
     """
     recorded, where = session_ends.get("ends", ""), session_ends.get("source", "") or "session"
     if requested is not None and requested not in ("clamped", "free"):
@@ -132,9 +130,8 @@ def resolve_ends(session_ends: dict[str, str], requested: str | None) -> tuple[s
     if requested is None:
         if recorded:
             return recorded, f"session ({where})", [f"end conditions {recorded}, as the session records ({where})"], []
-        note = (f"the session does not record the end conditions: assumed {ASSUMED_ENDS} (tube tied on cannulae); "
-                "give --ends free if the marked tube is uniform up to the load cell")
-        return ASSUMED_ENDS, "assumed", [], [note]
+        return None, "the data", ["the session does not record the end conditions: the data decide between clamped "
+                                  "and free (the verdict says whether they could); pass --ends clamped|free if known"], []
     if recorded and recorded != requested:
         return requested, "--ends option", [], [
             f"--ends {requested} contradicts the session, which records {recorded} ends ({where}); the result uses "
@@ -160,9 +157,10 @@ def session_board_detections(session: Any, spec: Any, advance: Callable[[], None
     return detections, sizes
 
 
-def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str = "membrane", ends: str | None = None,
-                    optimizer: str = "lsq", smoothing: str | tuple[int, int] | None = "auto", markers: str | None = None,
-                    uncertainty: str = "bootstrap", check: bool = True, weighting: str = "paper",
+def identify_stored(path: str | os.PathLike, *, model: str = _D.model, wall: str | None = _D.wall,
+                    ends: str | None = _D.ends, optimizer: str = _D.optimizer,
+                    smoothing: str | tuple[int, int] | None = _D.smoothing, markers: str | None = None,
+                    uncertainty: str = _D.uncertainty, check: bool = True, weighting: str = _D.weighting,
                     invoked_by: str = "pipeline",
                     progress: Callable[[int, int, str], None] | None = None) -> tuple[str, Any, dict[str, Any]]:
     """Identify ``model`` from the session's marker tracks with the VFM and store an "identification" result.
@@ -171,10 +169,10 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
     ----------
     path : session file.
     model : "fung" | "delfino" | "hgo" | "neohookean".
-    wall : "membrane" | "thick".
-    ends : "clamped" | "free", or None (default) for what the session records (assumed clamped,
-        with a warning, when it records nothing). A value against the session's record is used,
-        with a warning in the result's flags.
+    wall : "membrane" | "thick", or None (default): thick unless the data say membrane.
+    ends : "clamped" | "free", or None (default) for what the session records (decided by the data
+        when it records nothing). A value against the session's record is used, with a warning in
+        the result's flags. The defaults are ``identification.DEFAULTS``: the library's.
     optimizer : "lsq" | "nelder-mead".
     smoothing : (axial Legendre degree, circumferential harmonics) to smooth the measured
         displacements first, "auto" (the basis chosen from the data; none when the markers look
@@ -188,8 +186,8 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
         ``optimizer="lsq"`` only, else the paper's cost). "noise" halves the errors on i.i.d. marker
         noise but not on rendered sessions, whose low-pressure steps carry systematic errors it does
         not model (docs/validation/identification.md "Noise").
-    check : run the setting checks (``identification.checks``: end conditions and wall form
-        against the data's own evidence) and add their warnings to the flags.
+    check : judge the result (``identification.verdict``: end conditions, wall form and law
+        against the data's own evidence, in noise units): ``verdict`` and the reasons are stored.
     invoked_by : recorded in the result's attributes (e.g. "identify", "reprocess").
 
     Returns
@@ -219,28 +217,33 @@ def identify_stored(path: str | os.PathLike, *, model: str = "fung", wall: str =
         progress(0, 1, f"fitting {model}")
     force_notes = list(data["notes"])
     data["notes"] = force_notes + ends_notes
+    if not check and (ends is None or wall is None):
+        raise StageError(f"{path}: check=False needs the ends and the wall given; got ends={ends!r}, wall={wall!r}")
     try:
         result = identify(data["positions"], data["pressure"], data["force"], thickness=data["thickness"],
                           model=model, wall=wall, ends=ends, optimizer=optimizer, smoothing=smoothing,
-                          uncertainty=uncertainty, weighting=weighting, uncertainty_options={
+                          uncertainty=uncertainty, weighting=weighting, judged=check, uncertainty_options={
                               "marker_sigma": data["uncertainty"], "pressure_noise": PRESSURE_NOISE,
                               "force_noise": FORCE_NOISE,
                               # the re-identifications on both cores: the same results, ~half the time idle
                               "map_replicates": fork_map, "progress": progress} if uncertainty == "bootstrap" else None)
     except (IdentificationError, ValueError) as exc:
         raise StageError(f"{path}: cannot identify {model}: {exc}") from None
-    used = data["positions"] if result.steps is None else data["positions"][list(result.steps)]
-    checks = _check_setup(result, used) if check else None
-    result = replace(result, flags=tuple(warnings) + tuple(result.flags) + (checks.flags if checks else ()))
+    result = replace(result, flags=tuple(warnings) + tuple(result.flags))
     if result.data is not None:
         data["notes"].append(describe_dropped(result.data.mesh.dropped))
+    wall = result.wall if result.data is None else result.data.wall
+    ends = ends if result.data is None else result.data.ends
+    if ends_source == "the data":
+        ends_source = "the data" if result.verdict == "trusted" or not any(
+            "ends" in r and "cannot tell" in r for r in result.verdict_reasons) else "the data could not tell"
     settings = {"model": model, "wall": wall, "ends": ends, "ends_source": ends_source, "optimizer": optimizer,
                 "smoothing": smoothing, "markers_result": data["markers_result"],
                 # what was used: exact-looking (unsmoothed) data keep the paper's cost
                 "weighting": weighting if result.smoothing is not None else "paper",
                 "thickness_m": round_floats(data["thickness"]),
                 "force_correction": force_notes}
-    arrays, _, attrs = identification_arrays(result, data["rows"], checks)
+    arrays, _, attrs = identification_arrays(result, data["rows"])
     attrs.update({"model": model, "wall": wall, "invoked_by": invoked_by, "notes": data["notes"]})
     data["settings"] = settings
     try:
@@ -281,18 +284,21 @@ def identification_arrays(result: Any, rows: np.ndarray, checks: Any = None) -> 
     if checks is not None:
         attrs.update({"check_taper": list(checks.taper), "check_gap": checks.gap,
                       "check_gap_other_ends": checks.gap_other_ends, "check_gap_other_wall": checks.gap_other_wall})
+    attrs.update(verdict_attrs(result))
     return arrays, {}, attrs
 
 
-def _check_setup(result, positions):
-    """``identification.checks.check_setup``, or None if it cannot run on this result."""
-    from identification.checks import check_setup
-
-    try:
-        return check_setup(result, positions)
-    except (ValueError, ArithmeticError) as exc:
-        log.warning("setting checks skipped: %s", exc)
-        return None
+def verdict_attrs(result: Any) -> dict[str, Any]:
+    """The verdict of a judged result as stored attributes (the storage contract: ``verdict``,
+    ``verdict_reasons``, ``parameter_verdicts``, ``parameter_reasons`` as JSON text, and the settings
+    judged, ``hypotheses``); empty for a result that was not judged."""
+    if getattr(result, "verdict", None) is None:
+        return {}
+    return {"verdict": result.verdict, "verdict_reasons": json.dumps(list(result.verdict_reasons)),
+            "parameter_verdicts": json.dumps(dict(result.parameter_verdicts)),
+            "parameter_reasons": json.dumps(dict(result.parameter_reasons)),
+            "hypotheses": json.dumps([{**h, "parameters": {k: float(v) for k, v in h["parameters"].items()}}
+                                      for h in result.hypotheses])}
 
 
 def data_smoothing(result) -> list | None:

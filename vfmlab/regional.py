@@ -112,8 +112,18 @@ def _identify(data, spec: RegionsSpec, model, wall, ends, smoothing, uncertainty
     return rd, result, choice
 
 
+def _settings_from_data(data, model, wall, ends, smoothing) -> tuple[str, str, list[str]]:
+    """The wall form and end conditions not given, as the judged homogeneous fit (``identification.identify``)
+    decides them, and what it said."""
+    from identification import identify
+
+    r = identify(data["positions"], data["pressure"], data["force"], thickness=data["thickness"], model=model,
+                 wall=wall, ends=ends, smoothing=smoothing, uncertainty="gauss-newton")
+    return r.data.wall, r.data.ends, [f"settings from the homogeneous fit: {x}" for x in r.verdict_reasons]
+
+
 def identify_regional_stored(path: str | os.PathLike, *, regions: RegionsSpec | int | str, model: str = "fung",
-                             wall: str = "membrane", ends: str | None = None,
+                             wall: str | None = None, ends: str | None = None,
                              smoothing: str | tuple[int, int] | None = "auto", markers: str | None = None,
                              uncertainty: str = "bootstrap", invoked_by: str = "pipeline",
                              progress: Callable[[int, int, str], None] | None = None) -> tuple[str, Any, dict]:
@@ -143,6 +153,10 @@ def identify_regional_stored(path: str | os.PathLike, *, regions: RegionsSpec | 
     ends, ends_source, ends_notes, ends_warnings = resolve_ends(data["session_ends"], ends)
     data["notes"] = list(data["notes"]) + ends_notes + ends_warnings
     try:
+        if ends is None or wall is None:
+            wall, ends, said = _settings_from_data(data, model, wall, ends, smoothing)
+            data["notes"] += said
+            ends_source = ends_source if ends_source != "the data" else "the data (homogeneous fit)"
         rd, result, choice = _identify(data, spec, model, wall, ends, smoothing, uncertainty, progress)
     except (IdentificationError, ValueError) as exc:
         raise StageError(f"{path}: cannot identify regional {model} with --regions {spec}: {exc}") from None

@@ -59,10 +59,11 @@ class SessionOutcome:
         return {**asdict(self), "ok": self.ok}
 
 
-def plan_runs(stages: Sequence[str], *, models: Sequence[str] = ("fung",), walls: Sequence[str] = ("membrane",),
+def plan_runs(stages: Sequence[str], *, models: Sequence[str] = ("fung",), walls: Sequence[str | None] = (None,),
               identify_settings: Mapping[str, Any] | None = None,
               reconstruct_settings: Mapping[str, Any] | None = None) -> list[Run]:
-    """The runs for each session: reconstruct once, then identify once per (model, wall)."""
+    """The runs for each session: reconstruct once, then identify once per (model, wall); a wall None is the
+    identification's default (thick unless the data say membrane)."""
     from vfmlab.pipeline import STAGE_ORDER, STAGES
 
     unknown = [s for s in stages if s not in STAGES]
@@ -100,7 +101,7 @@ def process_session(path: str, runs: Sequence[Run], invoked_by: str = "reprocess
     If a reconstruct run fails, the identify runs after it are skipped (they would use stale tracks).
     """
     from vfmlab.pipeline import STAGES, StageError
-    from vfmlab.results import identification_parameters
+    from vfmlab.results import identification_parameters, stored_verdict
 
     t0 = time.perf_counter()
     out = SessionOutcome(path=str(path))
@@ -143,7 +144,8 @@ def process_session(path: str, runs: Sequence[Run], invoked_by: str = "reprocess
                 "settings": r["parameters"], "cost": float(r["attrs"].get("cost", float("nan"))),
                 "converged": bool(r["attrs"].get("converged", False)),
                 "flags": [str(f) for f in (r["attrs"].get("flags") or [])],
-                "parameters": identification_parameters(r), "version": str(r["attrs"].get("version", ""))})
+                "parameters": identification_parameters(r), "version": str(r["attrs"].get("version", "")),
+                **stored_verdict(r["attrs"])})
     out.seconds = time.perf_counter() - t0
     return out
 
@@ -224,7 +226,8 @@ def _run_dask(paths, runs, scheduler, done, invoked_by) -> None:
 
 
 SUMMARY_FIXED = ["session", "specimen", "status", "result", "model", "wall", "optimizer", "ends", "cost",
-                 "converged", "n_flags", "version", "error"]
+                 "converged", "n_flags", "verdict", "verdict_reasons", "version", "error"]
+
 
 
 def summary_rows(outcomes: Sequence[SessionOutcome]) -> list[dict[str, Any]]:
@@ -239,11 +242,14 @@ def summary_rows(outcomes: Sequence[SessionOutcome]) -> list[dict[str, Any]]:
             row = {"session": o.path, "specimen": o.specimen, "status": "ok", "result": ident["result"],
                    "model": ident["model"], "wall": ident["wall"], "optimizer": ident["settings"].get("optimizer", ""),
                    "ends": ident["settings"].get("ends", ""), "cost": ident["cost"], "converged": ident["converged"],
-                   "n_flags": len(ident["flags"]), "version": ident["version"], "error": ""}
+                   "n_flags": len(ident["flags"]), "verdict": ident.get("verdict", ""),
+                   "verdict_reasons": " | ".join(ident.get("verdict_reasons", [])), "version": ident["version"],
+                   "error": ""}
             for name, p in ident["parameters"].items():
                 suffix = f"_{p['unit']}" if p.get("unit") not in (None, "", "1") else ""  # SI unit in the header
                 row[f"{name}{suffix}"] = p["value"]
                 row[f"{name}_stderr{suffix}"] = p["stderr"]
+                row[f"{name}_verdict"] = ident.get("parameter_verdicts", {}).get(name, "")
             rows.append(row)
         for err in o.errors:
             rows.append({"session": o.path, "specimen": o.specimen, "status": "failed", "error": err})

@@ -7,6 +7,8 @@ significant digits (:func:`round_floats`), so that 1.3 mm typed by a user reads 
 
 from __future__ import annotations
 
+import json
+
 from typing import Any
 
 import numpy as np
@@ -14,7 +16,7 @@ import numpy as np
 from acquisition.session import Session, SessionError
 
 __all__ = ["summarize_result", "list_results", "compare_results", "identification_parameters", "round_floats",
-           "side_by_side", "unit_keys"]
+           "side_by_side", "stored_verdict", "unit_keys"]
 
 #: stored setting names of older results -> the name with its unit (what newer results store)
 UNIT_KEYS = {"thickness": "thickness_m"}
@@ -72,6 +74,19 @@ def _scalar(value: Any) -> Any:
     return value
 
 
+def stored_verdict(attrs: dict[str, Any]) -> dict[str, Any]:
+    """The verdict stored with an identification result (``verdict``, ``verdict_reasons`` list,
+    ``parameter_verdicts`` and ``parameter_reasons`` dicts); empty values for results stored before verdicts."""
+    def load(key, empty):
+        try:
+            return json.loads(attrs[key]) if key in attrs else empty
+        except (TypeError, ValueError):
+            return empty
+
+    return {"verdict": str(attrs.get("verdict", "")), "verdict_reasons": load("verdict_reasons", []),
+            "parameter_verdicts": load("parameter_verdicts", {}), "parameter_reasons": load("parameter_reasons", {})}
+
+
 def summarize_result(result: dict[str, Any]) -> dict[str, Any]:
     """One row describing a result: name, kind, date, version, settings and the key figures of its kind."""
     attrs = result["attrs"]
@@ -84,8 +99,8 @@ def summarize_result(result: dict[str, Any]) -> dict[str, Any]:
     if kind == "identification":
         row.update(model=str(attrs.get("model", "")), wall=str(attrs.get("wall", "")),
                    cost=_scalar(attrs.get("cost")), converged=bool(attrs.get("converged", False)),
-                   flags=attrs.get("flags", {}), parameters=identification_parameters(result))
-        row.update(_verdicts(attrs))
+                   flags=attrs.get("flags", {}), parameters=identification_parameters(result),
+                   **stored_verdict(attrs))
     elif kind == "markers" and "positions" in a:
         pos = np.asarray(a["positions"])
         visible = np.asarray(a.get("visible", np.isfinite(pos).all(axis=-1)), bool)
@@ -95,18 +110,6 @@ def summarize_result(result: dict[str, Any]) -> dict[str, Any]:
         row.update(cameras=[str(c) for c in a.get("camera_names", [])],
                    rms_px=[float(v) for v in np.asarray(a["rms"], float).ravel()])
     return row
-
-
-def _verdicts(attrs: dict[str, Any]) -> dict[str, Any]:
-    """The verdict attributes of an identification result (HELPERS' contract), those stored; older results have
-    none."""
-    out: dict[str, Any] = {}
-    if "verdict" in attrs:
-        out["verdict"] = str(attrs["verdict"])
-    for key in ("verdict_reasons", "parameter_verdicts", "parameter_reasons"):
-        if key in attrs:
-            out[key] = attrs[key]
-    return out
 
 
 def side_by_side(rows: list[dict[str, Any]]) -> dict[str, Any]:

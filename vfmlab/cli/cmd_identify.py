@@ -18,8 +18,8 @@ WALL_NOTE = {
 EPILOG = """
 \b
 Examples:
-  vfmlab identify a1.h5                                   # Fung, membrane, clamped ends
-  vfmlab identify a1.h5 --model hgo --wall thick --smooth 4,2
+  vfmlab identify a1.h5                                   # Fung; ends, wall: stated or judged by the data
+  vfmlab identify a1.h5 --model hgo --wall membrane --ends free --smooth 4,2
   vfmlab identify a1.h5 --model delfino --json > delfino.json
   vfmlab identify a1.h5 --regions 4                       # beta per axial band (where is the wall weaker?)
   vfmlab identify a1.h5 --regions auto                    # band count chosen from the data
@@ -31,13 +31,14 @@ Examples:
 @click.argument("session_path", metavar="SESSION", type=click.Path(exists=True, dir_okay=False))
 @click.option("--model", type=ModelChoice(), default="fung",
               show_default=True, help="Constitutive model.")
-@click.option("--wall", type=click.Choice(["membrane", "thick"]), default="membrane", show_default=True,
-              help="membrane: the paper's plain form; thick: markers on the outer surface, pressure on the lumen.")
+@click.option("--wall", type=click.Choice(["membrane", "thick"]), default=None,
+              help="thick: markers on the outer surface, pressure on the lumen; membrane: the paper's plain form. "
+                   "Default: thick unless the data say membrane (both fitted and judged against the noise).")
 @click.option("--ends", type=click.Choice(["clamped", "free"]), default=None,
               help="clamped: tube tied on cannulae beyond the markers (pressure on the unmeasured strip counted); "
-                   "free: uniform tube up to the load cell. Default: what the session records (assumed clamped, "
-                   "with a warning, if it records nothing); a value against the session's record is used with a "
-                   "warning.")
+                   "free: uniform tube up to the load cell. Default: what the session records, else the data decide "
+                   "(the verdict is 'doubtful' when they cannot tell); a value against the session's record is "
+                   "used with a warning.")
 @click.option("--optimizer", type=click.Choice(["lsq", "nelder-mead"]), default="lsq", show_default=True,
               help="lsq: fast least squares with several starts; nelder-mead: the paper's simplex.")
 @click.option("--smooth", default="auto", show_default=True, metavar="auto|none|AXIAL,HARMONICS",
@@ -102,8 +103,9 @@ def _print(outcome) -> None:
     from rich.table import Table
 
     from vfmlab.cli._common import console  # rich: only for the table (not for --json)
+    from vfmlab.stages.identify import verdict_lines
 
-    result, model, wall, units = outcome.result, outcome.settings.model, outcome.settings.wall, outcome.units
+    result, model, wall, units = outcome.result, outcome.settings.model, outcome.wall, outcome.units
     table = Table(title=f"{model} ({WALL_NOTE[wall]})")
     table.add_column("parameter")
     table.add_column("value", justify="right")
@@ -112,6 +114,9 @@ def _print(outcome) -> None:
     if unc is not None:
         table.add_column("95 % interval", justify="right")
     table.add_column("unit")
+    verdicts = dict(result.parameter_verdicts or {})
+    if verdicts:
+        table.add_column("verdict")
     for n in result.parameters:
         v, unit = display_quantity(result.parameters[n], units[n])
         s, _ = display_quantity(result.stderr[n], units[n])
@@ -120,8 +125,11 @@ def _print(outcome) -> None:
             lo, _ = display_quantity(unc.interval[n][0], units[n])
             hi, _ = display_quantity(unc.interval[n][1], units[n])
             interval = [f"{num(lo, 4)} to {num(hi, 4)}"]
-        table.add_row(esc(n), num(v, 4), num(s, 2), *interval, unit or "–")
+        table.add_row(esc(n), num(v, 4), num(s, 2), *interval, unit or "–", *([verdicts[n]] if verdicts else []))
     console.print(table)
+    for line in verdict_lines(result.verdict, result.verdict_reasons, result.parameter_verdicts,
+                              result.parameter_reasons):
+        console.print(esc(line), style="bold yellow" if "doubtful" in line else None)
     console.print(f"cost {num(result.cost, 3)}, RMS gap per field "
                   + ", ".join(f"{esc(f)}: {g:.2%}" for f, g in zip(result.field_names, result.residual_per_field))
                   + f", {result.n_evaluations} evaluations, converged: {result.converged}")
@@ -130,3 +138,4 @@ def _print(outcome) -> None:
     for flag in result.flags:
         console.print(f"[yellow]warning:[/] {esc(flag)}")
     console.print(f"stored as {esc(outcome.group)}")
+

@@ -29,8 +29,8 @@ _OPTIONS = (
                  help="What axial_force_N is: force carried by the wall, or a total reading behind a pressurised cannula."),
     click.option("--ends", type=click.Choice(["clamped", "free"]), default=None,
                  help="How the specimen was held: clamped (tied on cannulae) or free (uniform up to the load cell); "
-                      "recorded in the session for 'vfmlab identify' [default: not recorded; identify then assumes "
-                      "clamped and says so]."),
+                      "recorded in the session for 'vfmlab identify' [default: not recorded; identify then lets the "
+                      "data decide and says whether they could]."),
     click.option("--force", "overwrite", is_flag=True, help="Overwrite OUT if it exists."),
     click.option("--json", "as_json", is_flag=True, help="Print what was imported as JSON (SI: m)."),
 )

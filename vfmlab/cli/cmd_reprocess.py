@@ -26,13 +26,13 @@ Examples:
               help="Comma-separated stages to re-run, in pipeline order: reconstruct, identify.")
 @click.option("--model", "models", default="fung", show_default=True,
               help="Comma-separated models to identify: fung, delfino, hgo, neohookean.")
-@click.option("--wall", "walls", default="membrane", show_default=True,
-              help="Wall formulation(s), comma-separated: membrane, thick.")
+@click.option("--wall", "walls", default=None,
+              help="Wall formulation(s), comma-separated: membrane, thick. Default: thick unless the data say "
+                   "membrane (as 'vfmlab identify').")
 @click.option("--ends", type=click.Choice(["clamped", "free"]), default=None,
               help="clamped: tube tied on cannulae beyond the markers (pressure on the unmeasured strip counted); "
-                   "free: uniform tube up to the load cell. Default: what the session records (assumed clamped, "
-                   "with a warning, if it records nothing); a value against the session's record is used with a "
-                   "warning.")
+                   "free: uniform tube up to the load cell. Default: what the session records, else the data decide "
+                   "(as 'vfmlab identify').")
 @click.option("--optimizer", type=click.Choice(["lsq", "nelder-mead"]), default="lsq", show_default=True,
               help="Optimiser (identify).")
 @click.option("--smooth", default="auto", show_default=True, metavar="auto|none|AXIAL,HARMONICS",
@@ -62,6 +62,7 @@ def command(sessions, stages, models, walls, ends, optimizer, smooth, weighting,
     from vfmlab.stages.batch import plan, reprocess, split_list
     from vfmlab.cli._feedback import progress_bar
     from vfmlab.stages.feedback import no_progress
+    from vfmlab.stages.identify import verdict_lines
     from vfmlab.stages.settings import ReprocessSettings
 
     split_list(stages, "--stages", tuple(STAGES))
@@ -92,6 +93,10 @@ def command(sessions, stages, models, walls, ends, optimizer, smooth, weighting,
             table.add_row(esc(o.path), esc(o.specimen), esc(", ".join(o.results) or "–"), f"{o.seconds:.1f}",
                           "ok" if o.ok else f"[red]{len(o.errors)} error(s)[/]")
         console.print(table)
+        for path_, ident in ((o.path, i) for o in outcomes for i in o.identifications if i.get("verdict")):
+            console.print(esc(f"{path_} {ident['result']} ({ident['model']}, {ident['wall']}): " + "\n".join(
+                verdict_lines(ident["verdict"], ident["verdict_reasons"], ident["parameter_verdicts"],
+                              ident["parameter_reasons"]))))
         n_bad = sum(not o.ok for o in outcomes)
         console.print(f"{len(outcomes) - n_bad} of {len(outcomes)} sessions processed without error."
                       + (f" Summary: {esc(path)}" if summary else ""))

@@ -53,7 +53,7 @@ def plan(s: ReprocessSettings) -> list:
     smoothing = parse_smooth(s.smooth)
     try:
         return plan_runs(stage_list, models=split_list(s.models, "--model", tuple(model_names())),
-                         walls=split_list(s.walls, "--wall", ("membrane", "thick")),
+                         walls=(None,) if s.walls is None else split_list(s.walls, "--wall", ("membrane", "thick")),
                          identify_settings={"ends": s.ends, "optimizer": s.optimizer, "smoothing": smoothing,
                                             "weighting": s.weighting},
                          reconstruct_settings=parse_set(s.set_pairs))

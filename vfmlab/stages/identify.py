@@ -16,7 +16,21 @@ from vfmlab.stages.errors import StageError, StageFailed
 from vfmlab.stages.feedback import ProgressFactory, no_progress
 from vfmlab.stages.settings import IdentifySettings, RegionalSettings, settings_with
 
-__all__ = ["IdentifyOutcome", "RegionalOutcome", "identify", "si_unit", "parse_smooth", "regional"]
+__all__ = ["IdentifyOutcome", "RegionalOutcome", "identify", "si_unit", "parse_smooth", "regional", "verdict_lines"]
+
+
+def verdict_lines(verdict: str | None, reasons=(), parameter_verdicts=None, parameter_reasons=None) -> list[str]:
+    """The verdict of an identification as lines to show: "verdict: trusted|doubtful", then each doubtful
+    parameter's reason (names sharing one reason on one line), then the other reasons; [] when not judged
+    (results stored before verdicts)."""
+    if not verdict:
+        return []
+    by_reason: dict[str, list[str]] = {}
+    for name, reason in (parameter_reasons or {}).items():
+        if (parameter_verdicts or {}).get(name) == "doubtful" and reason:
+            by_reason.setdefault(reason, []).append(name)
+    return ([f"verdict: {verdict}"] + [f"  {', '.join(names)} doubtful: {reason}" for reason, names in by_reason.items()]
+            + [f"  - {reason}" for reason in reasons if reason not in by_reason])
 
 
 def parse_smooth(text: str | tuple[int, int] | None):
@@ -70,11 +84,20 @@ class IdentifyOutcome:
     def to_dict(self) -> dict[str, Any]:
         """What ``vfmlab identify --json`` prints (SI)."""
         r, settings = self.result, self.data.get("settings", {})
-        return {"model": self.settings.model, "wall": self.settings.wall, "ends": settings.get("ends"),
+        return {"model": self.settings.model, "wall": settings.get("wall", self.settings.wall),
+                "ends": settings.get("ends"),
                 "ends_source": settings.get("ends_source"), "parameters": r.parameters, "stderr": r.stderr,
                 "interval_95": (None if r.uncertainty is None else {k: list(v) for k, v in r.uncertainty.interval.items()}),
                 "units": self.units, "cost": r.cost, "converged": r.converged, "flags": list(r.flags),
+                "verdict": r.verdict, "verdict_reasons": list(r.verdict_reasons),
+                "parameter_verdicts": dict(r.parameter_verdicts), "parameter_reasons": dict(r.parameter_reasons),
+                "hypotheses": [{**h, "parameters": dict(h["parameters"])} for h in r.hypotheses],
                 "result_group": self.group}
+
+    @property
+    def wall(self) -> str:
+        """The wall form used (stated, or chosen by the data)."""
+        return str(self.data.get("settings", {}).get("wall", self.settings.wall))
 
 
 @dataclass(frozen=True)

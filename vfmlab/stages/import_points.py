@@ -70,7 +70,7 @@ class ImportedPoints:
         s = self.settings
         return (f"result {self.name}; radius {self.radius * 1e3:.3f} mm, length {self.length * 1e3:.3f} mm, "
                 f"wall thickness {s.thickness_mm:.3f} mm, load cell measures {s.force_is} force, "
-                + (f"ends {s.ends}" if s.ends else "ends not recorded: identify will assume clamped unless --ends says"))
+                + (f"ends {s.ends}" if s.ends else "ends not recorded: identify lets the data decide unless --ends says"))
 
 
 @dataclass(frozen=True)

@@ -1,20 +1,49 @@
 """The settings of each stage: frozen dataclasses whose defaults are the command line's defaults.
 
 ``vfmlab identify S.h5`` and ``vfmlab.identify("S.h5")`` run with ``IdentifySettings()``; an option of
-the command is a field of the same name (``--model hgo`` is ``IdentifySettings(model="hgo")``). This
-module imports nothing heavy: ``vfmlab --help`` and ``import vfmlab`` stay fast.
+the command is a field of the same name (``--model hgo`` is ``IdentifySettings(model="hgo")``). The
+identification's defaults are the library's own (``identification.DEFAULTS``, read from
+``identification/defaults.py``): ``identification.identify`` called on the same arrays gives the same numbers.
+This module imports nothing heavy: ``vfmlab --help`` and ``import vfmlab`` stay fast.
 """
 
 from __future__ import annotations
 
+import importlib.util
+import sys
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
+from types import ModuleType
 from typing import Any, TypeVar
 
 __all__ = ["CalibrateSettings", "CheckLimits", "CheckRigSettings", "ExportSettings", "IdentifySettings", "ReconstructSettings", "RegionalSettings",
            "ReportSettings", "ReprocessSettings", "RunSettings", "SelfCalibrationSettings", "settings_with"]
 
 S = TypeVar("S")
+
+
+def _identification_defaults() -> ModuleType:
+    """``identification.defaults`` (the one definition of the identification's defaults), loaded without running
+    the package's ``__init__`` (numpy, scipy: ~1 s) and registered under its own name, so that the package, when
+    imported later, uses this very module."""
+    name = "identification.defaults"
+    if name in sys.modules:
+        return sys.modules[name]
+    package = importlib.util.find_spec("identification")  # finds, does not import
+    if package is None or not package.submodule_search_locations:
+        raise ImportError("the identification package is not installed")
+    spec = importlib.util.spec_from_file_location(name, Path(list(package.submodule_search_locations)[0]) / "defaults.py")
+    if spec is None or spec.loader is None:
+        raise ImportError("identification/defaults.py is missing")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+#: The identification's defaults (``identification.DEFAULTS``): the library's and the command's.
+IDENTIFY_DEFAULTS = _identification_defaults().DEFAULTS
+_D = IDENTIFY_DEFAULTS
 
 
 def settings_with(cls: type[S], settings: S | None, overrides: dict[str, Any]) -> S:
@@ -36,13 +65,13 @@ class IdentifySettings:
     ``regions``: None (one homogeneous fit) or "N", "auto", "legendre:K" (a "regional" result).
     """
 
-    model: str = "fung"
-    wall: str = "membrane"
-    ends: str | None = None
-    optimizer: str = "lsq"
-    smooth: str | tuple[int, int] | None = "auto"
-    uncertainty: str = "bootstrap"
-    weighting: str = "paper"
+    model: str = _D.model
+    wall: str | None = _D.wall
+    ends: str | None = _D.ends
+    optimizer: str = _D.optimizer
+    smooth: str | tuple[int, int] | None = _D.smoothing
+    uncertainty: str = _D.uncertainty
+    weighting: str = _D.weighting
     regions: str | int | None = None
 
 
@@ -51,11 +80,11 @@ class RegionalSettings:
     """``vfmlab identify --regions``: the stress-like parameter along the axis, the others shared."""
 
     regions: str | int = "auto"
-    model: str = "fung"
-    wall: str = "membrane"
-    ends: str | None = None
-    smooth: str | tuple[int, int] | None = "auto"
-    uncertainty: str = "bootstrap"
+    model: str = _D.model
+    wall: str | None = _D.wall
+    ends: str | None = _D.ends
+    smooth: str | tuple[int, int] | None = _D.smoothing
+    uncertainty: str = _D.uncertainty
 
 
 @dataclass(frozen=True)
@@ -142,12 +171,12 @@ class ReprocessSettings:
     """``vfmlab reprocess``: stages re-run on stored sessions (comma-separated lists as on the command line)."""
 
     stages: str = "identify"
-    models: str = "fung"
-    walls: str = "membrane"
-    ends: str | None = None
-    optimizer: str = "lsq"
-    smooth: str | tuple[int, int] | None = "auto"
-    weighting: str = "paper"
+    models: str = _D.model
+    walls: str | None = _D.wall
+    ends: str | None = _D.ends
+    optimizer: str = _D.optimizer
+    smooth: str | tuple[int, int] | None = _D.smoothing
+    weighting: str = _D.weighting
     set_pairs: tuple[str, ...] = ()
     workers: int = 1
     scheduler: str | None = None
@@ -164,7 +193,7 @@ class RunSettings:
     sim_seed: int | None = None
     yes: bool = False
     detect: bool = True
-    live_models: str = "fung"
+    live_models: str = _D.model
     #: seconds of instrument readings of the pre-flight check at the start (0 = no pre-flight check)
     check_seconds: float = 2.0
 

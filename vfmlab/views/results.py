@@ -18,6 +18,8 @@ def esc(value) -> str:
 def result_lines(row: dict, settings: str) -> list:
     """One stored result as lines: name, date and version; its settings; what it holds (parameters, verdict,
     warnings; marker counts; camera RMS)."""
+    from vfmlab.stages.identify import verdict_lines
+
     out: list = []
     out.append(f"[bold cyan]{esc(row['name'])}[/]  {esc(row['date'][:19].replace('T', ' '))} UTC  "
                   f"vfmlab {esc(row['version'])}")
@@ -28,11 +30,11 @@ def result_lines(row: dict, settings: str) -> list:
         state = "converged" if row["converged"] else "[red]NOT converged[/]"
         out.append(f"    {esc(row['model'])} ({esc(row['wall'])}), cost {num(row['cost'], 3)}, {state}: {params}")
         flags = row["flags"] if isinstance(row["flags"], list) else [f"{k}: {v}" for k, v in row["flags"].items()]
+        for line in verdict_lines(row.get("verdict"), row.get("verdict_reasons", ()), row.get("parameter_verdicts"),
+                                  row.get("parameter_reasons")):
+            out.append(f"    {esc(line)}")
         for flag in flags:
             out.append(f"    [yellow]warning:[/] {esc(flag)}")
-        if row.get("verdict"):
-            reasons = "; ".join(str(r) for r in row.get("verdict_reasons") or [])
-            out.append(f"    verdict: {esc(row['verdict'])}" + (f" ({esc(reasons)})" if reasons else ""))
     elif row["kind"] == "markers" and "n_markers" in row:
         out.append(f"    {row['n_markers']} markers × {row['n_steps']} steps, "
                       f"{row['completeness'] * 100:.1f} % of marker-steps reconstructed")
