@@ -44,6 +44,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "export": ("cmd_export", "Export meshes and fields for ParaView, PyVista, meshio (VTU/PVD, VTK, PLY)."),
     "info": ("cmd_info", "Summarise a session file."),
     "import-markers": ("cmd_import_markers", "Build a session from marker positions measured elsewhere (CSV)."),
+    "import-dic": ("cmd_import_dic", "Build a session from another lab's DIC points (DuoDIC, MultiDIC, VIC-3D, tables)."),
     "export-markers": ("cmd_export_markers", "Write a session's latest marker tracks as CSV."),
     "export-loads": ("cmd_export_loads", "Write a session's step loads as CSV (what import-markers reads)."),
     "import-images": ("cmd_import_images", "Build a session from images taken with another rig."),

@@ -16,7 +16,7 @@ EPILOG = """
 Examples:
   vfmlab calibrate a1.h5                                  # board views stored in the session
   vfmlab calibrate --images boards/ --squares 8x6 --square-size-mm 4.5 -o calibration.toml
-  vfmlab calibrate a1.h5 --import calibration.toml --import-units mm
+  vfmlab calibrate a1.h5 --import calibration.toml --import-units mm    # or a MATLAB calibrationSession.mat
   vfmlab calibrate a1.h5 --refine-window                  # through the rig file's [window], its plane refined
   vfmlab calibrate a1.h5 --import openptv-project/ --body fixed   # OpenPTV cameras + window, refined on its body
   vfmlab calibrate a1.h5 --import openptv-project/ --self-calibrate 10000-10004   # then on the particles
@@ -52,8 +52,8 @@ Examples:
 @click.option("--store/--no-store", default=True, show_default=True,
               help="Store the result in SESSION (as a new 'calibration' result) when a session is given.")
 @click.option("--import", "import_file", type=click.Path(exists=True, path_type=Path),
-              help="Take the calibration from a file instead of board images: aniposelib calibration.toml, "
-                   "OpenCV FileStorage .yaml/.yml/.xml/.json, or an OpenPTV working folder (parameters/ptv.par, "
+              help="Take the calibration from a file instead of board images: aniposelib .toml, OpenCV FileStorage "
+                   ".yaml/.yml/.xml/.json, a MATLAB stereo calibrationSession.mat (DuoDIC), or an OpenPTV folder (ptv.par, "
                    "cal/*.ori + .addpar: cameras with their glass/water window). Store it in SESSION and/or convert it with -o.")
 @click.option("--body", type=click.Choice(["fixed", "free", "selected"]), default=None,
               help="With an OpenPTV folder: refine every camera on its image of the 3-D calibration body "

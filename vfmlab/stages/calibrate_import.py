@@ -1,6 +1,7 @@
-"""``vfmlab calibrate --import``: a calibration read from a file (aniposelib TOML, OpenCV YAML) or an OpenPTV
-folder (optionally refined on its calibration body and/or on its particles), checked against the session's
-cameras, stored and/or converted. One reader per format; the self-calibration is :mod:`vfmlab.stages.selfcal`.
+"""``vfmlab calibrate --import``: a calibration read from a file (aniposelib TOML, OpenCV YAML, MATLAB
+``calibrationSession.mat``) or an OpenPTV folder (optionally refined on its calibration body and/or on its
+particles), checked against the session's cameras, stored and/or converted. One reader per format; the
+self-calibration is :mod:`vfmlab.stages.selfcal`.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from vfmlab.stages.errors import StageError, StageFailed
 from vfmlab.stages.feedback import Notify, ProgressFactory, log_notes, no_progress
 from vfmlab.stages.settings import CalibrateSettings
 
-__all__ = ["import_calibration", "read_calibration", "read_calibration_file", "read_openptv_folder"]
+__all__ = ["import_calibration", "read_calibration", "read_calibration_file", "read_matlab_file", "read_openptv_folder"]
 
 
 def import_calibration(path: Path, session: Path | None, s: CalibrateSettings, *, notify: Notify = log_notes,
@@ -59,11 +60,29 @@ def read_calibration(path: Path, file_units: str, body: str | None, *, notify: N
 
 
 def read_calibration_file(path: Path, file_units: str) -> tuple[list, dict]:
-    """Cameras and metadata of an aniposelib ``.toml`` or an OpenCV FileStorage file (any other suffix)."""
+    """Cameras and metadata of an aniposelib ``.toml``, a MATLAB ``calibrationSession.mat`` (:func:`read_matlab_file`)
+    or an OpenCV FileStorage file (any other suffix)."""
     from reconstruction.calibration_io import cameras_from_toml, cameras_from_yaml
 
+    if path.suffix.lower() == ".mat":
+        return read_matlab_file(path)
     reader = cameras_from_toml if path.suffix.lower() == ".toml" else cameras_from_yaml
     return reader(path.read_text(), units=file_units)
+
+
+def read_matlab_file(path: Path) -> tuple[list, dict]:
+    """The two cameras (``cam1``, ``cam2``; world = camera 1, m) of a MATLAB Stereo Camera Calibrator session
+    (DuoDIC's ``calibrationSession.mat``), converted to OpenCV's conventions by ``acquisition.dic``; MATLAB's
+    reprojection RMS per camera as ``rms_px``. A file that is not such a session: StageError with the reader's message."""
+    from acquisition.dic import DICImportError, read_matlab_calibration_session
+    from reconstruction.calibration_io import cameras_from_arrays
+
+    try:
+        calibration = read_matlab_calibration_session(path)
+    except DICImportError as exc:
+        raise StageError(f"--import {exc}") from None
+    rms = [float(r) for r in calibration.camera_arrays["rms"]]
+    return cameras_from_arrays(calibration.camera_arrays), {"units": "m", "rms_px": rms}
 
 
 def read_openptv_folder(folder: Path, body: str | None, *, notify: Notify = log_notes,
@@ -131,12 +150,15 @@ def _body_media(cams: list) -> tuple[dict | None, str]:
 
 
 def _session_order(path: Path, session: Path, cams: list) -> list:
-    """``cams`` in the order of the session's cameras; every session camera must be there, at its image size."""
+    """``cams`` in the order of the session's cameras; every session camera must be there, at its image size
+    (a session without cameras, e.g. from ``import-markers`` / ``import-dic``, takes the file's cameras as they are)."""
     from acquisition.session import open_session
 
     with open_session(session) as s:
         wanted = s.camera_names
         sizes = {c.name: (c.width, c.height) for c in s.cameras}
+    if not wanted:
+        return list(cams)
     names = [c.name for c in cams]
     missing = [n for n in wanted if n not in names]
     if missing:
