@@ -57,6 +57,15 @@ def read_calibration(path: Path, file_units: str, body: str | None, *, notify: N
         return read_calibration_file(path, file_units)
     except (CalibrationFileError, UnicodeDecodeError, OSError) as exc:
         raise StageError(f"--import {path}: {exc}") from None
+    except (SystemError, _cv2_error()):  # OpenCV's FileStorage on a file that is no YAML/XML
+        raise StageError(f"--import {path}: not a calibration file OpenCV can read (expected .toml (aniposelib), "
+                         f".yaml/.yml/.xml (OpenCV), .mat (MATLAB) or an OpenPTV folder)") from None
+
+
+def _cv2_error() -> type[Exception]:
+    import cv2
+
+    return cv2.error
 
 
 def read_calibration_file(path: Path, file_units: str) -> tuple[list, dict]:
