@@ -96,7 +96,7 @@ def _held_out(usable: np.ndarray, seen: np.ndarray, every: int) -> np.ndarray:
     than 1 in ``every`` of the views it sees (``usable`` (n_cams, n_views) bool)."""
     budget = usable.sum(1) // every
     taken = np.zeros_like(budget)
-    held = []
+    held: list[int] = []
     for k, v in enumerate(seen):
         if (k + 1) % every and len(held) >= (k + 1) // every:
             continue  # not this view's turn, and on schedule
