@@ -287,11 +287,11 @@ def test_reconstruct_detects_with_the_polarity_import_images_recorded(tmp_path, 
 
 def test_particle_volume_is_not_measured_as_a_tube():
     from reconstruction.surface import fit_cylinder
-    from vfmlab.cli._common import CliError
-    from vfmlab.cli.cmd_import_images import _check_tube
+    from vfmlab.stages.errors import StageFailed
+    from vfmlab.stages.imports import check_tube as _check_tube  # the stage's check (exit 1 as before)
 
     pts = _volume(300, seed=5)
-    with pytest.raises(CliError, match="do not lie on a tube"):
+    with pytest.raises(StageFailed, match="do not lie on a tube"):
         _check_tube(fit_cylinder(pts), pts)
     a = np.random.default_rng(0).uniform(0, 2 * np.pi, 200)
     tube = np.stack([5e-3 * np.cos(a), 5e-3 * np.sin(a), np.random.default_rng(1).uniform(0, 0.03, 200)], 1)
