@@ -64,20 +64,25 @@ def _profile_residual(clouds, frame0, c0, x, degree):
 def _projection_residual(t, r, ww, w_sum, degree):
     """Weighted residual ``w (r - p(t))`` of the least-squares polynomial p of degree ``degree`` in t (s, e, n),
     from the power moments of t (Hankel normal equations: t is scaled into [-1, 1], where their condition
-    number at degree 4 is ~4e2; the same projection as a Legendre basis to rounding, with no (s, e, degree + 1, n)
-    basis and Gram product). r (s, e, n), weights ww (s, 1, n) with sums w_sum (s, 1, 1)."""
-    powers = [t]
-    for _ in range(degree - 1):
-        powers.append(powers[-1] * t)
-    low = np.stack(powers, axis=-2)  # (s, e, degree, n): t .. t^degree
-    high = low * powers[-1][..., None, :]  # t^(degree + 1) .. t^(2 degree)
-    wcol = ww[..., None]  # (s, 1, n, 1)
+    number at degree 4 is ~4e2; the same projection as a Legendre basis to rounding). The moments are summed
+    power by power, so no array larger than t (s, e, n) is formed (linear cost and memory in n).
+    r (s, e, n), weights ww (s, 1, n) with sums w_sum (s, 1, 1)."""
     rw = r * ww
-    moments = np.concatenate([np.broadcast_to(w_sum, t.shape[:-1] + (1,)), (low @ wcol)[..., 0],
-                              (high @ wcol)[..., 0]], axis=-1)  # (s, e, 2 degree + 1)
-    rhs = np.concatenate([np.sum(rw, axis=-1, keepdims=True), (low @ rw[..., None])[..., 0]], axis=-1)
-    coef = np.linalg.solve(moments[..., _hankel(degree)], rhs[..., None])[..., 0]  # (s, e, degree + 1)
-    fitted = coef[..., :1] + (coef[..., None, 1:] @ low)[..., 0, :]
+    wt = np.broadcast_to(ww, t.shape) * t  # w t^k, k = 1 .. 2 degree in turn
+    moments = [np.broadcast_to(w_sum[..., 0], t.shape[:-1])]
+    rhs = [np.sum(rw, axis=-1)]
+    for k in range(1, 2 * degree + 1):
+        moments.append(np.sum(wt, axis=-1))
+        if k <= degree:
+            rhs.append(np.einsum("...n,...n->...", wt, r))
+        if k < 2 * degree:
+            wt *= t
+    moments = np.stack(moments, axis=-1)  # (s, e, 2 degree + 1)
+    coef = np.linalg.solve(moments[..., _hankel(degree)], np.stack(rhs, axis=-1)[..., None])[..., 0]
+    fitted = np.broadcast_to(coef[..., degree:], t.shape).copy()  # Horner
+    for k in range(degree - 1, -1, -1):
+        fitted *= t
+        fitted += coef[..., k:k + 1]
     return rw - fitted * ww
 
 
