@@ -32,11 +32,12 @@ def _hankel(degree: int) -> np.ndarray:
 def _clouds(pts, w, c0):
     """What ``_profile_residual`` needs of the clouds, computed once per fit: the markers relative to the
     starting origins transposed (s, 3, n), their squared norms (s, 1, n), the weights (s, 1, n) and their
-    sums (s, 1, 1), and an additive mask (s, 1, n) (0 where fitted, inf elsewhere)."""
+    sums (s, 1, 1), and an additive mask (s, 1, n) (0 where fitted, inf elsewhere; None if all are fitted)."""
     q = pts - c0[:, None]
     qt = np.swapaxes(q, 1, 2)
     ww = w[:, None]
-    return qt, np.sum(q * q, axis=-1)[:, None], ww, w.sum(-1)[:, None, None], np.where(ww > 0, 0.0, np.inf)
+    excluded = None if np.all(ww > 0) else np.where(ww > 0, 0.0, np.inf)
+    return qt, np.sum(q * q, axis=-1)[:, None], ww, w.sum(-1)[:, None, None], excluded
 
 
 def _profile_residual(clouds, frame0, c0, x, degree):
@@ -52,12 +53,23 @@ def _profile_residual(clouds, frame0, c0, x, degree):
     d = d / np.sqrt(np.sum(d * d, axis=-1, keepdims=True))
     shift = x[..., 2:3] * f0 + x[..., 3:4] * f1  # (s, e, 3) origin offset from c0 (small: no cancellation below)
     # |p - o|^2 and (p - o) . d from products of the (s, n, 3) markers with the (s, e, 3) trial vectors
-    along = d @ qt - np.sum(shift * d, axis=-1)[..., None]  # (s, e, n)
-    vv = qq - 2.0 * (shift @ qt) + np.sum(shift * shift, axis=-1)[..., None]
-    r = np.sqrt(np.maximum(vv - along * along, 0.0))
+    # in place where a temporary of the (s, e, n) size would be made (the same operations in the same order)
+    along = d @ qt
+    along -= np.sum(shift * d, axis=-1)[..., None]  # (s, e, n)
+    r = shift @ qt
+    r *= 2.0
+    np.subtract(qq, r, out=r)
+    r += np.sum(shift * shift, axis=-1)[..., None]  # |p - o|^2
+    r -= along * along
+    np.sqrt(np.maximum(r, 0.0, out=r), out=r)
     mean = np.sum(along * ww, axis=-1, keepdims=True) / w_sum
-    lo, hi = np.min(along + excluded, -1), np.max(along - excluded, -1)
-    t = (along - mean) / np.maximum(0.5 * (hi - lo), 1e-12)[..., None]
+    if excluded is None:  # every marker fitted
+        lo, hi = np.min(along, -1), np.max(along, -1)
+    else:
+        lo, hi = np.min(along + excluded, -1), np.max(along - excluded, -1)
+    t = along
+    t -= mean
+    t /= np.maximum(0.5 * (hi - lo), 1e-12)[..., None]
     return _projection_residual(t, r, ww, w_sum, degree), d, c0[:, None] + shift, r
 
 
