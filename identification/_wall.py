@@ -14,7 +14,7 @@ import numpy as np
 from scipy.sparse import csr_matrix
 
 from .errors import DegenerateDataError
-from .kinematics import _cross, _grad, reference_frame
+from .kinematics import _grad, reference_frame
 from .mesh import SurfaceMesh, unique_sorted, wrap_angle
 from .virtual_fields import VirtualFields
 
@@ -142,9 +142,14 @@ def _layer(g: _WallGeometry, sv: float):
     dE = _congruent_components(g00, g01, g11, G[0][0], 0.5 * (G[0][1] + G[1][0]), G[1][1])
     M = [[_dot3(tan[i], tan[j]) for j in (0, 1)] for i in (0, 1)]
     C = _congruent_components(g00, g01, g11, M[0][0], M[0][1], M[1][1])  # C = F^T F with F = Fxi ginv
-    normal_da = _cross(np.stack(tan[0], -1), np.stack(tan[1], -1)) * g.area_q[..., None]  # (s, t, q, 3)
+    normal_da = _cross_components(tan[0], tan[1]) * g.area_q[..., None]  # (s, t, q, 3)
     u_here = np.stack([ur, np.broadcast_to(ut, ur.shape), np.broadcast_to(uz, ur.shape)], -1)
     return C, dE, area_factor * g.area_q, normal_da, u_here
+
+
+def _cross_components(a, b) -> np.ndarray:
+    """``kinematics._cross`` of two vectors given as their three component arrays (no stacked copies): (..., 3)."""
+    return np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]], -1)
 
 
 def _dot3(a, b):
