@@ -14,7 +14,7 @@ chosen from the data, bootstrap intervals) are ``vfmlab identify``'s: the same a
 """
 
 from .checks import check_setup
-from . import defaults  # bound on the package even when vfmlab.stages.settings loaded it first
+from . import defaults as defaults  # bound on the package even when vfmlab.stages.settings loaded it first
 from .defaults import DEFAULTS, IdentifyDefaults
 from .curves import StressStrainCurves, laplace_curves
 from .efficient import EfficientSettings

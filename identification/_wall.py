@@ -14,7 +14,7 @@ import numpy as np
 from scipy.sparse import csr_matrix
 
 from .errors import DegenerateDataError
-from .kinematics import _cross, _grad, reference_frame
+from .kinematics import _grad, reference_frame
 from .mesh import SurfaceMesh, unique_sorted, wrap_angle
 from .virtual_fields import VirtualFields
 
@@ -138,13 +138,29 @@ def _layer(g: _WallGeometry, sv: float):
     uz, uz_xi = g.u_q[..., 2][:, None], g.u_xi[:, None, :, None, 2, :]
     du = (ur_xi - ut[..., None] * thx, ut_xi + ur[..., None] * thx, uz_xi)  # (f, s, t, q, 2) per (r, theta, z)
     # G_ij = t_i . du_j (the xi-tangents t_i = columns of Fxi), then dE = sym(ginv^T G ginv), in components
-    G = [[sum(tan[i][c] * du[c][..., j] for c in range(3)) for j in (0, 1)] for i in (0, 1)]
+    G = [[_dot3(tan[i], [du[c][..., j] for c in range(3)]) for j in (0, 1)] for i in (0, 1)]
     dE = _congruent_components(g00, g01, g11, G[0][0], 0.5 * (G[0][1] + G[1][0]), G[1][1])
-    M = [[sum(tan[i][c] * tan[j][c] for c in range(3)) for j in (0, 1)] for i in (0, 1)]
+    M = [[_dot3(tan[i], tan[j]) for j in (0, 1)] for i in (0, 1)]
     C = _congruent_components(g00, g01, g11, M[0][0], M[0][1], M[1][1])  # C = F^T F with F = Fxi ginv
-    normal_da = _cross(np.stack(tan[0], -1), np.stack(tan[1], -1)) * g.area_q[..., None]  # (s, t, q, 3)
+    normal_da = _cross_components(tan[0], tan[1]) * g.area_q[..., None]  # (s, t, q, 3)
     u_here = np.stack([ur, np.broadcast_to(ut, ur.shape), np.broadcast_to(uz, ur.shape)], -1)
     return C, dE, area_factor * g.area_q, normal_da, u_here
+
+
+def _cross_components(a, b) -> np.ndarray:
+    """``kinematics._cross`` of two vectors given as their three component arrays (no stacked copies): (..., 3)."""
+    return np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]], -1)
+
+
+def _dot3(a, b):
+    """``a[0] b[0] + a[1] b[1] + a[2] b[2]`` of three components each (what ``sum`` of the products gives,
+    without its first pass adding 0)."""
+    out = a[0] * b[0] + a[1] * b[1]
+    last = a[2] * b[2]
+    if out.shape != np.broadcast_shapes(out.shape, last.shape):
+        return out + last
+    out += last
+    return out
 
 
 def _congruent_components(g00, g01, g11, s00, s01, s11) -> np.ndarray:
@@ -175,7 +191,9 @@ def _internal_work_terms(g: _WallGeometry, wall: str, n_layers: int):
         C = np.where(valid[..., None], C, _IDENTITY)
         cs.append(C.reshape(n_steps, -1, 3))
         dE = np.where(valid[None, ..., None], dE, 0.0)  # excluded triangles may hold NaN geometry
-        dens.append((dE * _SHEAR_TWICE * dV0[None, ..., None]).reshape(n_fields, n_steps, -1, 3))
+        dE *= _SHEAR_TWICE  # in place: the same products as (dE * _SHEAR_TWICE) * dV0
+        dE *= dV0[None, ..., None]
+        dens.append(dE.reshape(n_fields, n_steps, -1, 3))
     return np.concatenate(cs, axis=1), np.concatenate(dens, axis=2), surface
 
 

@@ -32,11 +32,12 @@ def _hankel(degree: int) -> np.ndarray:
 def _clouds(pts, w, c0):
     """What ``_profile_residual`` needs of the clouds, computed once per fit: the markers relative to the
     starting origins transposed (s, 3, n), their squared norms (s, 1, n), the weights (s, 1, n) and their
-    sums (s, 1, 1), and an additive mask (s, 1, n) (0 where fitted, inf elsewhere)."""
+    sums (s, 1, 1), and an additive mask (s, 1, n) (0 where fitted, inf elsewhere; None if all are fitted)."""
     q = pts - c0[:, None]
     qt = np.swapaxes(q, 1, 2)
     ww = w[:, None]
-    return qt, np.sum(q * q, axis=-1)[:, None], ww, w.sum(-1)[:, None, None], np.where(ww > 0, 0.0, np.inf)
+    excluded = None if np.all(ww > 0) else np.where(ww > 0, 0.0, np.inf)
+    return qt, np.sum(q * q, axis=-1)[:, None], ww, w.sum(-1)[:, None, None], excluded
 
 
 def _profile_residual(clouds, frame0, c0, x, degree):
@@ -52,32 +53,48 @@ def _profile_residual(clouds, frame0, c0, x, degree):
     d = d / np.sqrt(np.sum(d * d, axis=-1, keepdims=True))
     shift = x[..., 2:3] * f0 + x[..., 3:4] * f1  # (s, e, 3) origin offset from c0 (small: no cancellation below)
     # |p - o|^2 and (p - o) . d from products of the (s, n, 3) markers with the (s, e, 3) trial vectors
-    along = d @ qt - np.sum(shift * d, axis=-1)[..., None]  # (s, e, n)
-    vv = qq - 2.0 * (shift @ qt) + np.sum(shift * shift, axis=-1)[..., None]
-    r = np.sqrt(np.maximum(vv - along * along, 0.0))
+    # in place where a temporary of the (s, e, n) size would be made (the same operations in the same order)
+    along = d @ qt
+    along -= np.sum(shift * d, axis=-1)[..., None]  # (s, e, n)
+    r = shift @ qt
+    r *= 2.0
+    np.subtract(qq, r, out=r)
+    r += np.sum(shift * shift, axis=-1)[..., None]  # |p - o|^2
+    r -= along * along
+    np.sqrt(np.maximum(r, 0.0, out=r), out=r)
     mean = np.sum(along * ww, axis=-1, keepdims=True) / w_sum
-    lo, hi = np.min(along + excluded, -1), np.max(along - excluded, -1)
-    t = (along - mean) / np.maximum(0.5 * (hi - lo), 1e-12)[..., None]
+    if excluded is None:  # every marker fitted
+        lo, hi = np.min(along, -1), np.max(along, -1)
+    else:
+        lo, hi = np.min(along + excluded, -1), np.max(along - excluded, -1)
+    t = along
+    t -= mean
+    t /= np.maximum(0.5 * (hi - lo), 1e-12)[..., None]
     return _projection_residual(t, r, ww, w_sum, degree), d, c0[:, None] + shift, r
 
 
 def _projection_residual(t, r, ww, w_sum, degree):
     """Weighted residual ``w (r - p(t))`` of the least-squares polynomial p of degree ``degree`` in t (s, e, n),
     from the power moments of t (Hankel normal equations: t is scaled into [-1, 1], where their condition
-    number at degree 4 is ~4e2; the same projection as a Legendre basis to rounding, with no (s, e, degree + 1, n)
-    basis and Gram product). r (s, e, n), weights ww (s, 1, n) with sums w_sum (s, 1, 1)."""
-    powers = [t]
-    for _ in range(degree - 1):
-        powers.append(powers[-1] * t)
-    low = np.stack(powers, axis=-2)  # (s, e, degree, n): t .. t^degree
-    high = low * powers[-1][..., None, :]  # t^(degree + 1) .. t^(2 degree)
-    wcol = ww[..., None]  # (s, 1, n, 1)
+    number at degree 4 is ~4e2; the same projection as a Legendre basis to rounding). The moments are summed
+    power by power, so no array larger than t (s, e, n) is formed (linear cost and memory in n).
+    r (s, e, n), weights ww (s, 1, n) with sums w_sum (s, 1, 1)."""
     rw = r * ww
-    moments = np.concatenate([np.broadcast_to(w_sum, t.shape[:-1] + (1,)), (low @ wcol)[..., 0],
-                              (high @ wcol)[..., 0]], axis=-1)  # (s, e, 2 degree + 1)
-    rhs = np.concatenate([np.sum(rw, axis=-1, keepdims=True), (low @ rw[..., None])[..., 0]], axis=-1)
-    coef = np.linalg.solve(moments[..., _hankel(degree)], rhs[..., None])[..., 0]  # (s, e, degree + 1)
-    fitted = coef[..., :1] + (coef[..., None, 1:] @ low)[..., 0, :]
+    wt = np.broadcast_to(ww, t.shape) * t  # w t^k, k = 1 .. 2 degree in turn
+    moments = [np.broadcast_to(w_sum[..., 0], t.shape[:-1])]
+    rhs = [np.sum(rw, axis=-1)]
+    for k in range(1, 2 * degree + 1):
+        moments.append(np.sum(wt, axis=-1))
+        if k <= degree:
+            rhs.append(np.einsum("...n,...n->...", wt, r))
+        if k < 2 * degree:
+            wt *= t
+    moments = np.stack(moments, axis=-1)  # (s, e, 2 degree + 1)
+    coef = np.linalg.solve(moments[..., _hankel(degree)], np.stack(rhs, axis=-1)[..., None])[..., 0]
+    fitted = np.broadcast_to(coef[..., degree:], t.shape).copy()  # Horner
+    for k in range(degree - 1, -1, -1):
+        fitted *= t
+        fitted += coef[..., k:k + 1]
     return rw - fitted * ww
 
 

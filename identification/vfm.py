@@ -263,9 +263,12 @@ def prepare(
         fields = flat_end_fields(mesh) if wall == "thick" else paper_fields(mesh)
     check_fields(fields, mesh)
     aligned, _, _ = align_steps(x, reference)
-    st = _cached_surface_state(mesh, aligned, quadrature, smoothing, reject_outliers, marker_weights,
-                               smooth_reference=smooth_reference,
-                               reference_noise_correction=reference_noise_correction, estimate_noise=estimate_noise)
+    # a bootstrap replicate (estimate_noise=False) is never seen again: not cached (the cache's states hold ~10
+    # arrays of shape (n_steps, n_triangles) each: hundreds of MB on dense clouds)
+    state = _cached_surface_state if estimate_noise else surface_state
+    st = state(mesh, aligned, quadrature, smoothing, reject_outliers, marker_weights,
+               smooth_reference=smooth_reference,
+               reference_noise_correction=reference_noise_correction, estimate_noise=estimate_noise)
     if not st.valid.any(axis=1).all():
         bad = np.flatnonzero(~st.valid.any(axis=1)).tolist()
         raise DegenerateDataError(f"steps {bad} have no triangle with all three markers observed")

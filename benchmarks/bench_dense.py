@@ -1,0 +1,175 @@
+"""Dense clouds (issue 25): time and memory of ``identification.identify`` against the number of points per step.
+
+    OMP_NUM_THREADS=1 python -m benchmarks.bench_dense [--points 300 1000 3000 10000 30000 50000] [--noise 0.17]
+
+Data: the closed-form homogeneous Fung tube (``rig_sim.homogeneous_tube``, paper parameters), 24 loaded steps
+(axial stretches 1.05, 1.1, 1.15 x 8 pressures 0-150 mmHg) after the stress-free reference, N points per step
+placed at random on the tube, i.i.d. Gaussian noise ``--noise`` mm on every coordinate of every step.
+
+Settings: those of ``vfmlab identify`` (``vfmlab.stages.settings.IdentifySettings`` when this was written: model
+fung, membrane wall, lsq, smoothing "auto", uncertainty "bootstrap", weighting "paper"), ends "free" (the data are a
+free homogeneous tube; the CLI takes the session's), the bootstrap's replicates in this process (the CLI forks them
+on both cores: ``map_replicates``). Each N runs in a fresh subprocess (cold mesh and surface-state caches):
+
+- total : wall time of the default ``identify`` (bootstrap uncertainty), and its CPU time;
+- the phases of the same identification without the bootstrap (``uncertainty="gauss-newton"``), from cProfile's
+  cumulative times: mesh (``build_mesh``), axes (``refit_axes``: every step's axis), outliers
+  (``marker_outliers``), smoothing (choice and fit), the rest of the kinematics, virtual work (the rest of
+  ``prepare``), fit (``identify_prepared``); "bootstrap" is total minus that run's wall time (profiler off);
+- memory: peak resident set of the subprocess (``ru_maxrss``) and its growth during ``identify``.
+
+The slope is the least-squares slope of log(time) against log(N) over the N >= 3000 rows (1: linear cost).
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import json
+import logging
+import pstats
+import resource
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+POINTS = (300, 1000, 3000, 10000, 30000, 50000)
+STRETCHES = (1.05, 1.1, 1.15)
+N_PRESSURES = 8
+MMHG = 133.322
+
+#: cProfile functions whose cumulative time makes a phase (file suffix, function name)
+PHASES = {
+    "mesh": [("mesh.py", "build_mesh")],
+    "axes": [("step_axes.py", "refit_axes"), ("kinematics.py", "align_steps")],
+    "outliers": [("outliers.py", "marker_outliers")],
+    "smoothing": [("smoothing.py", "resolve_smoothing"), ("smoothing.py", "smooth_cylindrical"),
+                  ("smoothing.py", "smooth_reference_radius")],
+    "kinematics": [("kinematics.py", "surface_state")],  # minus axes, outliers, smoothing
+    "prepare": [("vfm.py", "prepare")],  # minus mesh and kinematics: the virtual work
+    "fit": [("fit.py", "identify_prepared")],
+}
+
+
+def tube(n_points: int, noise_mm: float, seed: int = 0):
+    """Positions (25, n_points, 3) m, pressure (25,) Pa, axial force (25,) N, thickness m of the Fung tube."""
+    from rig_sim.homogeneous_tube import E0, PAPER, homogeneous, lam_t_for_pressures
+
+    params = PAPER["fung"]
+    pressures = np.linspace(0.0, 150.0, N_PRESSURES + 1)[1:] * MMHG
+    lam_t, lam_z = [1.0], [1.0]
+    for s in STRETCHES:
+        lam_t += list(lam_t_for_pressures("fung", params, np.maximum(pressures, 1.0), s))
+        lam_z += [s] * N_PRESSURES
+    pos, p, f = homogeneous("fung", params, np.array(lam_t), np.array(lam_z), n=n_points, seed=seed)
+    pos = pos + np.random.default_rng(seed + 1).normal(0.0, noise_mm * 1e-3, pos.shape)
+    return pos, p, f, E0
+
+
+def _cumulative(stats: pstats.Stats, suffix: str, name: str) -> float:
+    return sum(v[3] for (fn, _, fname), v in stats.stats.items() if fname == name and fn.endswith(suffix))  # type: ignore[attr-defined]
+
+
+def _phases(stats: pstats.Stats) -> dict:
+    t = {k: sum(_cumulative(stats, *f) for f in fs) for k, fs in PHASES.items()}
+    t["kinematics"] -= t["axes"] - _cumulative(stats, "kinematics.py", "align_steps") + t["outliers"] + t["smoothing"]
+    t["prepare"] -= t["mesh"] + t["kinematics"] + t["axes"] + t["outliers"] + t["smoothing"]
+    t["virtual work"] = t.pop("prepare")
+    return t
+
+
+def _clear_caches():
+    import identification.vfm as vfm
+
+    vfm._MESH_CACHE.clear()
+    vfm._STATE_CACHE.clear()
+
+
+def measure(n_points: int, noise_mm: float) -> dict:
+    """One row: run in a fresh process (``--one N``)."""
+    from identification import identify
+
+    pos, p, f, e0 = tube(n_points, noise_mm)
+    options = {"marker_sigma": np.full(pos.shape[:2], noise_mm * 1e-3), "pressure_noise": 3.0, "force_noise": 0.002}
+    kw = dict(thickness=e0, model="fung", wall="membrane", ends="free", optimizer="lsq", smoothing="auto",
+              weighting="paper")
+    rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    _clear_caches()
+    t, c = time.perf_counter(), time.process_time()
+    full = identify(pos, p, f, uncertainty="bootstrap", uncertainty_options=options, **kw)
+    total, cpu = time.perf_counter() - t, time.process_time() - c
+    rss1 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    _clear_caches()
+    t = time.perf_counter()
+    gn = identify(pos, p, f, uncertainty="gauss-newton", **kw)
+    main = time.perf_counter() - t
+    _clear_caches()
+    prof = cProfile.Profile()
+    prof.enable()
+    identify(pos, p, f, uncertainty="gauss-newton", **kw)
+    prof.disable()
+    phases = _phases(pstats.Stats(prof))
+    return {"n": n_points, "steps": int(pos.shape[0] - 1), "total": total, "cpu": cpu, "main": main,
+            "bootstrap": total - main, "phases": phases, "rss_mb": rss1 / 1024, "rss_growth_mb": (rss1 - rss0) / 1024,
+            "triangles": int(gn.data.mesh.n_triangles), "beta": float(full.parameters["beta"]),
+            "beta_ci": [float(v) for v in np.asarray(full.uncertainty.interval["beta"])]
+            if getattr(full, "uncertainty", None) is not None else None}
+
+
+def slope(rows: list[dict], key) -> float:
+    sel = [r for r in rows if r["n"] >= 3000]
+    if len(sel) < 2:
+        return float("nan")
+    n = np.log([r["n"] for r in sel])
+    y = np.log([max(key(r), 1e-6) for r in sel])
+    return float(np.polyfit(n, y, 1)[0])
+
+
+def table(rows: list[dict]) -> str:
+    names = list(rows[0]["phases"])
+    head = ["N", "triangles", "total s", "cpu s", "w/o bootstrap s", "bootstrap s"] + [f"{k} s" for k in names] + [
+        "peak RSS MB", "RSS growth MB", "beta (Pa)"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in rows:
+        cells = [f"{r['n']:,}", f"{r['triangles']:,}", f"{r['total']:.2f}", f"{r['cpu']:.2f}", f"{r['main']:.2f}",
+                 f"{r['bootstrap']:.2f}"] + [f"{r['phases'][k]:.3f}" for k in names] + [
+            f"{r['rss_mb']:.0f}", f"{r['rss_growth_mb']:.0f}", f"{r['beta']:.0f}"]
+        lines.append("| " + " | ".join(cells) + " |")
+    slopes = ["slope (N >= 3000)", "", f"{slope(rows, lambda r: r['total']):.2f}",
+              f"{slope(rows, lambda r: r['cpu']):.2f}", f"{slope(rows, lambda r: r['main']):.2f}",
+              f"{slope(rows, lambda r: r['bootstrap']):.2f}"] + [
+        f"{slope(rows, lambda r, k=k: r['phases'][k]):.2f}" for k in names] + [
+        f"{slope(rows, lambda r: r['rss_mb']):.2f}", f"{slope(rows, lambda r: max(r['rss_growth_mb'], 1)):.2f}", ""]
+    lines.append("| " + " | ".join(slopes) + " |")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--points", type=int, nargs="+", default=list(POINTS))
+    ap.add_argument("--noise", type=float, default=0.17, help="marker noise (mm, each coordinate)")
+    ap.add_argument("--one", type=int, help=argparse.SUPPRESS)
+    ap.add_argument("--json", help="also write the rows to this file")
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.ERROR)
+    if args.one:
+        sys.stdout.write(json.dumps(measure(args.one, args.noise)) + "\n")
+        return 0
+    rows = []
+    for n in args.points:
+        out = subprocess.run([sys.executable, "-m", "benchmarks.bench_dense", "--one", str(n), "--noise",
+                              str(args.noise)], capture_output=True, text=True, check=True)
+        rows.append(json.loads(out.stdout.strip().splitlines()[-1]))
+        sys.stderr.write(f"N={n}: {rows[-1]['total']:.2f} s\n")
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump(rows, fh, indent=1)
+    sys.stdout.write(f"{rows[0]['steps']} loaded steps, noise {args.noise} mm, fung, smoothing auto, bootstrap\n\n")
+    sys.stdout.write(table(rows) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
