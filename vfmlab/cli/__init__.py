@@ -114,6 +114,16 @@ def main(argv: list[str] | None = None) -> int:
         from vfmlab.cli._startup import process_ends_after_command
 
         process_ends_after_command()
+        code = _main(argv)
+        if code == EXIT_INTERRUPTED:  # interrupted: end now, before any exit hook can be interrupted in turn
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(code)
+        return code
+    return _main(argv)
+
+
+def _main(argv: list[str] | None) -> int:
     with warnings.catch_warnings(), _InterruptGuard() as interrupt:
         warnings.simplefilter("default")
         warnings.showwarning = _log_library_warning
