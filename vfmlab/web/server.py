@@ -8,7 +8,7 @@ against the step table. Requests whose ``Host`` is not this machine's loopback n
 
 The reads (HDF5, detection, drawing) run in two worker threads (the JSON state; the pictures), so the
 event loop keeps answering and the state never waits for a picture,
-and the process runs at idle priority (Linux SCHED_IDLE, :func:`idle_priority`): the capture loop
+and the process runs at the lowest ordinary priority (nice 19, :func:`idle_priority`): the capture loop
 of ``vfmlab run``, in another process, gets the cores first.
 
 Run as ``python -m vfmlab.web.server SESSION.h5 [--port N] [--feed]`` (what ``vfmlab run --web``
@@ -219,7 +219,7 @@ def _read_feed(state: WebState, loop: asyncio.AbstractEventLoop, stop: asyncio.E
 
 def warm_up() -> None:
     """Import now, at normal priority and before the run starts, what the first requests need (the
-    session reader, the marker detector, the plotting): at idle priority on a busy machine these
+    session reader, the marker detector, the plotting): at the lowest priority on a busy machine these
     imports would otherwise delay the page's first picture by many seconds."""
     import matplotlib.figure  # noqa: F401
     import reconstruction  # noqa: F401
@@ -235,7 +235,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--port", type=int, default=DEFAULT_PORT)
     parser.add_argument("--feed", action="store_true", help="read live results on stdin; stop at its end")
     parser.add_argument("--no-idle", dest="idle", action="store_false",
-                        help="keep the normal scheduling priority (default: idle priority)")
+                        help="keep the normal scheduling priority (default: the lowest, nice 19)")
     args = parser.parse_args(argv)
     warm_up()
     if args.idle:
