@@ -27,12 +27,13 @@ def test_window_table_in_si_and_recorded():
     w = rig.window
     assert (w.glass_thickness, w.glass_index, w.bath_index, w.air_index) == (6e-3, 1.52, 1.333, 1.0)
     assert w.plane_distance == pytest.approx(-0.131) and w.normal == (0.0, 0.0, 1.0)
-    record = Bench.rig_record(SimpleNamespace(config=rig, sim=None, cameras=[]))
+    record = Bench.rig_record(SimpleNamespace(config=rig, sim=None, cameras=[], motor=None, stage=None))
     win = Window.from_dict(record["window"])  # what the session stores reads back as the reconstruction's window
     assert win.thicknesses == (6e-3,) and win.indices == (1.52,) and win.n_bath == 1.333
     assert win.offset == pytest.approx(-0.131) and np.allclose(win.normal, [0, 0, 1])
     assert parse_rig(RIG, source="r.toml").window is None
-    assert "window" not in Bench.rig_record(SimpleNamespace(config=parse_rig(RIG, source="r.toml"), sim=None, cameras=[]))
+    bench = SimpleNamespace(config=parse_rig(RIG, source="r.toml"), sim=None, cameras=[], motor=None, stage=None)
+    assert "window" not in Bench.rig_record(bench)
 
 
 @pytest.mark.parametrize("old,new,fragments", [

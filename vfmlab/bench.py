@@ -62,9 +62,8 @@ class Bench:
         """``rig=`` for SessionWriter.create: the rig file as run and the cameras' read-back settings."""
         out = {"name": self.config.name, "config_text": self.config.text, "simulated": self.sim is not None,
                "cameras": [c.describe() for c in self.cameras]}
-        motor = getattr(self, "motor", None)  # a rig without a stage (or a record built from a rig file alone)
-        if motor is not None:  # the motorised stage: port, microstep, soft limits, x0, gauge length
-            out["stage"] = self.stage.settings() if hasattr(self.stage, "settings") else motor.settings()
+        if self.motor is not None:  # the motorised stage: port, microstep, soft limits, x0, gauge length
+            out["stage"] = self.stage.settings() if hasattr(self.stage, "settings") else self.motor.settings()
         if self.config.window is not None:  # reconstruction.refraction.Window.from_dict reads it back
             out["window"] = self.config.window.to_dict()
         return out

@@ -86,7 +86,9 @@ def stored_verdict(attrs: dict[str, Any]) -> dict[str, Any]:
                 value = json.loads(value)
             except ValueError:
                 return empty
-        return value if isinstance(value, type(empty)) else type(empty)(value) if hasattr(value, "__iter__") else empty
+        if isinstance(empty, list) and not isinstance(value, (dict, str)) and hasattr(value, "__iter__"):
+            return [str(v) for v in value]  # a list stored as an array attribute
+        return value if isinstance(value, type(empty)) else empty
 
     return {"verdict": str(attrs.get("verdict", "")), "verdict_reasons": load("verdict_reasons", []),
             "parameter_verdicts": load("parameter_verdicts", {}), "parameter_reasons": load("parameter_reasons", {})}
