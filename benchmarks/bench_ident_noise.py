@@ -63,7 +63,7 @@ def _noise_fit(sim, model, pos, variant, seed, **identify_options):
     fit = identify_noise_weighted if variant["weighted"] else identify
     extra = {"weight_seed": seed} if variant["weighted"] else {}
     return fit(pos, sim.pressure, sim.axial_force, thickness=sim.thickness, model=model,
-               ends="clamped" if CLAMPED else "free", smoothing=variant["smoothing"],
+               wall="membrane", ends="clamped" if CLAMPED else "free", smoothing=variant["smoothing"],
                smooth_reference=variant["smooth_reference"],
                reference_noise_correction=variant["reference_noise_correction"], **extra, **identify_options)
 
