@@ -251,7 +251,7 @@ def _command_times(sim, repeats):
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "s.h5"
         pos, p, f = sim.positions, sim.pressure, sim.axial_force
-        with SessionWriter.create(path, SpecimenInfo("A1", radius=3e-3, length=35e-3, thickness=sim.thickness),
+        with SessionWriter.create(path, SpecimenInfo("A1", radius=10e-3, length=35e-3, thickness=sim.thickness),
                                   load_cell_measures="wall") as w:
             for i in range(len(p)):
                 w.add_step(StepRecord(0, 1.1, float(p[i]), float(p[i]), float(f[i]), float(i), 1.7e9 + i))
