@@ -259,7 +259,9 @@ def run_session(protocol_path: str, specimen_path: str, out: str, *, rig_path: s
     pc = protocol.preconditioning
     test_blocks = protocol.blocks[int(protocol.has_reference):]
     console.print(f"[bold]{esc(protocol.name)}[/]: {protocol.n_steps} steps: "
-                  + ("stress-free reference, then " if protocol.has_reference else "")
+                  + ("stress-free reference" + (f" (captured {protocol.reference_repeats} times)"
+                                                 if protocol.reference_repeats > 1 else "") + ", then "
+                     if protocol.has_reference else "")
                   + f"{len(test_blocks)} block(s) at L/L0 {', '.join(f'{b.stretch:g}' for b in test_blocks)}; "
                   f"{protocol.calibration.views} calibration views; preconditioning "
                   f"{pc.pressure_cycles} x 0-{pc.pressure_max / MMHG:.0f} mmHg, {pc.stretch_cycles} x L/L0 "

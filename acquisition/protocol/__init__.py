@@ -21,7 +21,9 @@ Protocol file layout (see ``examples/paper-protocol.toml``)::
     [capture]           cameras = ["all"] or names, timeout_s
     [calibration]       views (board poses captured before the test), board (description)
     [reference]         capture = true: first capture the stress-free reference state
-                        (L/L0 = 1, p = 0) as block 0 (identification's reference step)
+                        (L/L0 = 1, p = 0) as block 0 (identification's reference step);
+                        repeats = N (default 1, at most 20): capture it N times (N steps of
+                        block 0), averaged into one reference by the identification
 
 Modules, one concept each: ``_units`` (units, :class:`ConfigError`), ``_model`` (the protocol dataclasses), ``_rig_model`` (rig
 and specimen dataclasses), ``_toml`` (reading TOML with precise errors), ``_protocol_file`` and
@@ -32,6 +34,7 @@ from __future__ import annotations
 
 from acquisition.protocol._model import (
     MAX_DURATION_S,
+    MAX_REFERENCE_REPEATS,
     MIN_CYCLE_S,
     CalibrationViews,
     CaptureSettings,
@@ -81,6 +84,7 @@ __all__ = [
     "parse_specimen",
     "MMHG",
     "MAX_DURATION_S",
+    "MAX_REFERENCE_REPEATS",
     "MIN_CYCLE_S",
     "MAX_CAMERAS",
     "END_CONDITIONS",

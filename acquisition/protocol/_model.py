@@ -11,6 +11,8 @@ from acquisition.protocol._units import MMHG, ConfigError
 MAX_DURATION_S = 86400.0
 #: Most steps a protocol may have: an inflation/extension test has tens to hundreds.
 MAX_STEPS = 10_000
+#: Most captures of the stress-free reference (``[reference] repeats``): beyond this, drift outweighs averaging.
+MAX_REFERENCE_REPEATS = 20
 #: Shortest preconditioning cycle a pressure controller can follow, s.
 MIN_CYCLE_S = 0.1
 #: Lower bounds of the time one step, one camera frame and one calibration view take, s.
@@ -118,6 +120,12 @@ class Protocol:
     def steps(self) -> list[tuple[int, float, float]]:
         """Every imaged step in order: ``(block, stretch, target_pressure_Pa)``."""
         return [(b, blk.stretch, p) for b, blk in enumerate(self.blocks) for p in blk.pressures]
+
+    @property
+    def reference_repeats(self) -> int:
+        """Captures of the stress-free reference (the steps of block 0 when ``has_reference``; else 1): the
+        identification averages them into one reference (``[reference] repeats``)."""
+        return len(self.blocks[0].pressures) if self.has_reference else 1
 
     @property
     def n_steps(self) -> int:

@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from acquisition.protocol._model import (
+    MAX_REFERENCE_REPEATS,
     MIN_CYCLE_S,
     CalibrationViews,
     CaptureSettings,
@@ -86,8 +87,9 @@ def parse_protocol(data: dict | str, text: str = "", source: str = "<protocol>",
     t = top.table("reference")
     if t is not None:
         has_reference = t.get("capture", False, bool)
+        repeats = _repeats(t, has_reference)
         if has_reference:
-            blocks.insert(0, TestBlock(1.0, (0.0,)))
+            blocks.insert(0, TestBlock(1.0, (0.0,) * repeats))
         t.done()
 
     calib = CalibrationViews()
@@ -102,6 +104,21 @@ def parse_protocol(data: dict | str, text: str = "", source: str = "<protocol>",
         proto.check_against(rig)
     proto.check_duration(len(proto.camera_names(rig)) if rig is not None else 1)
     return proto
+
+
+def _repeats(t: _Table, has_reference: bool) -> int:
+    """``[reference].repeats``: how many times the reference state is captured (averaged by the identification)."""
+    if not t.has("repeats"):
+        return 1
+    value = t.get("repeats", 1, int)
+    if value < 1:
+        t.fail("repeats", f"expected the number of captures of the reference, an integer >= 1; got {value}")
+    if value > MAX_REFERENCE_REPEATS:
+        t.fail("repeats", f"{value} captures of the reference is not useful: expected at most {MAX_REFERENCE_REPEATS} "
+                          "(averaging N captures divides the reference's marker noise by sqrt(N); 4 halve it)")
+    if value > 1 and not has_reference:
+        t.fail("repeats", f"repeats = {value} needs capture = true (the reference is not captured)")
+    return int(value)
 
 
 def _preconditioning(t: _Table | None) -> Preconditioning:
