@@ -1,7 +1,8 @@
 """What an inflation/extension test can say about a law: the Cramér-Rao bound of the homogeneous-tube measurement.
 
 The measurement (``tube_forward``): each marker's 3-D position at the reference and every step, i.i.d. isotropic
-Gaussian with standard deviation sigma; the pressure and the force reading at every loaded step with 0.1 % of
+Gaussian with standard deviation sigma (sigma / sqrt(N) at the reference when N captures of it are averaged,
+``MeasurementNoise.reference_repeats``); the pressure and the force reading at every loaded step with 0.1 % of
 reading (floors 3 Pa, 2 mN). The unknowns: the law's parameters, and the nuisances an estimator must estimate too —
 the reference radius R, the state of each step, the axial stretch (per step, or per block when the machine set
 it), the axis (two offsets, two tilts, the axial origin), and every marker's material coordinates (theta, Z).
@@ -237,6 +238,11 @@ def information_matrix(model, params, experiment: TubeExperiment) -> tuple[np.nd
     names = list(model.parameter_names) + geometry_layout(experiment)
     n_p, k = len(model.parameter_names), steps.n_steps
     jg, jl = marker_jacobians(geo.radius, lam_theta, steps.stretch, idx, experiment.theta, experiment.Z)
+    if experiment.noise.reference_repeats != 1:  # the reference rows (first 3) whitened by their own, lower noise
+        gain = np.sqrt(float(experiment.noise.reference_repeats))
+        jg, jl = jg.copy(), jl.copy()
+        jg[:, :3] *= gain
+        jl[:, :3] *= gain
     info = np.zeros((len(names), len(names)))
     info[n_p:, n_p:] = reduced_marker_information(jg, jl, experiment.noise.marker_sigma)
     y, jac = load_jacobian(model, params, experiment, lam_theta)

@@ -61,6 +61,7 @@ def identify(
     uncertainty_options: Mapping | None = None,
     weighting: str = _D.weighting,
     judged: bool = True,
+    reference_repeats: int = 1,
     **options,
 ):
     """Identify constitutive parameters from marker positions, pressure and axial force, and judge them.
@@ -87,6 +88,9 @@ def identify(
     smoothing : "auto" (default), None or (axial degree, harmonics)
     judged : bool
         False: only the fit under the stated setting (``ends`` and ``wall`` must be given), no verdict.
+    reference_repeats : int
+        The first ``reference_repeats`` steps are captures of the stress-free reference, averaged into one
+        (``reference_repeats.identify_repeated``); ``result.steps`` refer to the input steps.
     options
         Passed to ``prepare`` (fields, mesh, n_layers, quadrature, clamp_radius, ...).
 
@@ -95,6 +99,13 @@ def identify(
     IdentificationResult with ``verdict`` ("trusted" | "doubtful"), ``verdict_reasons``,
     ``parameter_verdicts``, ``parameter_reasons`` and ``hypotheses``.
     """
+    if reference_repeats != 1:
+        from .reference_repeats import identify_repeated
+
+        return identify_repeated(identify, positions, pressure, axial_force, reference_repeats, thickness=thickness,
+                                 model=model, wall=wall, ends=ends, optimizer=optimizer, smoothing=smoothing,
+                                 uncertainty=uncertainty, uncertainty_options=uncertainty_options, weighting=weighting,
+                                 judged=judged, **options)
     stated = {"ends": ends is not None, "wall": wall is not None}
     walls = [wall] if wall is not None else [PREFERRED_WALL, "membrane" if PREFERRED_WALL == "thick" else "thick"]
     ends_list = [ends] if ends is not None else ["clamped", "free"]

@@ -16,7 +16,8 @@ import numpy as np
 
 from .efficient import EfficientSettings, identify_efficient
 from .reference import refine_reference
-from .resimulation import remeasured_mesh
+from .reference_repeats import reference_marker_sigma
+from .resimulation import basis_size, fitted_positions, marker_noise_level, remeasured_mesh
 from .errors import IdentificationError
 from .fit import IdentificationResult, identify_prepared
 from .models import Model
@@ -84,6 +85,7 @@ def identify(
     uncertainty_options: Mapping | None = None,
     weighting: str = "paper",
     efficient: EfficientSettings | None = None,
+    reference_captures: np.ndarray | None = None,
     **prepare_options,
 ) -> IdentificationResult:
     """Identify constitutive parameters from marker positions, pressure and axial force under one stated setting.
@@ -123,6 +125,9 @@ def identify(
         (docs/validation/efficiency.md).
     efficient : EfficientSettings, optional
         Noise model of the readings, marker noise and iterations of ``weighting="efficient"``.
+    reference_captures : ndarray of int, shape (n_markers,), optional
+        Captures of the reference averaged into step 0, per marker (``reference_repeats.identify_repeated``):
+        its noise is the loaded steps' / sqrt(captures) for ``weighting="efficient"`` and the bootstrap.
     prepare_options
         Passed to ``prepare`` (fields, mesh, n_layers, quadrature, clamp_radius, smoothing...).
         ``smoothing="auto"`` smooths with a basis chosen from the data (generalised
@@ -138,7 +143,7 @@ def identify(
                              f"optimizer={optimizer!r}, initial={initial!r}")
         return identify_gls(positions, pressure, axial_force, thickness=thickness, model=model, wall=wall, ends=ends,
                             uncertainty=uncertainty, uncertainty_options=uncertainty_options, n_starts=n_starts,
-                            settings=efficient, **prepare_options)
+                            settings=efficient, reference_captures=reference_captures, **prepare_options)
     if weighting == "noise":
         if optimizer != "lsq" or initial is not None:
             raise ValueError(f"weighting='noise' needs optimizer='lsq' and no initial guess; got "
@@ -167,7 +172,10 @@ def identify(
     if uncertainty == "bootstrap":
         options = {k: v for k, v in prepare_options.items() if k not in ("mesh", "smoothing", "reject_outliers",
                                                                           "marker_weights")}
-        result = with_uncertainty(result, data, positions, prepare_options=options, **dict(uncertainty_options or {}))
+        unc = dict(uncertainty_options or {})
+        if reference_captures is not None:
+            unc["reference_captures"] = reference_captures
+        result = with_uncertainty(result, data, positions, prepare_options=options, **unc)
     return result
 
 
@@ -214,9 +222,27 @@ def identify_noise_weighted(positions, pressure, axial_force, *, thickness: floa
     return in_physical_units(result, data, model)
 
 
+def with_reference_sigma(settings: EfficientSettings, data, positions, reference_captures) -> EfficientSettings:
+    """``settings`` with ``marker_sigma`` (n_steps, n_markers): the level (given as a number, or the one the data
+    show with the averaged reference's lower noise accounted for) at the loaded steps, level / sqrt(captures) at
+    the reference. A given per-marker array is kept as it is (the caller knows the noise)."""
+    n_captures = np.asarray(reference_captures, dtype=float)
+    if settings.marker_sigma is not None and np.ndim(settings.marker_sigma) > 0:
+        return settings
+    if settings.marker_sigma is not None:
+        level = float(settings.marker_sigma)
+    else:
+        _, residual = fitted_positions(data, positions)
+        used = data.mesh.used & (n_captures > 0)
+        level = marker_noise_level(data, residual, basis_size(data.smoothing),
+                                   reference_variance=float(np.mean(1.0 / n_captures[used])) if used.any() else 1.0)
+    return replace(settings, marker_sigma=reference_marker_sigma(level, positions.shape[0], n_captures))
+
+
 def identify_gls(positions, pressure, axial_force, *, thickness: float, model="fung",
                  uncertainty: str = "gauss-newton", uncertainty_options: Mapping | None = None,
-                 settings: EfficientSettings | None = None, **prepare_options):
+                 settings: EfficientSettings | None = None, reference_captures: np.ndarray | None = None,
+                 **prepare_options):
     """``identify`` with ``weighting="efficient"``: the paper's fit, then generalised least squares over the full
     covariance of the gaps (``efficient.identify_efficient``). Returns an ``IdentificationResult`` whose ``data``,
     ``ivw``, ``evw`` and ``residuals`` are the paper's (unweighted), like ``identify_noise_weighted``; its
@@ -234,6 +260,8 @@ def identify_gls(positions, pressure, axial_force, *, thickness: float, model="f
         first = replace(identify(x, first.data.pressure, first.data.axial_force, thickness=thickness, model=model,
                                  mesh=remeasured_mesh(first.data.mesh, x[0]), smoothing=first.data.smoothing,
                                  **given), steps=first.steps, flags=first.flags)
+    if reference_captures is not None and first.data.smoothing is not None:
+        settings = with_reference_sigma(settings, first.data, x, reference_captures)
     result, _ = identify_efficient(first, x, model, settings, options)
     result = dataclasses.replace(result, flags=weighted_flags(result, first, first.data, model))
     return in_physical_units(result, first.data, model)

@@ -84,19 +84,21 @@ def fitted_positions(data: VFMData, positions: np.ndarray, reference_step: int =
     return fitted, residual
 
 
-def marker_noise_level(data: VFMData, residual: np.ndarray, n_basis: int | None = None) -> float:
+def marker_noise_level(data: VFMData, residual: np.ndarray, n_basis: int | None = None,
+                       reference_variance: float = 1.0) -> float:
     """Per-coordinate marker noise (m) to simulate: the RMS scatter of the displacements about the
     smoothed field (corrected for the ``n_basis`` functions fitted per component and step; it also
     holds whatever the basis misses), or the neighbour-mismatch estimate ``data.marker_noise`` for
-    unsmoothed data (measured: 5-10 % high at 0.17 mm)."""
+    unsmoothed data (measured: 5-10 % high at 0.17 mm). ``reference_variance``: the reference step's noise
+    variance relative to a loaded step's (1 / N for N captures averaged, ``reference_repeats``)."""
     level = float(data.marker_noise) if np.isfinite(data.marker_noise) else 0.0
     res = residual[1:]  # the reference step's displacement is zero by construction
     n = int(np.sum(np.isfinite(res[..., 0])))
     if data.smoothing is not None and n:
         p = (n_basis or 0) * res.shape[0]
         rss = float(np.nansum(res**2)) / 3.0
-        # a displacement carries the noise of its step and of the reference: variance 2 sigma^2
-        level = float(np.sqrt(rss / max(n - p, 1) / 2.0))
+        # a displacement carries the noise of its step and of the reference: variance (1 + reference_variance) sigma^2
+        level = float(np.sqrt(rss / max(n - p, 1) / (1.0 + reference_variance)))
     return level
 
 
@@ -108,11 +110,13 @@ def basis_size(smoothing) -> int:
 
 def resimulated_measurements(data: VFMData, positions: np.ndarray, *, marker_sigma: np.ndarray | None = None,
                              pressure_noise: float = 0.0, force_noise: float = 0.0, n_replicates: int = 16,
-                             seed: int = 0, load_noise_fraction: float = 0.0):
+                             seed: int = 0, load_noise_fraction: float = 0.0,
+                             reference_captures: np.ndarray | None = None):
     """The measurements ``bootstrap`` re-simulates, for identifications other than ``identify_prepared``
     (e.g. ``identification.regional``): the fitted field plus noise at the level the data show.
 
-    Parameters are those of ``bootstrap``. Returns ``(level, replicates)``: the simulated per-coordinate
+    Parameters are those of ``bootstrap``; ``reference_captures`` (n_markers,): captures averaged into the
+    reference step (its noise / sqrt(captures), ``reference_repeats``). Returns ``(level, replicates)``: the simulated per-coordinate
     marker noise (m) and a generator of ``(positions (n_steps, n_markers, 3) m, pressure (n_steps,) Pa,
     axial_force (n_steps,) N, mesh)`` with ``mesh`` the same triangulation on the replicate's reference
     (``remeasured_mesh``; an ``IdentificationError`` when a replicate loses markers of the mesh).
@@ -120,7 +124,9 @@ def resimulated_measurements(data: VFMData, positions: np.ndarray, *, marker_sig
     if int(n_replicates) < 5:
         raise ValueError(f"n_replicates must be at least 5; got {n_replicates!r}")
     fitted, residual = fitted_positions(data, positions)
-    level = marker_noise_level(data, residual, basis_size(data.smoothing))
+    captures = None if reference_captures is None else np.maximum(np.asarray(reference_captures, dtype=float), 1.0)
+    level = marker_noise_level(data, residual, basis_size(data.smoothing),
+                               1.0 if captures is None else float(np.mean(1.0 / captures)))
     shape = np.ones(fitted.shape[:2])
     if marker_sigma is not None:
         ms = np.asarray(marker_sigma, dtype=float)
@@ -130,6 +136,8 @@ def resimulated_measurements(data: VFMData, positions: np.ndarray, *, marker_sig
         if np.isfinite(med) and med > 0:
             shape = np.where(np.isfinite(ms) & (ms > 0), ms / med, 1.0)
     sigma = level * shape
+    if captures is not None and marker_sigma is None:
+        sigma[0] = sigma[0] / np.sqrt(captures)
     # a reading's noise: the sensor's floor and a fraction of the reading (a transducer's accuracy)
     sd_p = np.hypot(pressure_noise, load_noise_fraction * np.abs(data.pressure))
     sd_f = np.hypot(force_noise, load_noise_fraction * np.abs(data.axial_force))

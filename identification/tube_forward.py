@@ -132,12 +132,16 @@ class MeasurementNoise:
     force_floor : float, N
         Constant parts of the reading standard deviations, added in quadrature to the relative part.
         ``load_relative = 0`` and zero floors mean exact loads.
+    reference_repeats : int
+        Captures of the stress-free reference averaged into one (``[reference] repeats``): the reference markers'
+        standard deviation is ``marker_sigma / sqrt(reference_repeats)`` (``reference_sigma``).
     """
 
     marker_sigma: float
     load_relative: float = 1e-3
     pressure_floor: float = 3.0
     force_floor: float = 2e-3
+    reference_repeats: int = 1
 
     def __post_init__(self) -> None:
         if not (self.marker_sigma > 0 and np.isfinite(self.marker_sigma)):
@@ -145,6 +149,14 @@ class MeasurementNoise:
         for name in ("load_relative", "pressure_floor", "force_floor"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0; got {getattr(self, name)!r}")
+        r = self.reference_repeats
+        if isinstance(r, bool) or not isinstance(r, (int, np.integer)) or r < 1:
+            raise ValueError(f"reference_repeats must be an integer >= 1 (captures of the reference); got {r!r}")
+
+    @property
+    def reference_sigma(self) -> float:
+        """Standard deviation of each coordinate of each reference marker (m), the captures averaged."""
+        return float(self.marker_sigma / np.sqrt(self.reference_repeats))
 
     @property
     def exact_loads(self) -> bool:

@@ -122,6 +122,7 @@ def bootstrap(
     map_replicates: Callable | None = None,
     progress: Callable[[int, int, str], None] | None = None,
     load_noise_fraction: float = 0.0,
+    reference_captures: np.ndarray | None = None,
 ) -> Uncertainty:
     """Parametric bootstrap of an identification (see the module docstring).
 
@@ -157,12 +158,15 @@ def bootstrap(
     load_noise_fraction : float
         Noise of a pressure or force reading as a fraction of the reading, added (in quadrature) to
         ``pressure_noise`` and ``force_noise`` (``identification.DEFAULTS``: 0.1 %).
+    reference_captures : ndarray, shape (n_markers,), optional
+        Captures of the reference averaged into step 0 (``reference_repeats``): simulated with their lower noise.
     """
     model = get_model(result.model)
     level, replicates = resimulated_measurements(data, positions, marker_sigma=marker_sigma,
                                                  pressure_noise=pressure_noise, force_noise=force_noise,
                                                  n_replicates=n_replicates, seed=seed,
-                                                 load_noise_fraction=load_noise_fraction)
+                                                 load_noise_fraction=load_noise_fraction,
+                                                 reference_captures=reference_captures)
     options = dict(prepare_options or {})
     estimate = np.array([result.parameters[n] for n in model.parameter_names])
     reps, rms, failed = [], [], 0

@@ -103,7 +103,8 @@ def fit_hypotheses(first, positions: np.ndarray, walls, ends_list, *, prepare_op
     """
     data0, model = first.data, first.model
     options = {k: v for k, v in (prepare_options or {}).items()
-               if k not in ("mesh", "smoothing", "wall", "ends", "reject_outliers", "marker_weights")}
+               if k not in ("mesh", "smoothing", "wall", "ends", "reject_outliers", "marker_weights",
+                            "reference_captures")}
     out = []
     for wall in walls:
         if wall == data0.wall:
