@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -29,6 +29,8 @@ PAPER_TABLE1: dict[str, dict[str, float]] = {
 PAPER_NOISE = MeasurementNoise(0.17e-3)
 #: Axial stretches tried as added blocks by ``suggest_steps``.
 CANDIDATE_STRETCHES = (1.05, 1.1, 1.15, 1.2)
+#: Captures of the stress-free reference tried by ``suggest_steps`` (``[reference] repeats``): 4 halve its noise.
+CANDIDATE_REFERENCE_REPEATS = 4
 
 
 @dataclass(frozen=True)
@@ -65,7 +67,8 @@ class DesignResult:
 
 @dataclass(frozen=True)
 class Suggestion:
-    """A candidate addition to the protocol and the half-widths (% of value) it would give."""
+    """A candidate addition to the protocol and the half-widths (% of value) it would give; ``reference_repeats``:
+    the captures of the reference it assumes (more than the protocol's for "capture the reference N times")."""
 
     label: str
     added_blocks: tuple
@@ -73,6 +76,7 @@ class Suggestion:
     n_added_steps: int
     half_width: dict
     score: float
+    reference_repeats: int = 1
 
 
 def _as_steps(protocol_steps) -> TubeSteps:
@@ -120,8 +124,8 @@ def _blocks(steps: TubeSteps) -> list[tuple[float, tuple[float, ...]]]:
             for b in np.unique(steps.block)]
 
 
-def _candidates(blocks, n_markers: int, stretches, more_markers: int):
-    """(label, added blocks, markers) of the additions to try."""
+def _candidates(blocks, n_markers: int, stretches, more_markers: int, repeats: int = 1):
+    """(label, added blocks, markers, captures of the reference) of the additions to try."""
     have = {round(s, 6) for s, _ in blocks}
     levels = blocks[0][1]
     new = [s for s in stretches if round(s, 6) not in have]
@@ -131,16 +135,20 @@ def _candidates(blocks, n_markers: int, stretches, more_markers: int):
             label = ("a second" if len(blocks) == 1 and r == 1 else "an added") if r == 1 else "added"
             word = "stretch" if r == 1 else "stretches"
             out.append((f"{label} {word} at {' and '.join(f'{s:g}' for s in combo)}",
-                        tuple((s, levels) for s in combo), n_markers))
+                        tuple((s, levels) for s in combo), n_markers, repeats))
     if more_markers > n_markers:
-        out.append((f"{more_markers} markers instead of {n_markers}", (), more_markers))
+        out.append((f"{more_markers} markers instead of {n_markers}", (), more_markers, repeats))
+    if repeats < CANDIDATE_REFERENCE_REPEATS:
+        out.append((f"capture the reference {CANDIDATE_REFERENCE_REPEATS} times ([reference] repeats = "
+                    f"{CANDIDATE_REFERENCE_REPEATS})", (), n_markers, CANDIDATE_REFERENCE_REPEATS))
     return out
 
 
 def suggest_steps(protocol_steps, specimen: DesignSpecimen, model: str = "fung", params=None, n_markers: int = 300,
                   noise: MeasurementNoise = PAPER_NOISE, *, target=None,
                   stretches=CANDIDATE_STRETCHES, more_markers: int | None = None) -> tuple[DesignResult, list]:
-    """Evaluate added blocks (another stretch with the same pressure levels, two more, more markers).
+    """Evaluate added blocks (another stretch with the same pressure levels, two more, more markers) and more
+    captures of the reference (``CANDIDATE_REFERENCE_REPEATS``, when ``noise.reference_repeats`` is fewer).
 
     Parameters
     ----------
@@ -164,10 +172,13 @@ def suggest_steps(protocol_steps, specimen: DesignSpecimen, model: str = "fung",
     blocks = _blocks(before.steps)
     more = 4 * n_markers if more_markers is None else int(more_markers)
     out = []
-    for label, added, markers in _candidates(blocks, n_markers, stretches, more):
-        after = design(list(blocks) + list(added), specimen, before.model, before.parameters, markers, noise)
+    repeats = noise.reference_repeats
+    for label, added, markers, n_ref in _candidates(blocks, n_markers, stretches, more, repeats):
+        after = design(list(blocks) + list(added), specimen, before.model, before.parameters, markers,
+                       noise if n_ref == repeats else replace(noise, reference_repeats=n_ref))
         score = float(np.mean([math.log(after.half_width[p] / before.half_width[p]) for p in before.half_width]))
-        out.append(Suggestion(label, added, markers, sum(len(lv) for _, lv in added), after.half_width, score))
+        out.append(Suggestion(label, added, markers, sum(len(lv) for _, lv in added) + n_ref - repeats,
+                              after.half_width, score, n_ref))
     if target is None:
         out.sort(key=lambda s: s.score)
     else:

@@ -118,17 +118,21 @@ class LiveResults:
         Calibrated cameras; default: :func:`calibrate_from_session` at the reference step.
     calibrate : callable () -> list of Camera, optional
         Replaces :func:`calibrate_from_session` (tests).
+    reference_repeats : int
+        The first test steps that are captures of the reference (``[reference] repeats``): averaged into one
+        (``identification.identify(..., reference_repeats=...)``), as ``vfmlab identify`` does.
     """
 
     def __init__(self, session: str | Path, *, thickness: float, radius: float | None = None,
                  models: Sequence[str] = ("fung",), marker_diameter: float = 0.4e-3,
                  load_cell_measures: str = "wall", ends: str | None = None, cameras: list | None = None,
-                 calibrate: Callable[[], list] | None = None) -> None:
+                 calibrate: Callable[[], list] | None = None, reference_repeats: int = 1) -> None:
         if load_cell_measures not in ("wall", "total"):
             raise ValueError(f"load_cell_measures must be 'wall' or 'total'; got {load_cell_measures!r}")
         self.session, self.models, self.ends = Path(session), tuple(models), ends
         self.thickness, self.radius, self.marker_diameter = float(thickness), radius, float(marker_diameter)
         self.load_cell_measures = load_cell_measures
+        self.reference_repeats = max(int(reference_repeats), 1)
         self._cameras = cameras
         self._calibration_source = "given to the run" if cameras is not None else (
             "the session's board views (ChArUco defaults, k3 fixed)" if calibrate is None else "computed by the run")
@@ -282,10 +286,11 @@ class LiveResults:
         n = tracker.n_steps
         result = tracker.result(frame="specimen")
         tracked = int(result.visible[-1].sum())
+        ready = n >= self.reference_repeats + 2  # the reference (its captures) and two loaded steps
         self._set(steps_reconstructed=n, tracked=tracked, positions=result.positions, last_row=int(row),
-                  message="waiting for two loaded steps" if n < 3 else f"identifying after step row {row}")
+                  message="waiting for two loaded steps" if not ready else f"identifying after step row {row}")
         self._check_partial(row, tracked, int(result.visible[0].sum()))
-        if n >= 3:
+        if ready:
             self._identify(result.positions, np.array(self._readings), result.marker_id)
 
     def _check_partial(self, row: int, tracked: int, reference: int) -> None:
@@ -318,7 +323,7 @@ class LiveResults:
                 # the command's defaults (identification.DEFAULTS: wall and ends judged, smoothing chosen from the
                 # data); Gauss-Newton errors keep pace with the rig (the verdict says they are not meant to cover)
                 res = identify(positions, readings[:, 1], readings[:, 2], thickness=self.thickness, model=model,
-                               ends=self.ends, uncertainty="gauss-newton")
+                               ends=self.ends, uncertainty="gauss-newton", reference_repeats=self.reference_repeats)
             except Exception as exc:  # noqa: BLE001 - one model failing must not hide the others
                 log.info("live results: %s not identified from %d steps: %s", model, positions.shape[0], exc)
                 self._set(error=f"{model}: {exc}")

@@ -327,7 +327,8 @@ def _live_results(path: Path, specimen: SpecimenFile, rig: RigConfig, models: tu
     from vfmlab.live_results import LiveResults
 
     kwargs = dict(thickness=specimen.thickness, radius=specimen.radius, models=tuple(models),
-                  load_cell_measures=rig.load_cell.measures, ends=getattr(specimen, "ends", "") or None)
+                  load_cell_measures=rig.load_cell.measures, ends=getattr(specimen, "ends", "") or None,
+                  reference_repeats=protocol.reference_repeats if protocol is not None else 1)
     kwargs.update(options or {})
     return LiveResults(path, **kwargs)
 

@@ -28,6 +28,7 @@ from vfmlab.results import round_floats
 from vfmlab.stages.settings import IDENTIFY_DEFAULTS as _D
 from vfmlab.stages.errors import StageError, StageUnavailable
 from vfmlab.stages.imports import marker_outliers
+from vfmlab.stages.reference import reference_repeats
 
 log = logging.getLogger(__name__)
 
@@ -49,7 +50,8 @@ def load_identification_inputs(session, markers: str | None = None) -> dict[str,
     force (n_steps,) N (wall force: a "total" load-cell reading is corrected by + p pi r_i^2 with
     the reference lumen radius r_i = radius - thickness, decision 0003), thickness m, rows
     (n_steps,) rows of the step table, markers_result name, notes (corrections applied) and
-    uncertainty (n_steps, n_markers) m, the reconstruction's reported marker uncertainty (or None).
+    uncertainty (n_steps, n_markers) m, the reconstruction's reported marker uncertainty (or None), and
+    reference_repeats: the leading steps that are captures of the reference (``vfmlab.stages.reference``).
     """
     names = session.results("markers")
     if markers is not None and markers not in names:
@@ -88,9 +90,13 @@ def load_identification_inputs(session, markers: str | None = None) -> dict[str,
     uncertainty = np.asarray(arrays["uncertainty"], float) if "uncertainty" in arrays else None
     if uncertainty is not None and (uncertainty.shape != positions.shape[:2] or not np.isfinite(uncertainty).any()):
         uncertainty = None  # imported markers say no uncertainty (all NaN): none given
+    repeats = reference_repeats(session.protocol_text, np.asarray(steps["block"])[rows])
+    if repeats > 1:
+        notes.append(f"reference captured {repeats} times (steps {rows[:repeats].tolist()}): averaged into one")
     return {"positions": positions, "pressure": pressure, "force": force, "thickness": float(specimen.thickness),
             "radius": float(specimen.radius), "length": float(specimen.length), "session_ends": ends,
-            "markers_result": result["name"], "rows": rows, "notes": notes, "uncertainty": uncertainty}
+            "markers_result": result["name"], "rows": rows, "notes": notes, "uncertainty": uncertainty,
+            "reference_repeats": repeats}
 
 
 def _labels(labels, n_markers: int) -> np.ndarray:
@@ -222,7 +228,8 @@ def identify_stored(path: str | os.PathLike, *, model: str = _D.model, wall: str
     try:
         result = identify(data["positions"], data["pressure"], data["force"], thickness=data["thickness"],
                           model=model, wall=wall, ends=ends, optimizer=optimizer, smoothing=smoothing,
-                          uncertainty=uncertainty, weighting=weighting, judged=check, uncertainty_options={
+                          uncertainty=uncertainty, weighting=weighting, judged=check,
+                          reference_repeats=data.get("reference_repeats", 1), uncertainty_options={
                               "marker_sigma": data["uncertainty"], "pressure_noise": PRESSURE_NOISE,
                               "force_noise": FORCE_NOISE,
                               # the re-identifications on both cores: the same results, ~half the time idle

@@ -15,6 +15,7 @@ import numpy as np
 
 from acquisition.session import SessionError, write_result
 from vfmlab.pipeline import FORCE_NOISE, PRESSURE_NOISE, StageError, read_identification_inputs, resolve_ends
+from vfmlab.stages.reference import averaged_inputs
 from vfmlab.results import round_floats
 
 __all__ = ["RegionsSpec", "parse_regions", "identify_regional_stored", "AUTO_MAX_BANDS"]
@@ -149,7 +150,7 @@ def identify_regional_stored(path: str | os.PathLike, *, regions: RegionsSpec | 
         spec = regions if isinstance(regions, RegionsSpec) else parse_regions(regions)
     except ValueError as exc:
         raise StageError(str(exc)) from None
-    data = read_identification_inputs(path, markers)
+    data = averaged_inputs(read_identification_inputs(path, markers))  # the reference captures averaged
     ends, ends_source, ends_notes, ends_warnings = resolve_ends(data["session_ends"], ends)
     data["notes"] = list(data["notes"]) + ends_notes + ends_warnings
     try:

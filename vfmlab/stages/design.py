@@ -40,20 +40,22 @@ def design_report(protocol: Protocol, specimen: SpecimenFile, *, model: str = "f
                   force_measures: str = "wall") -> dict:
     """The prediction of a test, as plain data with SI keys.
 
-    Returns a dict: ``model``, ``parameters`` (SI), ``units``, ``half_width_95_percent`` and ``std_percent``
+    Returns a dict: ``model``, ``parameters`` (SI), ``units``, ``reference_repeats`` (the protocol's captures of the
+    reference, averaged: its markers' noise / sqrt(N)), ``half_width_95_percent`` and ``std_percent``
     per parameter, ``condition``, ``warning``, and ``suggestions``: each candidate addition with its
     half-widths, best first.
     """
     m = get_model(model)
     params = params if params is not None else parse_parameters(m.name, None)
     spec = DesignSpecimen(specimen.radius, specimen.thickness, specimen.length, wall, force_measures)
-    noise = MeasurementNoise(noise_m)
+    noise = MeasurementNoise(noise_m, reference_repeats=protocol.reference_repeats)
     blocks = protocol_blocks(protocol)
     before, suggestions = suggest_steps(blocks, spec, m.name, params, n_markers, noise)
     bound = before.bound
     return {
         "model": m.name, "wall": wall, "force_measures": force_measures, "n_markers": n_markers,
-        "marker_noise_m": noise_m, "load_noise_relative": noise.load_relative,
+        "marker_noise_m": noise_m, "reference_repeats": noise.reference_repeats,
+        "load_noise_relative": noise.load_relative,
         "pressure_floor_Pa": noise.pressure_floor, "force_floor_N": noise.force_floor,
         "blocks": [{"stretch": s, "pressures_Pa": list(p)} for s, p in blocks],
         "parameters": dict(params), "units": dict(zip(m.parameter_names, m.units)),
@@ -64,6 +66,7 @@ def design_report(protocol: Protocol, specimen: SpecimenFile, *, model: str = "f
         "suggestions": [{"label": s.label, "added_blocks": [{"stretch": st, "pressures_Pa": list(p)}
                                                             for st, p in s.added_blocks],
                          "n_markers": s.n_markers, "n_added_steps": s.n_added_steps,
+                         "reference_repeats": s.reference_repeats,
                          "half_width_95_percent": dict(s.half_width), "score": s.score} for s in suggestions],
     }
 
@@ -88,7 +91,9 @@ def design_tables(report: dict) -> list:
     stretches = ", ".join(f"{b['stretch']:g}" for b in report["blocks"])
     steps = sum(len(b["pressures_Pa"]) for b in report["blocks"])
     out.append(f"{esc(report['model'])} ({esc(report['wall'])}): {steps} steps at stretch {stretches}, "
-                  f"{report['n_markers']} markers at {num(report['marker_noise_m'] * 1e3)} mm, "
+                  f"{report['n_markers']} markers at {num(report['marker_noise_m'] * 1e3)} mm"
+                  + (f" (reference captured {report['reference_repeats']} times)"
+                     if report.get("reference_repeats", 1) > 1 else "") + ", "
                   f"loads at {num(report['load_noise_relative'] * 100)} % of reading")
     table = Table(title="95 % half-width each parameter can reach (1.96 x the Cramér-Rao bound)")
     for col in ("parameter", "value", "± 95 %", "± 95 % (value units)"):
