@@ -39,8 +39,10 @@ def command(protocol_path, specimen_path, n_markers, noise_mm, model, params, wa
 
     The Cramér-Rao bound of a homogeneous tube: every marker's position at every step (the stress-free reference
     included) with --noise-mm, pressure and force with 0.1 % of reading (floors 3 Pa, 2 mN); the radius, the
-    stretches, the axis and each marker's material coordinates are estimated too. Also tries a second or third
-    axial stretch with the same pressure levels, and more markers, and shows what each would give.
+    stretches, the axis and each marker's material coordinates are estimated too; the reference markers' noise
+    is divided by sqrt(N) when the protocol captures the reference N times ([reference] repeats). Also tries a
+    second or third axial stretch with the same pressure levels, more markers, and capturing the reference 4
+    times, and shows what each would give.
     """
     from acquisition.protocol import ConfigError, load_protocol, load_specimen
     from vfmlab.stages.design import design_report, design_tables, parse_parameters
