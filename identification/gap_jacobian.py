@@ -1,0 +1,73 @@
+"""Derivatives of the virtual-work gaps with respect to the measurements, for ``efficient.GapCovariance``.
+
+The gaps ``(IVW - EVW) / scale`` of a prepared data set depend on the readings linearly (through the external
+work) and on the markers through the smoothed displacement field. This module gives
+
+- the readings' part in closed form (``reading_sensitivities``): ``EVW = p W_p + load_end N`` with ``W_p`` the
+  virtual work of a unit pressure and ``N = F + p (A_loop - A_clamp)`` (clamped ends) or ``F`` (free ends), so
+  ``dEVW/dp = W_p + load_end dN/dp`` and ``dEVW/dF = load_end``, read off the data set itself (no re-preparation);
+- the markers' part by finite differences along the smoothing basis functions (``perturbed_sets``), one
+  ``prepare`` per function, **leaving out the rigid ones** (``rigid_columns``): a uniform circumferential or axial
+  displacement of a step (a rotation about, a translation along the axis) is removed by the rigid alignment of
+  ``prepare`` (Kabsch) and leaves every gap unchanged (measured: its finite difference is the step's truncation
+  error, 1e-4 of the radial mode's at 0.17 mm), so its ``prepare`` is saved.
+
+Units SI; shapes in the docstrings.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from .vfm import VFMData
+
+__all__ = ["reading_sensitivities", "rigid_columns", "perturbed_sets"]
+
+#: A basis column is constant (a rigid motion along a circumferential or axial direction) when its spread over the
+#: used markers is below this fraction of its largest value.
+CONSTANT_COLUMN = 1e-12
+
+
+def reading_sensitivities(data: VFMData) -> tuple[np.ndarray, np.ndarray] | None:
+    """Derivatives of the external work with respect to the pressure and the force readings of each step.
+
+    Returns ``(dEVW/dp (J/Pa), dEVW/dF (J/N))``, each of shape (n_fields, n_steps) (a step's work depends on its own
+    readings only), or None when the data set cannot tell them (a loaded step at zero pressure, where the unit
+    pressure's work is not ``pressure_work / p``, or no step with an end force): then re-prepare.
+    """
+    p, n_end = data.pressure, data.end_force
+    if np.any(p[1:] == 0) or not np.any(n_end != 0):
+        return None
+    k = int(np.argmax(np.abs(n_end)))
+    load_end = data.end_work[:, k] / n_end[k]  # (n_fields,): end_work = load_end N
+    safe = np.where(p != 0, p, 1.0)
+    unit_pressure = np.where(p != 0, data.pressure_work / safe, 0.0)  # (n_fields, n_steps) J/Pa
+    dn_dp = data.strip_force / safe if data.ends == "clamped" else np.zeros_like(p)  # N = F + p (A_loop - A_clamp)
+    d_pressure = unit_pressure + load_end[:, None] * np.where(p != 0, dn_dp, 0.0)[None]
+    d_force = np.broadcast_to(load_end[:, None], data.evw.shape).copy()
+    return d_pressure, d_force
+
+
+def rigid_columns(basis: np.ndarray, use: np.ndarray) -> np.ndarray:
+    """Columns of ``basis`` (n_markers, n_b) constant over the ``use``d markers (n_markers,) bool: shape (n_b,)."""
+    b = basis[use]
+    spread = np.ptp(b, axis=0)
+    return spread <= CONSTANT_COLUMN * np.maximum(np.abs(b).max(axis=0), 1e-300)
+
+
+def perturbed_sets(prep: Callable, aligned: np.ndarray, basis: np.ndarray, direction: np.ndarray, step: float,
+                   steps: slice, columns: np.ndarray, remesh: Callable | None = None) -> list[VFMData]:
+    """Data sets prepared with the markers of ``steps`` moved by ``step * basis[:, i] * direction``, per column i.
+
+    prep(positions, mesh=None) -> VFMData; aligned (n_steps, n_markers, 3) m; basis (n_markers, n_b);
+    direction (n_steps, n_markers, 3) unit vectors; columns (n_b,) bool, the columns to perturb; remesh(reference
+    (n_markers, 3)) -> mesh, for the perturbed reference step (None: the loaded steps, same mesh).
+    """
+    out = []
+    for i in np.flatnonzero(columns):
+        pos = aligned.copy()
+        pos[steps] += step * basis[:, i, None] * direction[steps]
+        out.append(prep(pos) if remesh is None else prep(pos, m=remesh(pos[0])))
+    return out
