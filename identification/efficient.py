@@ -134,7 +134,12 @@ class GapCovariance:
             with np.errstate(all="ignore"):
                 return prepare(pos, pressure, force, thickness=data.thickness, mesh=m, **opts)
 
-        self.base = prep(aligned)
+        # the data as prepared for the fit serve as the unperturbed set when they were prepared alike (no markers
+        # rejected as outliers, equal weights): the same numbers to rounding, one ``prepare`` saved
+        given = dict(prepare_options or {})
+        alike = (not np.any(data.n_outliers) and given.get("marker_weights") is None
+                 and not given.get("reference_noise_correction", False))
+        self.base = data if alike else prep(aligned)
         loaded = np.arange(p.size) > 0
         self.sp = np.hypot(settings.pressure_relative * p, settings.pressure_floor) * loaded
         self.sf = np.hypot(settings.force_relative * f, settings.force_floor) * loaded
