@@ -32,11 +32,11 @@ import numpy as np
 
 from .errors import IdentificationError
 from .fit import identify_prepared
-from .gap_jacobian import perturbed_sets, reading_sensitivities, rigid_columns
+from .gap_jacobian import Reprepare, perturbed_sets, reading_sensitivities, rigid_columns
 from .kinematics import align_steps
 from .resimulation import basis_size, fitted_positions, marker_noise_level, remeasured_mesh
 from .smoothing import smoothing_basis
-from .vfm import VFMData, internal_virtual_work, prepare
+from .vfm import PrepareSettings, VFMData, internal_virtual_work
 
 __all__ = ["EfficientSettings", "GapCovariance", "whitening_matrix"]
 
@@ -129,11 +129,7 @@ class GapCovariance:
         x = np.asarray(positions, dtype=float)
         aligned, _, _ = align_steps(x, x[0])
         p, f = data.pressure, data.axial_force
-
-        def prep(pos, pressure=p, force=f, m=data.mesh):
-            with np.errstate(all="ignore"):
-                return prepare(pos, pressure, force, thickness=data.thickness, mesh=m, **opts)
-
+        prep = Reprepare(data, aligned, PrepareSettings.from_options(opts.pop("settings", None), **opts))
         # the data as prepared for the fit serve as the unperturbed set when they were prepared alike (no markers
         # rejected as outliers, equal weights): the same numbers to rounding, one ``prepare`` saved
         given = dict(prepare_options or {})

@@ -7,10 +7,13 @@ work) and on the markers through the smoothed displacement field. This module gi
   virtual work of a unit pressure and ``N = F + p (A_loop - A_clamp)`` (clamped ends) or ``F`` (free ends), so
   ``dEVW/dp = W_p + load_end dN/dp`` and ``dEVW/dF = load_end``, read off the data set itself (no re-preparation);
 - the markers' part by finite differences along the smoothing basis functions (``perturbed_sets``), one
-  ``prepare`` per function, **leaving out the rigid ones** (``rigid_columns``): a uniform circumferential or axial
+  preparation per function, **leaving out the rigid ones** (``rigid_columns``): a uniform circumferential or axial
   displacement of a step (a rotation about, a translation along the axis) is removed by the rigid alignment of
   ``prepare`` (Kabsch) and leaves every gap unchanged (measured: its finite difference is the step's truncation
-  error, 1e-4 of the radial mode's at 0.17 mm), so its ``prepare`` is saved.
+  error, 1e-4 of the radial mode's at 0.17 mm), so its preparation is saved;
+- the preparations themselves (``Reprepare``): ``prepare``'s steps on the moved markers, reusing what the move does
+  not change: each step's axis fit starts from the unmoved step's axis (the same minimum in a fifth of the time),
+  the smooth reference radius and the virtual fields of an unmoved reference are computed once.
 
 Units SI; shapes in the docstrings.
 """
@@ -21,9 +24,12 @@ from typing import Callable
 
 import numpy as np
 
-from .vfm import VFMData
+from .kinematics import align_steps, interpolated_state, step_cylindrical
+from .mesh import SurfaceMesh
+from .smoothing import smooth_cylindrical, smooth_reference_radius
+from .vfm import PrepareSettings, VFMData, balance, default_fields, prepare
 
-__all__ = ["reading_sensitivities", "rigid_columns", "perturbed_sets"]
+__all__ = ["Reprepare", "reading_sensitivities", "rigid_columns", "perturbed_sets"]
 
 #: A basis column is constant (a rigid motion along a circumferential or axial direction) when its spread over the
 #: used markers is below this fraction of its largest value.
@@ -71,3 +77,56 @@ def perturbed_sets(prep: Callable, aligned: np.ndarray, basis: np.ndarray, direc
         pos[steps] += step * basis[:, i, None] * direction[steps]
         out.append(prep(pos) if remesh is None else prep(pos, m=remesh(pos[0])))
     return out
+
+
+class Reprepare:
+    """``prepare(positions, pressure, force, thickness=data.thickness, mesh=mesh, settings=settings)`` for positions
+    close to ``aligned`` (n_steps, n_markers, 3) m, the unmoved markers of ``data`` rigidly aligned on their
+    reference step: the same data set (to the axis fits' convergence, ~1e-12 relative), in about half the time.
+
+    Without smoothing, with outlier rejection, marker weights, the reference-noise correction or a reference step
+    other than 0 it is ``prepare`` itself.
+    """
+
+    def __init__(self, data: VFMData, aligned: np.ndarray, settings: PrepareSettings):
+        self.data, self.s = data, settings
+        s = settings
+        self.lean = (isinstance(s.smoothing, tuple) and s.marker_weights is None and not s.reject_outliers
+                     and not s.reference_noise_correction and not s.estimate_noise and s.reference_step == 0)
+        if not self.lean:
+            return
+        mesh = data.mesh
+        x, _, _ = align_steps(aligned, aligned[0])
+        self.axes = step_cylindrical(mesh, x)[3]  # where the moved steps' axis fits start
+        self.reference_radius = smooth_reference_radius(mesh) if s.smooth_reference else mesh.r
+        self.fields = s.fields if s.fields is not None else default_fields(mesh, s.wall)
+
+    def __call__(self, positions: np.ndarray, pressure: np.ndarray | None = None, force: np.ndarray | None = None,
+                 m: SurfaceMesh | None = None) -> VFMData:
+        """The data set of ``positions`` (n_steps, n_markers, 3) m, readings (n_steps,) Pa and N (default the data's)
+        on the mesh ``m`` (default the data's: a re-measured reference brings its own)."""
+        d, s = self.data, self.s
+        p = d.pressure if pressure is None else np.asarray(pressure, dtype=float)
+        f = d.axial_force if force is None else np.asarray(force, dtype=float)
+        mesh = d.mesh if m is None else m
+        with np.errstate(all="ignore"):
+            if not self.lean:
+                return prepare(positions, p, f, thickness=d.thickness, mesh=mesh, settings=s)
+            return self._lean(np.asarray(positions, dtype=float), p, f, mesh)
+
+    def _lean(self, positions: np.ndarray, p: np.ndarray, f: np.ndarray, mesh: SurfaceMesh) -> VFMData:
+        """``prepare``'s steps for the settings ``lean`` allows (``surface_state`` without outliers, weights or
+        noise estimate, then ``vfm.balance``)."""
+        s, same = self.s, mesh is self.data.mesh
+        x, _, _ = align_steps(positions, positions[0])
+        r, th, z, axes = step_cylindrical(mesh, x, start=self.axes)
+        r, th, z = smooth_cylindrical(mesh, r, th, z, s.smoothing)
+        reference_radius = mesh.r
+        if s.smooth_reference:
+            reference_radius = self.reference_radius if same else smooth_reference_radius(mesh)
+            r = r + (reference_radius - mesh.r)[None]
+        about = dict(outliers=np.zeros(r.shape, bool), noise=np.full(r.shape[0], np.nan), axes=tuple(axes),
+                     smoothing=self.data.smoothing)
+        st = interpolated_state(mesh, (r, th, z), reference_radius, s.quadrature, about)
+        fields = self.fields if same or s.fields is not None else default_fields(mesh, s.wall)
+        return balance(st, mesh, fields, p, f, self.data.thickness, s)
