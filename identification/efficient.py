@@ -36,7 +36,7 @@ from .gap_jacobian import Reprepare, perturbed_sets, reading_sensitivities, rigi
 from .kinematics import align_steps
 from .resimulation import basis_size, fitted_positions, marker_noise_level, remeasured_mesh
 from .smoothing import smoothing_basis
-from .vfm import PrepareSettings, VFMData, internal_virtual_work
+from .vfm import PrepareSettings, VFMData, default_fields, internal_virtual_work
 
 __all__ = ["EfficientSettings", "GapCovariance", "whitening_matrix"]
 
@@ -139,7 +139,7 @@ class GapCovariance:
         loaded = np.arange(p.size) > 0
         self.sp = np.hypot(settings.pressure_relative * p, settings.pressure_floor) * loaded
         self.sf = np.hypot(settings.force_relative * f, settings.force_floor) * loaded
-        self.readings = self._reading_gaps(prep, aligned, p, f)  # (n_f, n_s) each: d gap / d reading x its sigma
+        self.readings = self._reading_gaps(prep, aligned, p)  # (n_f, n_s) each: d gap / d reading x its sigma
         # the markers: (coefficient covariance (n_steps or 1, n_b, n_b), [loaded VFMData], [reference VFMData])
         self.modes: list[tuple] = []
         self.reference_sets: list[VFMData] = []  # re-measured references (``reference_replicates``)
@@ -167,18 +167,16 @@ class GapCovariance:
                                   remesh=lambda ref: remeasured_mesh(data.mesh, ref))
             self.modes.append((cov[:, keep][:, :, keep], [], sets))
 
-    def _reading_gaps(self, prep, aligned, p: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _reading_gaps(self, prep: Reprepare, aligned, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The gaps' derivatives with respect to the pressure and force readings times their standard deviations,
-        (n_fields, n_steps) each: in closed form (``gap_jacobian.reading_sensitivities``), else by re-preparing
-        with all loaded readings moved at once (a step's external work depends on its own readings only)."""
-        exact = reading_sensitivities(self.base)
-        if exact is None:
-            dp = self.settings.step * np.maximum(np.abs(p), 100.0)
-            df = self.settings.step * np.maximum(np.abs(f), 0.1)
-            exact = ((prep(aligned, p + dp).evw - self.base.evw) / dp,
-                     (prep(aligned, force=f + df).evw - self.base.evw) / df)
+        (n_fields, n_steps) each, in closed form (``gap_jacobian.reading_sensitivities``)."""
+        s = prep.s
+        load_end = (s.fields if s.fields is not None else default_fields(self.data.mesh, self.data.wall)).load_end
+        zero = p == 0
+        unit = prep(aligned, np.where(zero, 1.0, p)) if zero[1:].any() else None
+        d_pressure, d_force = reading_sensitivities(self.base, load_end, unit)
         scale = self.data.scale[:, None]
-        return -exact[0] / scale * self.sp, -exact[1] / scale * self.sf
+        return -d_pressure / scale * self.sp, -d_force / scale * self.sf
 
     def _marker_sigma(self, positions) -> np.ndarray:
         """Per-coordinate marker noise (m), shape (n_steps, n_markers)."""

@@ -5,7 +5,8 @@ work) and on the markers through the smoothed displacement field. This module gi
 
 - the readings' part in closed form (``reading_sensitivities``): ``EVW = p W_p + load_end N`` with ``W_p`` the
   virtual work of a unit pressure and ``N = F + p (A_loop - A_clamp)`` (clamped ends) or ``F`` (free ends), so
-  ``dEVW/dp = W_p + load_end dN/dp`` and ``dEVW/dF = load_end``, read off the data set itself (no re-preparation);
+  ``dEVW/dp = W_p + load_end dN/dp`` and ``dEVW/dF = load_end``, read off the data set itself (one re-preparation
+  at unit pressure only if a loaded step was read at exactly zero pressure);
 - the markers' part by finite differences along the smoothing basis functions (``perturbed_sets``), one
   preparation per function, **leaving out the rigid ones** (``rigid_columns``): a uniform circumferential or axial
   displacement of a step (a rotation about, a translation along the axis) is removed by the rigid alignment of
@@ -36,24 +37,30 @@ __all__ = ["Reprepare", "reading_sensitivities", "rigid_columns", "perturbed_set
 CONSTANT_COLUMN = 1e-12
 
 
-def reading_sensitivities(data: VFMData) -> tuple[np.ndarray, np.ndarray] | None:
+def reading_sensitivities(data: VFMData, load_end: np.ndarray,
+                          unit: VFMData | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Derivatives of the external work with respect to the pressure and the force readings of each step.
 
-    Returns ``(dEVW/dp (J/Pa), dEVW/dF (J/N))``, each of shape (n_fields, n_steps) (a step's work depends on its own
-    readings only), or None when the data set cannot tell them (a loaded step at zero pressure, where the unit
-    pressure's work is not ``pressure_work / p``, or no step with an end force): then re-prepare.
+    ``EVW = p W_p + load_end N`` with ``N - F`` proportional to p, so ``dEVW/dp = (EVW - load_end F) / p`` and
+    ``dEVW/dF = load_end`` (``load_end`` (n_fields,): the virtual fields' axial translation of the load end).
+    At a step read at exactly zero pressure the unit pressure's work comes from ``unit``: the data set prepared
+    from the same positions with 1 Pa at those steps (the readings elsewhere). Returns ``(dEVW/dp (J/Pa),
+    dEVW/dF (J/N))``, each of shape (n_fields, n_steps): a step's work depends on its own readings only.
     """
-    p, n_end = data.pressure, data.end_force
-    if np.any(p[1:] == 0) or not np.any(n_end != 0):
-        return None
-    k = int(np.argmax(np.abs(n_end)))
-    load_end = data.end_work[:, k] / n_end[k]  # (n_fields,): end_work = load_end N
-    safe = np.where(p != 0, p, 1.0)
-    unit_pressure = np.where(p != 0, data.pressure_work / safe, 0.0)  # (n_fields, n_steps) J/Pa
-    dn_dp = data.strip_force / safe if data.ends == "clamped" else np.zeros_like(p)  # N = F + p (A_loop - A_clamp)
-    d_pressure = unit_pressure + load_end[:, None] * np.where(p != 0, dn_dp, 0.0)[None]
-    d_force = np.broadcast_to(load_end[:, None], data.evw.shape).copy()
-    return d_pressure, d_force
+    p = data.pressure
+    zero = p == 0
+    load_end = np.asarray(load_end, dtype=float)[:, None]
+
+    def per_pascal(d: VFMData, q: np.ndarray) -> np.ndarray:
+        return (d.pressure_work + load_end * (d.end_force - d.axial_force)[None]) / q
+
+    d_pressure = per_pascal(data, np.where(zero, 1.0, p))
+    if zero[1:].any():
+        if unit is None:
+            raise ValueError(f"steps {np.flatnonzero(zero[1:]) + 1} were read at zero pressure: unit must be the data "
+                             "prepared with 1 Pa there")
+        d_pressure[:, zero] = per_pascal(unit, np.where(zero, 1.0, p))[:, zero]
+    return d_pressure, np.broadcast_to(load_end, data.evw.shape).copy()
 
 
 def rigid_columns(basis: np.ndarray, use: np.ndarray) -> np.ndarray:
