@@ -242,10 +242,8 @@ def prepare(
         estimate (``reject_outliers=False``, smoothing given as degrees): a bootstrap replicate's ~1.5 ms.
     """
     s = PrepareSettings.from_options(settings, **options)
-    wall, ends, fields, mesh, reference_step, clamp_radius = (s.wall, s.ends, s.fields, s.mesh, s.reference_step,
-                                                              s.clamp_radius)
-    n_layers, quadrature, toward, smoothing, reject_outliers = (s.n_layers, s.quadrature, s.toward, s.smoothing,
-                                                                 s.reject_outliers)
+    wall, ends, fields, mesh, reference_step = s.wall, s.ends, s.fields, s.mesh, s.reference_step
+    quadrature, toward, smoothing, reject_outliers = s.quadrature, s.toward, s.smoothing, s.reject_outliers
     marker_weights, smooth_reference = s.marker_weights, s.smooth_reference
     reference_noise_correction, estimate_noise = s.reference_noise_correction, s.estimate_noise
     if wall not in WALLS:
