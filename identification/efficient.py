@@ -13,9 +13,10 @@ function of its markers, so marker noise reaches the gaps only through the coeff
 (covariance ``sigma^2 (B^T B)^-1`` per component and step). The derivative of every gap with respect to every
 coefficient comes from re-preparing the data with the field perturbed along that basis function, at all loaded
 steps at once (a step's gaps depend only on its own field and the reference), and once more for the reference
-configuration (treated as measured: its error enters every step's gaps, hence the correlation across steps). The
-readings (pressure, force) enter the external work linearly, with standard deviation
-``sqrt((relative x reading)^2 + floor^2)``. No forward model of the specimen is solved: the balance stays a
+configuration (treated as measured: its error enters every step's gaps, hence the correlation across steps); the
+rigid basis functions are left out and the re-preparations reuse what the perturbation does not change
+(``gap_jacobian``). The readings (pressure, force) enter the external work linearly, with standard deviation
+``sqrt((relative x reading)^2 + floor^2)``, their derivatives in closed form. No forward model of the specimen is solved: the balance stays a
 virtual fields method and works on heterogeneous data alike.
 
 Units SI; gaps in the optimiser's normalised units (divided by ``VFMData.scale``).
@@ -132,9 +133,9 @@ class GapCovariance:
         prep = Reprepare(data, aligned, PrepareSettings.from_options(opts.pop("settings", None), **opts))
         # the data as prepared for the fit serve as the unperturbed set when they were prepared alike (no markers
         # rejected as outliers, equal weights): the same numbers to rounding, one ``prepare`` saved
-        given = dict(prepare_options or {})
-        alike = (not np.any(data.n_outliers) and given.get("marker_weights") is None
-                 and not given.get("reference_noise_correction", False))
+        given = PrepareSettings.from_options(**{k: v for k, v in dict(prepare_options or {}).items()
+                                                if k in ("settings", "marker_weights", "reference_noise_correction")})
+        alike = not np.any(data.n_outliers) and given.marker_weights is None and not given.reference_noise_correction
         self.base = data if alike else prep(aligned)
         loaded = np.arange(p.size) > 0
         self.sp = np.hypot(settings.pressure_relative * p, settings.pressure_floor) * loaded
