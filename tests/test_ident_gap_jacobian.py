@@ -66,9 +66,9 @@ def _assert_same_data(a, b, rtol=1e-8):
         assert np.max(np.abs(x - y)) <= rtol * np.max(np.abs(y)), name
 
 
-@pytest.mark.parametrize("wall", ["membrane", "thick"])
-def test_reprepare_gives_prepares_data_for_moved_loaded_steps_and_a_moved_reference(wall, free):
-    data, aligned, settings = free if wall == "membrane" else _case("free", wall)
+@pytest.mark.parametrize("wall, ends", [("membrane", "free"), ("thick", "free"), ("membrane", "clamped")])
+def test_reprepare_gives_prepares_data_for_moved_loaded_steps_and_a_moved_reference(wall, ends, free):
+    data, aligned, settings = free if (wall, ends) == ("membrane", "free") else _case(ends, wall)
     again = Reprepare(data, aligned, settings)
     assert again.lean
     loaded = _moved(data, aligned, slice(1, None))
