@@ -13,8 +13,8 @@ work) and on the markers through the smoothed displacement field. This module gi
   ``prepare`` (Kabsch) and leaves every gap unchanged (measured: its finite difference is the step's truncation
   error, 1e-4 of the radial mode's at 0.17 mm), so its preparation is saved;
 - the preparations themselves (``Reprepare``): ``prepare``'s steps on the moved markers, reusing what the move does
-  not change: each step's axis fit starts from the unmoved step's axis (the same minimum in a fifth of the time),
-  the smooth reference radius and the virtual fields of an unmoved reference are computed once.
+  not change: each step's axis fit starts from the unmoved step's axis (the same minimum in fewer iterations),
+  the smooth reference radius and the virtual fields of an unmoved reference are computed once (-15 % a set).
 
 Units SI; shapes in the docstrings.
 """
@@ -74,7 +74,7 @@ def perturbed_sets(prep: Callable, aligned: np.ndarray, basis: np.ndarray, direc
                    steps: slice, columns: np.ndarray, remesh: Callable | None = None) -> list[VFMData]:
     """Data sets prepared with the markers of ``steps`` moved by ``step * basis[:, i] * direction``, per column i.
 
-    prep(positions, mesh=None) -> VFMData; aligned (n_steps, n_markers, 3) m; basis (n_markers, n_b);
+    prep(positions, m=mesh) -> VFMData (``Reprepare``); aligned (n_steps, n_markers, 3) m; basis (n_markers, n_b);
     direction (n_steps, n_markers, 3) unit vectors; columns (n_b,) bool, the columns to perturb; remesh(reference
     (n_markers, 3)) -> mesh, for the perturbed reference step (None: the loaded steps, same mesh).
     """
