@@ -13,8 +13,10 @@ work) and on the markers through the smoothed displacement field. This module gi
   ``prepare`` (Kabsch) and leaves every gap unchanged (measured: its finite difference is the step's truncation
   error, 1e-4 of the radial mode's at 0.17 mm), so its preparation is saved;
 - the preparations themselves (``Reprepare``): ``prepare``'s steps on the moved markers, reusing what the move does
-  not change: each step's axis fit starts from the unmoved step's axis (the same minimum in fewer iterations),
-  the smooth reference radius and the virtual fields of an unmoved reference are computed once (-15 % a set).
+  not change: each moved step's axis fit starts from the unmoved step's axis (the same minimum in fewer
+  iterations), the axis of a step whose markers did not move is the unmoved one carried along with the rigid
+  alignment (a moved reference moves the other steps only rigidly), the smooth reference radius and the virtual
+  fields of an unmoved reference are computed once.
 
 Units SI; shapes in the docstrings.
 """
@@ -25,9 +27,11 @@ from typing import Callable
 
 import numpy as np
 
-from .kinematics import align_steps, interpolated_state, step_cylindrical
+from .axis import Axis
+from .kinematics import align_steps, cylindrical_about, interpolated_state, step_cylindrical
 from .mesh import SurfaceMesh
 from .smoothing import smooth_cylindrical, smooth_reference_radius
+from .step_axes import refit_axes
 from .vfm import PrepareSettings, VFMData, balance, default_fields, prepare
 
 __all__ = ["Reprepare", "reading_sensitivities", "rigid_columns", "perturbed_sets"]
@@ -103,7 +107,8 @@ class Reprepare:
         if not self.lean:
             return
         mesh = data.mesh
-        x, _, _ = align_steps(aligned, aligned[0])
+        x, rotation, translation = align_steps(aligned, aligned[0])
+        self.aligned, self.alignment = aligned, (rotation, translation)
         self.axes = step_cylindrical(mesh, x)[3]  # where the moved steps' axis fits start
         self.reference_radius = smooth_reference_radius(mesh) if s.smooth_reference else mesh.r
         self.fields = s.fields if s.fields is not None else default_fields(mesh, s.wall)
@@ -125,8 +130,9 @@ class Reprepare:
         """``prepare``'s steps for the settings ``lean`` allows (``surface_state`` without outliers, weights or
         noise estimate, then ``vfm.balance``)."""
         s, same = self.s, mesh is self.data.mesh
-        x, _, _ = align_steps(positions, positions[0])
-        r, th, z, axes = step_cylindrical(mesh, x, start=self.axes)
+        x, rotation, translation = align_steps(positions, positions[0])
+        axes = self._axes(positions, x, rotation, translation, mesh)
+        r, th, z = cylindrical_about(x, axes)
         r, th, z = smooth_cylindrical(mesh, r, th, z, s.smoothing)
         reference_radius = mesh.r
         if s.smooth_reference:
@@ -137,3 +143,35 @@ class Reprepare:
         st = interpolated_state(mesh, (r, th, z), reference_radius, s.quadrature, about)
         fields = self.fields if same or s.fields is not None else default_fields(mesh, s.wall)
         return balance(st, mesh, fields, p, f, self.data.thickness, s)
+
+    def _axes(self, positions, x, rotation, translation, mesh: SurfaceMesh) -> list[Axis]:
+        """Each step's axis (``step_cylindrical``'s): refitted for the steps whose markers moved, starting from the
+        unmoved axis; carried along with the alignment for the others (their markers only moved rigidly with the
+        reference, and the fit's minimum moves with them: ``_carried``). positions, x (n_steps, n_markers, 3) m,
+        the moved markers before and after their alignment by ``rotation`` (n_steps, 3, 3), ``translation``."""
+        same = (positions == self.aligned) | (np.isnan(positions) & np.isnan(self.aligned))
+        moved = ~same.all(axis=(1, 2))
+        rotation0, translation0 = self.alignment
+        axes = list(self.axes)
+        for k in np.flatnonzero(~moved):
+            turn = rotation[k] @ rotation0[k].T  # from the unmoved step's aligned frame to this one
+            axes[k] = (mesh.axis if axes[k] is self.data.mesh.axis else
+                       _carried(axes[k], turn, translation[k] - turn @ translation0[k], mesh.axis))
+        if moved.any():
+            observed = np.all(np.isfinite(x[moved]), axis=-1) & mesh.used
+            start = [self.axes[k] for k in np.flatnonzero(moved)]
+            for k, axis in zip(np.flatnonzero(moved), refit_axes(x[moved], observed, mesh.axis, start=start)):
+                axes[k] = axis
+        return axes
+
+
+def _carried(axis: Axis, turn: np.ndarray, shift: np.ndarray, initial: Axis) -> Axis:
+    """``axis`` fitted to markers that then moved rigidly (``turn`` (3, 3), ``shift`` (3,) m): the axis the fit finds
+    for the moved markers, framed as ``step_axes.axes_from`` frames it (pointing along ``initial``, x' from its x')."""
+    d = turn @ axis.direction
+    d = -d if d @ initial.direction < 0 else d
+    x_hint = initial.basis[0]
+    x_axis = x_hint - (d @ x_hint) * d
+    x_axis /= np.linalg.norm(x_axis)
+    return Axis(origin=turn @ axis.origin + shift, basis=np.stack([x_axis, np.cross(d, x_axis), d]),
+                radius=axis.radius, rms=axis.rms)
