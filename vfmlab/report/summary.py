@@ -161,9 +161,9 @@ def section(ctx, rep) -> str:
     out = [f"<p>The newest identification of each model, side by side: value, 95 % interval "
            f"({html.escape(' or '.join(sorted(sources)))}) and verdict of each parameter; the misfits are the RMS "
            "differences between the pressure and axial force each model predicts at the measured deformation and "
-           f"the measured ones. A verdict shows {NO_VERDICT} for results written before verdicts were stored. "Achieved" is "
-           "the half-width of the 95 % interval in % of the value; \"reachable\" the half-width the Cramér-Rao bound "
-           "allows this test (its steps, markers and the marker noise its data show; docs/validation/bound.md): an "
+           f"the measured ones. A verdict shows {NO_VERDICT} for results written before verdicts were stored. "
+           "\"Achieved\" is the half-width of the 95 % interval in % of the value; \"reachable\" the half-width "
+           "the Cramér-Rao bound allows this test (its steps, markers and the marker noise its data show; docs/validation/bound.md): an "
            "achieved interval well above it says the estimator, not the data, limits the result.</p>",
            _side_by_side(ctx, qualities)]
     if fits is None:
