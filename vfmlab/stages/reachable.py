@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 log = logging.getLogger(__name__)
 
@@ -60,7 +61,7 @@ class Reachable:
                 f"{self.marker_noise_m * 1e3:.3g} mm, loads at 0.1 % of reading, {self.wall} wall")
 
 
-def achieved_half_width(values: Sequence[float], low: Sequence[float], high: Sequence[float]) -> np.ndarray:
+def achieved_half_width(values: ArrayLike, low: ArrayLike, high: ArrayLike) -> np.ndarray:
     """Half-width of achieved 95 % intervals, % of each value (NaN where the value is 0 or not finite)."""
     v = np.asarray(values, float)
     with np.errstate(divide="ignore", invalid="ignore"):
