@@ -15,6 +15,7 @@ Nothing is stored in the session.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -69,6 +70,18 @@ def achieved_half_width(values: ArrayLike, low: ArrayLike, high: ArrayLike) -> n
     return np.where(np.isfinite(out), out, np.nan)
 
 
+@contextlib.contextmanager
+def _quiet(name: str):
+    """Only errors from logger ``name`` while the block runs (its level restored after)."""
+    logger = logging.getLogger(name)
+    level = logger.level
+    logger.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
+
+
 def _bound(model: str, params: Mapping[str, float], steps, specimen, *, wall: str, force_measures: str,
            n_markers: int, noise_m: float) -> dict[str, float]:
     """``identification.design``'s half-widths (% of value); raises ValueError when the bound is meaningless."""
@@ -121,8 +134,9 @@ def _session_reachable(session, result: Mapping[str, Any], model: str) -> Reacha
     idx = [where[int(r)] for r in rows]
     positions = inputs["positions"][idx]
     wall = str(attrs.get("wall", "")) if str(attrs.get("wall", "")) in ("thick", "membrane") else "membrane"
-    data = prepare(positions, inputs["pressure"][idx], inputs["force"][idx], thickness=inputs["thickness"],
-                   wall="membrane", ends="free")
+    with _quiet("identification"):  # the mesh's and the balance's notes were the identification's to give
+        data = prepare(positions, inputs["pressure"][idx], inputs["force"][idx], thickness=inputs["thickness"],
+                       wall="membrane", ends="free")
     noise = float(data.marker_noise)
     if not (np.isfinite(noise) and noise > 0):
         raise ValueError("the marker noise could not be estimated from the data")
