@@ -2,8 +2,8 @@
 efficient path is told, the library keyword against the stage path, and the bound with repeats.
 
 Simulated data as ``benchmarks.bench_reference_repeats`` (free homogeneous Fung tube, one stretch 1.1, 300 markers,
-0.17 mm on every capture, each capture of the reference with its own noise). Over 40 seeds the efficient path's
-alpha22 RMS falls from 4.6 % to 2.9 % with 4 captures (docs/validation/efficiency.md "Capturing the reference several
+0.17 mm on every capture, each capture of the reference with its own noise). Over 100 seeds the efficient path's
+alpha22 RMS falls from 4.3 % to 2.6 % with 4 captures (docs/validation/efficiency.md "Capturing the reference several
 times"); on the 8 seeds here from 5.1 % to 1.9 %: the test asks for a ratio below 0.8.
 """
 
