@@ -104,6 +104,9 @@ def make_session(work: Path) -> Path:
                  ["reconstruct", str(partial)]):
         _vfmlab(ROOT, args, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     partial.rename(session)
+    results = partial.with_name(partial.name + ".results")  # the derived results beside the file (issue 28)
+    if results.exists():
+        results.rename(session.with_name(session.name + ".results"))
     return session
 
 
@@ -117,6 +120,9 @@ def _copies(session: Path, tmp: Path, trees: list[Tree], repeats: int) -> dict:
             for k in range(repeats):
                 out[r, label, k] = tmp / f"r{r}-{len(out)}.h5"
                 shutil.copyfile(session, out[r, label, k])
+                beside = session.with_name(session.name + ".results")  # results beside the file (issue 28)
+                if beside.exists():
+                    shutil.copytree(beside, out[r, label, k].with_name(out[r, label, k].name + ".results"))
     time.sleep(SETTLE)
     return out
 
@@ -173,6 +179,9 @@ def import_breakdown(tree: Tree, session: Path, tmp: Path) -> tuple[dict, list[s
     modules of ``MUST_NOT_IMPORT`` it imported, and the total."""
     target = tmp / f"imports-{abs(hash(tree))}.h5"
     shutil.copyfile(session, target)
+    beside = session.with_name(session.name + ".results")
+    if beside.exists():
+        shutil.copytree(beside, target.with_name(target.name + ".results"))
     args = [tree.python, "-X", "importtime", "-m", "vfmlab", "identify", str(target), "--uncertainty",
             "gauss-newton"]
     err = subprocess.run(args, env=_env(tree.root), cwd=tree.root, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
