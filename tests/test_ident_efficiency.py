@@ -111,3 +111,15 @@ def test_the_efficient_fit_has_intervals_from_its_own_covariance():
         ratio = np.subtract(*gls.uncertainty.interval[n][::-1]) / np.subtract(*boot.uncertainty.interval[n][::-1])
         assert 0.5 < ratio < 2.0, (n, ratio)
     assert gls.uncertainty.model_error_factor >= 1.0 and gls.uncertainty.replicates.shape == (0, 4)
+
+
+def test_the_defaults_are_the_efficient_fit_with_its_own_intervals():
+    from identification import DEFAULTS
+    from identification.defaults import uncertainty_for
+
+    assert (DEFAULTS.weighting, DEFAULTS.uncertainty) == ("efficient", "auto")
+    assert uncertainty_for("auto", "efficient") == "gls"
+    assert uncertainty_for("auto", "paper") == uncertainty_for("auto", "noise") == "bootstrap"
+    assert uncertainty_for("bootstrap", "efficient") == "bootstrap"
+    with pytest.raises(ValueError, match="uncertainty"):
+        uncertainty_for("jackknife", "efficient")
