@@ -62,13 +62,16 @@ def read_verdict(attrs: Mapping[str, Any]) -> Verdict:
 
 
 def intervals(result: Mapping[str, Any]) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray, str]:
-    """(names, values, low, high, source) of a result's parameters (SI): the stored 95 % interval
-    (bootstrap), else value ± 1.96 standard errors."""
+    """(names, values, low, high, source) of a result's parameters (SI): the stored 95 % interval (the
+    bootstrap's or the efficient fit's covariance's, as its ``uncertainty`` attribute says), else value ± 1.96
+    standard errors."""
     a = result["arrays"]
     names = [str(n) for n in np.atleast_1d(a.get("parameter_names", []))]
     values = np.asarray(a.get("parameters", []), float)
     if "interval_low" in a and "interval_high" in a:
-        return names, values, np.asarray(a["interval_low"], float), np.asarray(a["interval_high"], float), "bootstrap"
+        how = str(result.get("attrs", {}).get("uncertainty", ""))
+        source = "generalised least squares" if how.startswith("generalised least-squares") else "bootstrap"
+        return names, values, np.asarray(a["interval_low"], float), np.asarray(a["interval_high"], float), source
     err = np.asarray(a.get("stderr", np.full(len(values), np.nan)), float)
     return names, values, values - _Z95 * err, values + _Z95 * err, "±1.96 s.e."
 
