@@ -214,7 +214,9 @@ def test_design_cli_table_and_json():
     report = json.loads(js.output)
     assert report["parameters"] == {"beta": 2000.0, "alpha": 4.6} and report["units"]["beta"] == "Pa"
     pressures = [b["pressures_Pa"] for b in report["blocks"]]
-    d = design([(1.1, pressures[0])], DesignSpecimen(R, H, L), "delfino", {"beta": 2000.0, "alpha": 4.6})
+    assert report["reference_repeats"] == 4  # as the shipped protocol says
+    d = design([(1.1, pressures[0])], DesignSpecimen(R, H, L), "delfino", {"beta": 2000.0, "alpha": 4.6},
+               noise=MeasurementNoise(0.17e-3, reference_repeats=4))
     assert report["half_width_95_percent"] == pytest.approx(d.half_width, rel=1e-9)
     assert set(report["suggestions"][0]) >= {"label", "added_blocks", "half_width_95_percent", "n_added_steps"}
     bad = CliRunner().invoke(cli, args + ["--params", "beta=abc"])

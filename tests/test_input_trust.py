@@ -293,7 +293,7 @@ def _levels_protocol(tmp_path, n_levels: int):
 def test_a_protocol_of_100001_levels_is_refused_with_its_duration(tmp_path, capsys):
     rc, _, err = run(capsys, "run", _levels_protocol(tmp_path, 100_001), "--specimen", "examples/specimen.toml",
                      "--out", tmp_path / "s.h5", "--sim", "--yes")
-    assert rc == 2 and "the protocol has 100,002 steps (at most 10,000) and would take at least 19.5 h" in err
+    assert rc == 2 and "the protocol has 100,005 steps (at most 10,000) and would take at least 19.5 h" in err  # + 4 reference captures
     assert not (tmp_path / "s.h5").exists()
 
 

@@ -110,8 +110,10 @@ def test_live_panel_shows_the_protocols_reachable_half_widths(tmp_path):
     protocol = load_protocol(ROOT / "examples" / "paper-protocol.toml")
     specimen = load_specimen(ROOT / "examples" / "specimen.toml")
     reach = protocol_reachable(protocol, specimen, ("fung", "nosuchlaw"), wall="membrane")
+    assert protocol.reference_repeats == 4  # the shipped protocol captures the reference 4 times
     expected = design(protocol_blocks(protocol), DesignSpecimen(specimen.radius, specimen.thickness, specimen.length),
-                      "fung").half_width  # vfmlab design's defaults: 300 markers, 0.17 mm, Table 1
+                      "fung", noise=MeasurementNoise(0.17e-3, reference_repeats=4)).half_width  # vfmlab design's
+    # defaults: 300 markers, 0.17 mm, Table 1
     assert reach["fung"].half_width == pytest.approx(expected, rel=1e-12)
     assert not reach["nosuchlaw"].available
     est = LiveEstimate("fung", ("beta", "alpha11"), np.array([5000.0, 14.5]), np.array([60.0, 0.07]), np.arange(4),

@@ -31,16 +31,16 @@ def rig():
 
 def test_examples_load_in_si(rig):
     paper = load_protocol(EXAMPLES / "paper-protocol.toml", rig)
-    # block 0: the stress-free reference (L/L0 = 1, p = 0); then the paper's 8 levels at L/L0 = 1.1
-    assert paper.has_reference and paper.steps[0] == (0, 1.0, 0.0)
-    assert paper.n_steps == 9 and [b.stretch for b in paper.blocks] == [1.0, 1.1]
+    # block 0: the stress-free reference (L/L0 = 1, p = 0) captured 4 times; then the paper's 8 levels at L/L0 = 1.1
+    assert paper.has_reference and paper.steps[:4] == [(0, 1.0, 0.0)] * 4 and paper.reference_repeats == 4
+    assert paper.n_steps == 12 and [b.stretch for b in paper.blocks] == [1.0, 1.1]
     assert paper.blocks[1].pressures[-1] == pytest.approx(150 * MMHG)
     assert paper.preconditioning.pressure_cycles == 8 and paper.preconditioning.stretch_cycles == 8
     assert paper.preconditioning.pressure_max == pytest.approx(10.666e3, rel=1e-3)  # 80 mmHg = 10.7 kPa
     assert paper.preconditioning.stretch_max == 1.4
     multi = load_protocol(EXAMPLES / "multi-stretch-protocol.toml", rig)
-    assert [b.stretch for b in multi.blocks] == [1.0, 1.1, 1.2] and multi.n_steps == 17
-    assert multi.steps[9] == (2, 1.2, 0.0)
+    assert [b.stretch for b in multi.blocks] == [1.0, 1.1, 1.2] and multi.n_steps == 20
+    assert multi.steps[12] == (2, 1.2, 0.0)
     spec = load_specimen(EXAMPLES / "specimen.toml")
     assert (spec.radius, spec.length, spec.thickness) == pytest.approx((0.010, 0.035, 0.0013))
     assert len(rig.cameras) >= 4 and rig.pressure.mode == "controller" and rig.load_cell.measures == "wall"
