@@ -8,13 +8,14 @@ tube (``rig_sim.simulate_test``, free ends, the protocol's stretches and pressur
 over the whole length, Table-1 Fung parameters); per seed (generator ``[20261127, seed]``, the same seeds for every
 estimator) Gaussian noise on every marker coordinate at every step, the reference included, and on the pressure and
 wall-force readings (0.1 % of reading, floors 3 Pa and 2 mN in quadrature: ``MeasurementNoise``), as
-``bench_efficiency``. Each seed is identified by ``identification.identify`` with the library defaults (wall and
-ends judged from the data, smoothing chosen from the data) and with ``weighting="efficient"``; both with Gauss-Newton
-errors (``uncertainty="gauss-newton"``: the bootstrap of the defaults changes the intervals, never the estimate,
-``optimize.identify``/``uncertainty.with_uncertainty``), so the estimates are the defaults'.
+``bench_efficiency``. A protocol that captures the reference N times (``[reference] repeats``) is simulated with N
+independent noisy captures, passed as ``reference_repeats=N`` (what the stage layer does). Each seed is identified
+by ``identification.identify`` with the library defaults (the efficient weighting and its intervals; wall and ends
+judged from the data, smoothing chosen from the data) and, for comparison, with the paper's weighting
+(``weighting="paper"``, Gauss-Newton errors: the intervals never change the estimate).
 
 Run: ``python -m benchmarks.bench_protocols [--protocols examples/paper-protocol.toml,...] [--seeds 100]
-[--wall thick|membrane] [--estimators default,efficient] [--sigma-mm 0.17]``. Prints Markdown tables
+[--wall thick|membrane] [--estimators default,paper] [--sigma-mm 0.17]``. Prints Markdown tables
 (docs/validation/protocols.md).
 """
 
@@ -44,28 +45,30 @@ GOAL = ("beta", "alpha11", "alpha22")
 WITHIN = 5.0  # %
 #: name -> keyword options of ``identification.identify`` on top of model and thickness (wall, ends: judged).
 ESTIMATORS = {
-    "default": dict(uncertainty="gauss-newton"),
-    "efficient": dict(uncertainty="gauss-newton", weighting="efficient"),
+    "default": dict(),
+    "paper": dict(uncertainty="gauss-newton", weighting="paper"),
 }
 
 
 def protocol_case(path: str | Path, specimen_path: str | Path) -> dict:
     """The stretches and pressure levels of a protocol (one set of levels for every block) and the specimen."""
-    blocks = protocol_blocks(load_protocol(path))
+    protocol = load_protocol(path)
+    blocks = protocol_blocks(protocol)
     levels = {tuple(p) for _, p in blocks}
     if len(levels) != 1:
         raise ValueError(f"{path}: the blocks have different pressure levels; the simulator takes one set")
     spec = load_specimen(specimen_path)
     return {"path": str(path), "blocks": blocks, "stretches": tuple(s for s, _ in blocks),
             "pressures": tuple(levels.pop()), "radius": spec.radius, "thickness": spec.thickness,
-            "length": spec.length}
+            "length": spec.length, "repeats": protocol.reference_repeats}
 
 
 def predicted(case: dict, wall: str, sigma: float, n_markers: int = 300, n_draws: int = 200_000) -> dict:
     """``design``'s half-widths (95 %, % of value) and the fraction within 5 % the bound predicts (per parameter
     and the goal's three together, a normal draw with the bound's covariance)."""
     spec = DesignSpecimen(case["radius"], case["thickness"], case["length"], wall)
-    d = design(case["blocks"], spec, "fung", PAPER_PARAMETERS["fung"], n_markers, MeasurementNoise(sigma))
+    d = design(case["blocks"], spec, "fung", PAPER_PARAMETERS["fung"], n_markers,
+               MeasurementNoise(sigma, reference_repeats=case["repeats"]))
     names = list(d.parameters)
     std = np.array([d.bound.std_percent[p] for p in names])
     frac = {p: math.erf(WITHIN / (s * math.sqrt(2.0))) for p, s in zip(names, std)}
@@ -77,15 +80,18 @@ def predicted(case: dict, wall: str, sigma: float, n_markers: int = 300, n_draws
     return {"half_width": dict(d.half_width), "fraction": frac, "names": names}
 
 
-def noisy_data(sim, sigma: float, rng: np.random.Generator):
-    """Positions (every step, reference included), pressure and force readings with the measurement noise."""
+def noisy_data(sim, sigma: float, rng: np.random.Generator, n_repeats: int = 1):
+    """Positions (the reference's ``n_repeats`` captures, then the loaded steps), pressure and force readings with
+    the measurement noise; every capture of the reference has its own noise."""
     noise = MeasurementNoise(sigma)
     p, f = np.array(sim.pressure), np.array(sim.axial_force)
     sp, sf = noise.load_sigma(p[1:], f[1:])
-    x = sim.exact_positions + sigma * rng.standard_normal(sim.exact_positions.shape)
+    exact = np.asarray(sim.exact_positions)
+    x = np.concatenate([np.repeat(exact[:1], n_repeats, axis=0), exact[1:]])
+    x = x + sigma * rng.standard_normal(x.shape)
     p[1:] += sp * rng.standard_normal(sp.shape)
     f[1:] += sf * rng.standard_normal(sf.shape)
-    return x, p, f
+    return x, np.r_[np.full(n_repeats - 1, p[0]), p], np.r_[np.full(n_repeats - 1, f[0]), f]
 
 
 def measured(case: dict, wall: str, sigma: float, n_seeds: int, estimators, first_seed: int = 0) -> dict:
@@ -101,13 +107,14 @@ def measured(case: dict, wall: str, sigma: float, n_seeds: int, estimators, firs
     failed = {e: 0 for e in estimators}
     chosen = {e: {} for e in estimators}
     for seed in range(first_seed, first_seed + n_seeds):
-        x, p, f = noisy_data(sim, sigma, np.random.default_rng([20261127, seed]))
+        x, p, f = noisy_data(sim, sigma, np.random.default_rng([20261127, seed]), case["repeats"])
         for e in estimators:
             t0 = time.perf_counter()
             try:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
-                    res = identify(x, p, f, thickness=case["thickness"], model="fung", **ESTIMATORS[e])
+                    res = identify(x, p, f, thickness=case["thickness"], model="fung",
+                                   reference_repeats=case["repeats"], **ESTIMATORS[e])
                 est = np.array([res.parameters[n] for n in names])
             except Exception as exc:  # noqa: BLE001 - a failed fit counts as outside 5 %, the bench goes on
                 logging.getLogger(__name__).warning("%s seed %d %s failed: %s", case["path"], seed, e, exc)
@@ -164,7 +171,7 @@ def main(argv=None) -> None:
     parser.add_argument("--first-seed", type=int, default=0)
     parser.add_argument("--wall", default="thick", choices=("thick", "membrane"), help="the simulated tube's wall")
     parser.add_argument("--sigma-mm", type=float, default=0.17)
-    parser.add_argument("--estimators", default="default,efficient")
+    parser.add_argument("--estimators", default="default,paper")
     parser.add_argument("--predict-only", action="store_true", help="the design prediction only (seconds)")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)
