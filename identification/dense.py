@@ -1,0 +1,274 @@
+"""Dense clouds (DIC, issue 25): the balance on a bounded quadrature mesh after smoothing every point.
+
+With smoothing on, what a dense cloud tells about the displacement is the smoothed field: a few dozen
+coefficients per component and step fitted by least squares to all the points (linear in their number).
+Above ``DENSE_POINTS`` markers per step ``vfm.prepare`` fits them (step axes on a fixed subsample of the
+markers, outliers and the smoothing on all of them), then evaluates the smooth reference surface and the
+smoothed displacement, with their exact derivatives, on a regular (Theta, Z) grid of ``GRID_ROWS`` x
+``GRID_COLUMNS`` nodes between the innermost boundary markers (``mesh.z_bottom`` .. ``mesh.z_top``): the
+kinematics, the wall layer, the virtual work and the fit then cost the same whatever the number of points.
+Beyond the grid's end rows the virtual fields are zero or a rigid axial translation (no internal work), and
+the end force acts across the grid's top row, so the balance is the same. A bootstrap replicate reuses the
+data's step axes and reference-radius basis (``DenseQuadrature``) and re-smooths its re-noised points.
+
+Frames and units: as ``kinematics`` (m, rad; cylindrical components (radial, circumferential, axial)).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .axis import Axis
+from .kinematics import QUADRATURE, SurfaceState, triangle_geometry
+from .mesh import SurfaceMesh, wrap_angle
+from .outliers import marker_outliers
+from .smoothing import (_displacements, _unique_rows, per_component_degrees, reference_radius_degree,
+                        resolve_smoothing, smoothing_basis)
+from .errors import DegenerateDataError
+from .step_axes import refit_axes
+from .thick_fields import flat_end_fields
+from .virtual_fields import VirtualFields, check_fields, paper_fields
+
+__all__ = ["DENSE_POINTS", "DenseQuadrature", "dense_state", "grid_fields", "quadrature_grid", "step_coordinates",
+           "wants_dense"]
+
+log = logging.getLogger(__name__)
+
+#: Markers of the mesh above which a smoothed cloud is evaluated on the quadrature grid.
+DENSE_POINTS = 3000
+#: Markers (a fixed random subsample) each step's axis is fitted to on a dense cloud.
+AXIS_POINTS = 3000
+#: Rows (axial) and columns (circumferential) of the quadrature grid's nodes.
+GRID_ROWS = 25
+GRID_COLUMNS = 48
+
+
+@dataclass(frozen=True)
+class DenseQuadrature:
+    """How a dense cloud was evaluated (``VFMData.quadrature``); a bootstrap replicate reuses it.
+
+    Attributes
+    ----------
+    grid : SurfaceMesh
+        The quadrature mesh: ``GRID_ROWS`` x ``GRID_COLUMNS`` nodes on the smooth reference surface; the
+        integration points of the ``VFMData`` are on its triangles.
+    n_points : int
+        Markers of the cloud (mesh vertices) the smoothing was fitted to.
+    axes : tuple of Axis
+        Every step's axis (fitted to ``AXIS_POINTS`` markers).
+    outliers : ndarray, shape (n_steps, n_markers) bool
+        Markers set unobserved as mis-tracked.
+    reference_degree : (int, int)
+        Smoothing basis of the reference radius.
+    """
+
+    grid: SurfaceMesh
+    n_points: int
+    axes: tuple
+    outliers: np.ndarray
+    reference_degree: tuple
+
+    def describe(self) -> str:
+        return (f"dense cloud: {self.n_points} points evaluated on a quadrature mesh of {self.grid.n_markers} nodes "
+                f"({self.grid.n_triangles} triangles)")
+
+
+def wants_dense(mesh: SurfaceMesh, smoothing, smooth_reference: bool, reference_noise_correction: bool) -> bool:
+    """Whether ``prepare`` takes the quadrature path: more than ``DENSE_POINTS`` markers, smoothed, the reference
+    radius smoothed too, no errors-in-variables correction."""
+    return (smoothing is not None and smooth_reference and not reference_noise_correction
+            and int(np.count_nonzero(mesh.used)) > DENSE_POINTS)
+
+
+def step_coordinates(aligned: np.ndarray, axes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cylindrical coordinates (n_steps, n_markers) of the aligned positions (n_steps, n_markers, 3) about each
+    step's axis (as ``kinematics.step_cylindrical``)."""
+    origin = np.stack([a.origin for a in axes])
+    basis = np.stack([a.basis for a in axes])
+    local = (aligned - origin[:, None]) @ np.swapaxes(basis, 1, 2)
+    return np.hypot(local[..., 0], local[..., 1]), np.arctan2(local[..., 1], local[..., 0]), local[..., 2]
+
+
+def _subsampled_axes(mesh: SurfaceMesh, aligned: np.ndarray) -> list[Axis]:
+    """Every step's axis refitted (``refit_axes``) to a fixed random subsample of ``AXIS_POINTS`` mesh markers."""
+    idx = np.flatnonzero(mesh.used)
+    if len(idx) > AXIS_POINTS:
+        idx = np.sort(np.random.default_rng(0).choice(idx, AXIS_POINTS, replace=False))
+    sub = aligned[:, idx]
+    return refit_axes(sub, np.all(np.isfinite(sub), axis=-1), mesh.axis)
+
+
+def quadrature_grid(mesh: SurfaceMesh, rows: int = GRID_ROWS, columns: int = GRID_COLUMNS) -> SurfaceMesh:
+    """A regular (Theta, Z) grid mesh between the measured ends of ``mesh`` (its innermost boundary markers).
+
+    Nodes: ``rows`` x ``columns`` (node ``i columns + j`` at Z_i, Theta_j), each quad split in two triangles
+    counter-clockwise in (Theta, Z); bottom and top edges the first and last rows. ``r`` is NaN until
+    ``dense_state`` sets the smooth reference radius.
+    """
+    theta = -np.pi + 2.0 * np.pi * np.arange(columns) / columns
+    z = np.linspace(mesh.z_bottom, mesh.z_top, rows)
+    i, j = np.meshgrid(np.arange(rows - 1), np.arange(columns), indexing="ij")
+    a, b = i * columns + j, i * columns + (j + 1) % columns
+    c, d = b + columns, a + columns
+    tri = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, d], -1).reshape(-1, 3)])
+    jj = np.arange(columns)
+    top0 = (rows - 1) * columns
+    return SurfaceMesh(axis=mesh.axis, triangles=tri, r=np.full(rows * columns, np.nan),
+                       theta=np.tile(theta, rows), z=np.repeat(z, columns), used=np.ones(rows * columns, bool),
+                       bottom_edges=np.stack([jj, (jj + 1) % columns], -1),
+                       top_edges=np.stack([top0 + (jj + 1) % columns, top0 + jj], -1),
+                       z_bottom=float(z[0]), z_top=float(z[-1]), dropped={})
+
+
+def grid_fields(fields: VirtualFields | None, mesh: SurfaceMesh, grid: SurfaceMesh, wall: str) -> VirtualFields | None:
+    """The virtual fields on the grid's nodes: the default ones built there, given ones (at the markers of
+    ``mesh``) interpolated along Z when they depend on Z alone (paper, flat-end and band fields); None otherwise
+    (``prepare`` then takes the full path)."""
+    if fields is None:
+        out = flat_end_fields(grid) if wall == "thick" else paper_fields(grid)
+    else:
+        ok = mesh.used & np.isfinite(mesh.z)
+        order = np.argsort(mesh.z[ok], kind="stable")
+        z = mesh.z[ok][order]
+        v = fields.values[:, ok][:, order]  # (f, n, 3)
+        scale = max(float(np.abs(v).max()), 1e-300)
+        if np.percentile(np.abs(np.diff(v, axis=1)), 99.9) > 0.02 * scale:
+            return None  # not a function of Z alone
+        zu, first = np.unique(z, return_index=True)
+        vu = v[:, first]
+        values = np.stack([np.stack([np.interp(grid.z, zu, vu[k, :, c]) for c in range(3)], -1)
+                           for k in range(fields.n_fields)])
+        out = VirtualFields(names=fields.names, values=values, load_end=fields.load_end)
+    check_fields(out, grid)
+    return out
+
+
+def _coefficients(mesh: SurfaceMesh, degree, d: np.ndarray, weights) -> np.ndarray:
+    """Least-squares coefficients (n_steps, n_basis) of every step of ``d`` (n_steps, n_markers) on
+    ``smoothing_basis(mesh, degree)`` (the fit of ``smoothing.smooth_cylindrical``)."""
+    basis, ok_ref = smoothing_basis(mesh, degree)
+    ok = ok_ref[None] & np.isfinite(d)
+    masks, inverse = _unique_rows(ok)
+    n_b = basis.shape[1]
+    if masks.sum(axis=1).min() <= n_b:
+        raise DegenerateDataError(f"smoothing with {n_b} basis functions needs more observed markers than that; "
+                                  f"some steps have {int(masks.sum(axis=1).min())}")
+    if weights is None:
+        gram = (basis.T[None] * masks[:, None, :]) @ basis
+        bty = np.where(ok, d, 0.0) @ basis
+        try:
+            return np.linalg.solve(gram[inverse.ravel()], bty[..., None])[..., 0]
+        except np.linalg.LinAlgError:
+            pass
+    w = np.ones_like(d) if weights is None else np.where(np.isfinite(weights), weights, 0.0)
+    sw = np.sqrt(np.where(ok, w, 0.0))
+    coef = np.zeros((d.shape[0], n_b))
+    for k in range(d.shape[0]):
+        m = ok[k]
+        coef[k] = np.linalg.lstsq(basis[m] * sw[k, m, None], d[k, m] * sw[k, m], rcond=None)[0]
+    return coef
+
+
+def _basis_at(mesh: SurfaceMesh, degree, theta: np.ndarray, z: np.ndarray):
+    """``smoothing_basis(mesh, degree)``'s functions and their Theta and Z derivatives at points (n,): three
+    arrays (n, n_basis), the columns in the same order (harmonic-major, Legendre degree within)."""
+    nz, nt = int(degree[0]), int(degree[1])
+    ok_ref = mesh.used & np.isfinite(mesh.z)
+    z0 = 0.5 * (np.nanmax(mesh.z[ok_ref]) + np.nanmin(mesh.z[ok_ref]))
+    half = 0.5 * (np.nanmax(mesh.z[ok_ref]) - np.nanmin(mesh.z[ok_ref]))
+    x = (z - z0) / half
+    leg = np.polynomial.legendre.legvander(x, nz)
+    eye = np.eye(nz + 1)
+    dleg = np.stack([np.polynomial.legendre.legval(x, np.polynomial.legendre.legder(eye[j])) if nz else
+                     np.zeros_like(x) for j in range(nz + 1)], axis=1) / half
+    four = [np.ones_like(theta)] + [f(k * theta) for k in range(1, nt + 1) for f in (np.cos, np.sin)]
+    dfour = [np.zeros_like(theta)] + [g for k in range(1, nt + 1)
+                                      for g in (-k * np.sin(k * theta), k * np.cos(k * theta))]
+    cat = np.concatenate
+    return (cat([leg * f[:, None] for f in four], 1), cat([leg * f[:, None] for f in dfour], 1),
+            cat([dleg * f[:, None] for f in four], 1))
+
+
+def _reference_radius(mesh: SurfaceMesh, degree=None):
+    """(degree, coefficients (n_basis,)) of the smooth reference radius (``smoothing.smooth_reference_radius``'s
+    fit; its basis chosen by GCV unless ``degree`` is given)."""
+    degree = reference_radius_degree(mesh) if degree is None else degree
+    coef = _coefficients(mesh, degree, np.where(mesh.used, mesh.r, np.nan)[None], None)[0]
+    return tuple(int(v) for v in degree), coef
+
+
+def _marker_fields(mesh, aligned, smoothing, reject_outliers, weights, estimate_noise, reuse):
+    """Axes, outliers, noise and the smoothing degrees of the markers, and the cylindrical displacements."""
+    axes = tuple(reuse.axes) if reuse is not None else tuple(_subsampled_axes(mesh, aligned))
+    r, th, z = step_coordinates(aligned, axes)
+    if estimate_noise or reject_outliers or isinstance(smoothing, str):
+        outliers, noise = marker_outliers(mesh, r, th, z)
+    else:
+        outliers, noise = np.zeros(r.shape, bool), np.full(r.shape[0], np.nan)
+    if reject_outliers:
+        if outliers.any():
+            log.warning("markers disagreeing with their neighbours (set unobserved) per step: %s",
+                        outliers.sum(axis=1).tolist())
+            r, th, z = (np.where(outliers, np.nan, a) for a in (r, th, z))
+    else:
+        outliers = np.zeros(r.shape, bool)
+    degrees = resolve_smoothing(mesh, r, th, z, smoothing, noise, weights)
+    return axes, outliers, noise, degrees, (r, th, z)
+
+
+def dense_state(mesh: SurfaceMesh, aligned: np.ndarray, quadrature: int, smoothing, reject_outliers: bool,
+                weights, estimate_noise: bool, reuse: DenseQuadrature | None = None):
+    """``kinematics.surface_state`` of a dense cloud, on the quadrature grid (module docstring).
+
+    Parameters as ``surface_state`` (aligned (n_steps, n_markers, 3) m); ``reuse``: the axes and reference basis
+    of the data a bootstrap replicate re-measures. Returns ``(state, DenseQuadrature)`` with the state's
+    triangles those of the grid, or None when the markers look exact (``smoothing="auto"`` keeps them unsmoothed).
+    """
+    bary, qw = QUADRATURE[quadrature]
+    axes, outliers, noise, degrees, (r, th, z) = _marker_fields(mesh, aligned, smoothing, reject_outliers, weights,
+                                                                estimate_noise, reuse)
+    if degrees is None:
+        return None
+    degrees = per_component_degrees(degrees)
+    ref_degree, ref_coef = _reference_radius(mesh, None if reuse is None else reuse.reference_degree)
+    coefs = [_coefficients(mesh, deg, d, weights) for deg, d in zip(degrees, _displacements(mesh, r, th, z))]
+    grid = quadrature_grid(mesh)
+    geo = triangle_geometry(grid)
+    tri = grid.triangles
+    vt = grid.theta[tri] + geo.theta_offset  # (t, 3) unwrapped vertex angles
+    vz = grid.z[tri]
+    qt, qz = (vt @ bary.T).ravel(), (vz @ bary.T).ravel()  # quadrature points (t n_q,)
+    ct, cz = vt.mean(1), vz.mean(1)  # centroids (t,): where the gradients are taken
+    n_t, n_q, n_s = len(tri), len(qw), aligned.shape[0]
+
+    def at(degree, coef, theta, zz):  # values (s, n) and Theta, Z derivatives of a fitted component
+        B, Bt, Bz = _basis_at(mesh, degree, theta, zz)
+        return coef @ B.T, coef @ Bt.T, coef @ Bz.T
+
+    Rq = at(ref_degree, ref_coef[None], qt, qz)[0][0].reshape(n_t, n_q)
+    _, Rt, Rz = at(ref_degree, ref_coef[None], ct, cz)
+    R_nodes = at(ref_degree, ref_coef[None], grid.theta, grid.z)[0][0]
+    grid = replace(grid, r=R_nodes)
+    dq = [at(deg, c, qt, qz)[0].reshape(n_s, n_t, n_q) for deg, c in zip(degrees, coefs)]
+    dc = [at(deg, c, ct, cz)[1:] for deg, c in zip(degrees, coefs)]
+    dn = [at(deg, c, grid.theta, grid.z)[0] for deg, c in zip(degrees, coefs)]
+    R_xi = np.stack([Rt[0], Rz[0]], -1)  # (t, 2)
+    r_xi = R_xi[None] + np.stack(dc[0], -1)  # (s, t, 2)
+    theta_xi = np.stack([1.0 + dc[1][0], dc[1][1]], -1)
+    z_xi = np.stack([dc[2][0], 1.0 + dc[2][1]], -1)
+    jac = theta_xi[..., 0] * z_xi[..., 1] - theta_xi[..., 1] * z_xi[..., 0]
+    valid = np.isfinite(jac) & (jac > 0.05)
+    if not valid.all():
+        log.warning("excluded inverted/collapsed quadrature cells per step: %s", (~valid).sum(axis=1).tolist())
+    quad = DenseQuadrature(grid=grid, n_points=int(np.count_nonzero(mesh.used)), axes=axes, outliers=outliers,
+                           reference_degree=ref_degree)
+    st = SurfaceState(R=Rq, R_xi=R_xi, r=Rq[None] + dq[0], r_xi=r_xi, theta=(qt.reshape(n_t, n_q))[None] + dq[1],
+                      theta_xi=theta_xi, z_xi=z_xi, valid=valid, outliers=outliers, noise=noise,
+                      r_markers=R_nodes[None] + dn[0], theta_markers=wrap_angle(grid.theta[None] + dn[1]),
+                      z_markers=grid.z[None] + dn[2], axes=axes, bary=bary, qweight=qw, geometry=geo,
+                      smoothing=degrees)
+    log.info("%s", quad.describe())
+    return st, quad
