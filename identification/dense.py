@@ -2,14 +2,16 @@
 
 With smoothing on, what a dense cloud tells about the displacement is the smoothed field: a few dozen
 coefficients per component and step fitted by least squares to all the points (linear in their number).
-Above ``DENSE_POINTS`` markers per step ``vfm.prepare`` fits them (step axes on a fixed subsample of the
-markers, outliers and the smoothing on all of them), then evaluates the smooth reference surface and the
+Above ``DENSE_POINTS`` markers per step ``vfm.prepare`` fits them (step axes, outliers and the smoothing on
+all of them), then evaluates the smooth reference surface and the
 smoothed displacement, with their exact derivatives, on a regular (Theta, Z) grid of ``GRID_ROWS`` x
 ``GRID_COLUMNS`` nodes between the innermost boundary markers (``mesh.z_bottom`` .. ``mesh.z_top``): the
 kinematics, the wall layer, the virtual work and the fit then cost the same whatever the number of points.
 Beyond the grid's end rows the virtual fields are zero or a rigid axial translation (no internal work), and
 the end force acts across the grid's top row, so the balance is the same. A bootstrap replicate reuses the
-data's step axes and reference-radius basis (``DenseQuadrature``) and re-smooths its re-noised points.
+data's alignment and step axes (``DenseQuadrature``: rigid motions, measured to leave the replicates' spread
+unchanged) and re-smooths its re-noised points, re-choosing the reference radius's basis (that choice does
+widen the spread of alpha12 ~4x: docs/validation/dense.md).
 
 Frames and units: as ``kinematics`` (m, rad; cylindrical components (radial, circumferential, axial)).
 """
@@ -21,7 +23,6 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .axis import Axis
 from .kinematics import QUADRATURE, SurfaceState, triangle_geometry
 from .mesh import SurfaceMesh, wrap_angle
 from .outliers import marker_outliers
@@ -39,8 +40,6 @@ log = logging.getLogger(__name__)
 
 #: Markers of the mesh above which a smoothed cloud is evaluated on the quadrature grid.
 DENSE_POINTS = 3000
-#: Markers (a fixed random subsample) each step's axis is fitted to on a dense cloud.
-AXIS_POINTS = 3000
 #: Rows (axial) and columns (circumferential) of the quadrature grid's nodes.
 GRID_ROWS = 25
 GRID_COLUMNS = 48
@@ -58,18 +57,15 @@ class DenseQuadrature:
     n_points : int
         Markers of the cloud (mesh vertices) the smoothing was fitted to.
     axes : tuple of Axis
-        Every step's axis (fitted to ``AXIS_POINTS`` markers).
+        Every step's axis.
     outliers : ndarray, shape (n_steps, n_markers) bool
         Markers set unobserved as mis-tracked.
-    reference_degree : (int, int)
-        Smoothing basis of the reference radius.
     """
 
     grid: SurfaceMesh
     n_points: int
     axes: tuple
     outliers: np.ndarray
-    reference_degree: tuple
 
     def describe(self) -> str:
         return (f"dense cloud: {self.n_points} points evaluated on a quadrature mesh of {self.grid.n_markers} nodes "
@@ -90,15 +86,6 @@ def step_coordinates(aligned: np.ndarray, axes) -> tuple[np.ndarray, np.ndarray,
     basis = np.stack([a.basis for a in axes])
     local = (aligned - origin[:, None]) @ np.swapaxes(basis, 1, 2)
     return np.hypot(local[..., 0], local[..., 1]), np.arctan2(local[..., 1], local[..., 0]), local[..., 2]
-
-
-def _subsampled_axes(mesh: SurfaceMesh, aligned: np.ndarray) -> list[Axis]:
-    """Every step's axis refitted (``refit_axes``) to a fixed random subsample of ``AXIS_POINTS`` mesh markers."""
-    idx = np.flatnonzero(mesh.used)
-    if len(idx) > AXIS_POINTS:
-        idx = np.sort(np.random.default_rng(0).choice(idx, AXIS_POINTS, replace=False))
-    sub = aligned[:, idx]
-    return refit_axes(sub, np.all(np.isfinite(sub), axis=-1), mesh.axis)
 
 
 def quadrature_grid(mesh: SurfaceMesh, rows: int = GRID_ROWS, columns: int = GRID_COLUMNS) -> SurfaceMesh:
@@ -192,17 +179,20 @@ def _basis_at(mesh: SurfaceMesh, degree, theta: np.ndarray, z: np.ndarray):
             cat([dleg * f[:, None] for f in four], 1))
 
 
-def _reference_radius(mesh: SurfaceMesh, degree=None):
+def _reference_radius(mesh: SurfaceMesh):
     """(degree, coefficients (n_basis,)) of the smooth reference radius (``smoothing.smooth_reference_radius``'s
-    fit; its basis chosen by GCV unless ``degree`` is given)."""
-    degree = reference_radius_degree(mesh) if degree is None else degree
+    fit, its basis chosen by GCV)."""
+    degree = reference_radius_degree(mesh)
     coef = _coefficients(mesh, degree, np.where(mesh.used, mesh.r, np.nan)[None], None)[0]
     return tuple(int(v) for v in degree), coef
 
 
 def _marker_fields(mesh, aligned, smoothing, reject_outliers, weights, estimate_noise, reuse):
     """Axes, outliers, noise and the smoothing degrees of the markers, and the cylindrical displacements."""
-    axes = tuple(reuse.axes) if reuse is not None else tuple(_subsampled_axes(mesh, aligned))
+    if reuse is not None:
+        axes = tuple(reuse.axes)
+    else:  # as kinematics.step_cylindrical
+        axes = tuple(refit_axes(aligned, np.all(np.isfinite(aligned), axis=-1) & mesh.used, mesh.axis))
     r, th, z = step_coordinates(aligned, axes)
     if estimate_noise or reject_outliers or isinstance(smoothing, str):
         outliers, noise = marker_outliers(mesh, r, th, z)
@@ -223,8 +213,8 @@ def dense_state(mesh: SurfaceMesh, aligned: np.ndarray, quadrature: int, smoothi
                 weights, estimate_noise: bool, reuse: DenseQuadrature | None = None):
     """``kinematics.surface_state`` of a dense cloud, on the quadrature grid (module docstring).
 
-    Parameters as ``surface_state`` (aligned (n_steps, n_markers, 3) m); ``reuse``: the axes and reference basis
-    of the data a bootstrap replicate re-measures. Returns ``(state, DenseQuadrature)`` with the state's
+    Parameters as ``surface_state`` (aligned (n_steps, n_markers, 3) m); ``reuse``: the step axes of the data a
+    bootstrap replicate re-measures. Returns ``(state, DenseQuadrature)`` with the state's
     triangles those of the grid, or None when the markers look exact (``smoothing="auto"`` keeps them unsmoothed).
     """
     bary, qw = QUADRATURE[quadrature]
@@ -233,7 +223,7 @@ def dense_state(mesh: SurfaceMesh, aligned: np.ndarray, quadrature: int, smoothi
     if degrees is None:
         return None
     degrees = per_component_degrees(degrees)
-    ref_degree, ref_coef = _reference_radius(mesh, None if reuse is None else reuse.reference_degree)
+    ref_degree, ref_coef = _reference_radius(mesh)
     coefs = [_coefficients(mesh, deg, d, weights) for deg, d in zip(degrees, _displacements(mesh, r, th, z))]
     grid = quadrature_grid(mesh)
     geo = triangle_geometry(grid)
@@ -263,8 +253,7 @@ def dense_state(mesh: SurfaceMesh, aligned: np.ndarray, quadrature: int, smoothi
     valid = np.isfinite(jac) & (jac > 0.05)
     if not valid.all():
         log.warning("excluded inverted/collapsed quadrature cells per step: %s", (~valid).sum(axis=1).tolist())
-    quad = DenseQuadrature(grid=grid, n_points=int(np.count_nonzero(mesh.used)), axes=axes, outliers=outliers,
-                           reference_degree=ref_degree)
+    quad = DenseQuadrature(grid=grid, n_points=int(np.count_nonzero(mesh.used)), axes=axes, outliers=outliers)
     st = SurfaceState(R=Rq, R_xi=R_xi, r=Rq[None] + dq[0], r_xi=r_xi, theta=(qt.reshape(n_t, n_q))[None] + dq[1],
                       theta_xi=theta_xi, z_xi=z_xi, valid=valid, outliers=outliers, noise=noise,
                       r_markers=R_nodes[None] + dn[0], theta_markers=wrap_angle(grid.theta[None] + dn[1]),

@@ -250,8 +250,9 @@ def prepare(
         False: leave ``VFMData.marker_noise`` NaN when nothing else needs the neighbour-mismatch noise
         estimate (``reject_outliers=False``, smoothing given as degrees): a bootstrap replicate's ~1.5 ms.
     dense_reuse : DenseQuadrature, optional
-        On a dense cloud (``dense``: more than ``dense.DENSE_POINTS`` markers, smoothed), the step axes and
-        reference-radius basis of the data a bootstrap replicate re-measures (``VFMData.quadrature``).
+        On a dense cloud (``dense``: more than ``dense.DENSE_POINTS`` markers, smoothed), the step axes of the
+        data a bootstrap replicate re-measures (``VFMData.quadrature``): the replicate, simulated in the data's
+        aligned frame, is neither re-aligned nor are its axes refitted.
 
     A smoothed cloud of more than ``dense.DENSE_POINTS`` markers is smoothed on all of them and its balance
     evaluated on a quadrature grid of bounded size (``dense``; ``VFMData.quadrature`` says so).
@@ -328,7 +329,8 @@ def _prepare_dense(x, p, f, e0: float, mesh: SurfaceMesh, s: PrepareSettings) ->
     if fields is None:
         log.info("dense cloud: the given virtual fields depend on more than Z; full mesh used")
         return None
-    aligned, _, _ = align_steps(x, x[s.reference_step])
+    # a bootstrap replicate of a dense cloud is simulated in the data's aligned frame: no rigid motion to remove
+    aligned = x if s.dense_reuse is not None else align_steps(x, x[s.reference_step])[0]
     key = ("dense", id(mesh), _option_key(aligned), s.quadrature, _option_key(s.smoothing), s.reject_outliers,
            _option_key(s.marker_weights), s.estimate_noise, id(s.dense_reuse))
     hit = _STATE_CACHE.get(key) if s.estimate_noise else None
