@@ -33,8 +33,8 @@ from .step_axes import refit_axes
 from .thick_fields import flat_end_fields
 from .virtual_fields import VirtualFields, check_fields, paper_fields
 
-__all__ = ["DENSE_POINTS", "DenseQuadrature", "dense_state", "grid_fields", "quadrature_grid", "step_coordinates",
-           "wants_dense"]
+__all__ = ["DENSE_POINTS", "DenseQuadrature", "dense_state", "grid_fields", "marker_survey", "quadrature_grid",
+           "step_coordinates", "wants_dense"]
 
 log = logging.getLogger(__name__)
 
@@ -187,17 +187,28 @@ def _reference_radius(mesh: SurfaceMesh):
     return tuple(int(v) for v in degree), coef
 
 
-def _marker_fields(mesh, aligned, smoothing, reject_outliers, weights, estimate_noise, reuse):
-    """Axes, outliers, noise and the smoothing degrees of the markers, and the cylindrical displacements."""
+def marker_survey(mesh: SurfaceMesh, aligned: np.ndarray, smoothing, reject_outliers: bool, estimate_noise: bool,
+                  reuse: DenseQuadrature | None = None) -> tuple:
+    """What ``dense_state`` learns of the markers before smoothing: every step's axis (``reuse``'s for a
+    replicate), the mis-tracked markers (n_steps, n_markers) bool and the noise estimate (n_steps,) m
+    (``outliers.marker_outliers``; none and NaN when nothing needs them, as for a replicate)."""
     if reuse is not None:
         axes = tuple(reuse.axes)
     else:  # as kinematics.step_cylindrical
         axes = tuple(refit_axes(aligned, np.all(np.isfinite(aligned), axis=-1) & mesh.used, mesh.axis))
-    r, th, z = step_coordinates(aligned, axes)
-    if estimate_noise or reject_outliers or isinstance(smoothing, str):
-        outliers, noise = marker_outliers(mesh, r, th, z)
+    n_s, n_m = aligned.shape[:2]
+    if (estimate_noise and reuse is None) or reject_outliers or isinstance(smoothing, str):
+        outliers, noise = marker_outliers(mesh, *step_coordinates(aligned, axes))
     else:
-        outliers, noise = np.zeros(r.shape, bool), np.full(r.shape[0], np.nan)
+        outliers, noise = np.zeros((n_s, n_m), bool), np.full(n_s, np.nan)
+    return axes, outliers, noise
+
+
+def _marker_fields(mesh, aligned, smoothing, reject_outliers, weights, survey):
+    """The survey's axes, outliers (those set unobserved) and noise, the smoothing degrees and the cylindrical
+    coordinates (n_steps, n_markers) of the markers."""
+    axes, outliers, noise = survey
+    r, th, z = step_coordinates(aligned, axes)
     if reject_outliers:
         if outliers.any():
             log.warning("markers disagreeing with their neighbours (set unobserved) per step: %s",
@@ -210,16 +221,16 @@ def _marker_fields(mesh, aligned, smoothing, reject_outliers, weights, estimate_
 
 
 def dense_state(mesh: SurfaceMesh, aligned: np.ndarray, quadrature: int, smoothing, reject_outliers: bool,
-                weights, estimate_noise: bool, reuse: DenseQuadrature | None = None):
+                weights, survey: tuple):
     """``kinematics.surface_state`` of a dense cloud, on the quadrature grid (module docstring).
 
-    Parameters as ``surface_state`` (aligned (n_steps, n_markers, 3) m); ``reuse``: the step axes of the data a
-    bootstrap replicate re-measures. Returns ``(state, DenseQuadrature)`` with the state's
+    Parameters as ``surface_state`` (aligned (n_steps, n_markers, 3) m); ``survey``: ``marker_survey``'s axes,
+    outliers and noise of these markers. Returns ``(state, DenseQuadrature)`` with the state's
     triangles those of the grid, or None when the markers look exact (``smoothing="auto"`` keeps them unsmoothed).
     """
     bary, qw = QUADRATURE[quadrature]
     axes, outliers, noise, degrees, (r, th, z) = _marker_fields(mesh, aligned, smoothing, reject_outliers, weights,
-                                                                estimate_noise, reuse)
+                                                                survey)
     if degrees is None:
         return None
     degrees = per_component_degrees(degrees)

@@ -36,7 +36,7 @@ from dataclasses import fields as fields_of
 import numpy as np
 
 from .errors import DegenerateDataError
-from .dense import DenseQuadrature, dense_state, grid_fields, quadrature_grid, wants_dense
+from .dense import DenseQuadrature, dense_state, grid_fields, marker_survey, quadrature_grid, wants_dense
 from ._wall import _external_work, _internal_work_terms, _wall_geometry, end_force
 from .kinematics import align_steps, surface_state
 from .mesh import SurfaceMesh, build_mesh
@@ -258,10 +258,8 @@ def prepare(
     evaluated on a quadrature grid of bounded size (``dense``; ``VFMData.quadrature`` says so).
     """
     s = PrepareSettings.from_options(settings, **options)
-    wall, ends, fields, mesh, reference_step, clamp_radius = (s.wall, s.ends, s.fields, s.mesh, s.reference_step,
-                                                              s.clamp_radius)
-    n_layers, quadrature, toward, smoothing, reject_outliers = (s.n_layers, s.quadrature, s.toward, s.smoothing,
-                                                                 s.reject_outliers)
+    wall, ends, fields, mesh, reference_step = s.wall, s.ends, s.fields, s.mesh, s.reference_step
+    quadrature, toward, smoothing, reject_outliers = s.quadrature, s.toward, s.smoothing, s.reject_outliers
     marker_weights, smooth_reference = s.marker_weights, s.smooth_reference
     reference_noise_correction, estimate_noise = s.reference_noise_correction, s.estimate_noise
     if wall not in WALLS:
@@ -331,18 +329,21 @@ def _prepare_dense(x, p, f, e0: float, mesh: SurfaceMesh, s: PrepareSettings) ->
         return None
     # a bootstrap replicate of a dense cloud is simulated in the data's aligned frame: no rigid motion to remove
     aligned = x if s.dense_reuse is not None else align_steps(x, x[s.reference_step])[0]
-    key = ("dense", id(mesh), _option_key(aligned), s.quadrature, _option_key(s.smoothing), s.reject_outliers,
-           _option_key(s.marker_weights), s.estimate_noise, id(s.dense_reuse))
-    hit = _STATE_CACHE.get(key) if s.estimate_noise else None
-    if hit is not None and hit[0] is mesh and hit[2] is s.dense_reuse:
-        dense = hit[1]
+    # the same markers again (another wall form, model or the chosen smoothing given): their axes and outliers
+    # (a replicate is seen once: not cached)
+    key = None if s.dense_reuse is not None else (
+        "dense markers", id(mesh), _option_key(aligned),
+        s.estimate_noise or s.reject_outliers or isinstance(s.smoothing, str))
+    hit = _STATE_CACHE.get(key) if key is not None else None
+    if hit is not None and hit[0] is mesh:
+        survey = hit[1]
     else:
-        dense = dense_state(mesh, aligned, s.quadrature, s.smoothing, s.reject_outliers, s.marker_weights,
-                            s.estimate_noise, s.dense_reuse)
-        if s.estimate_noise:
+        survey = marker_survey(mesh, aligned, s.smoothing, s.reject_outliers, s.estimate_noise, s.dense_reuse)
+        if key is not None:
             if len(_STATE_CACHE) >= _STATE_CACHE_SIZE:
                 _STATE_CACHE.pop(next(iter(_STATE_CACHE)))
-            _STATE_CACHE[key] = (mesh, dense, s.dense_reuse)
+            _STATE_CACHE[key] = (mesh, survey)
+    dense = dense_state(mesh, aligned, s.quadrature, s.smoothing, s.reject_outliers, s.marker_weights, survey)
     if dense is None:
         return None
     st, quadrature = dense
