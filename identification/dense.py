@@ -22,12 +22,13 @@ import logging
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.linalg import solve_triangular
 
 from .kinematics import QUADRATURE, SurfaceState, triangle_geometry
 from .mesh import SurfaceMesh, wrap_angle
 from .outliers import marker_outliers
-from .smoothing import (_displacements, _unique_rows, per_component_degrees, reference_radius_degree,
-                        resolve_smoothing, smoothing_basis)
+from .smoothing import (AUTO_DEGREES, MAX_BASIS_FRACTION, _displacements, _unique_rows, per_component_degrees,
+                        reference_radius_degree, resolve_smoothing, smoothing_basis)
 from .errors import DegenerateDataError
 from .step_axes import refit_axes
 from .thick_fields import flat_end_fields
@@ -82,10 +83,12 @@ def wants_dense(mesh: SurfaceMesh, smoothing, smooth_reference: bool, reference_
 def step_coordinates(aligned: np.ndarray, axes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Cylindrical coordinates (n_steps, n_markers) of the aligned positions (n_steps, n_markers, 3) about each
     step's axis (as ``kinematics.step_cylindrical``)."""
-    origin = np.stack([a.origin for a in axes])
-    basis = np.stack([a.basis for a in axes])
-    local = (aligned - origin[:, None]) @ np.swapaxes(basis, 1, 2)
-    return np.hypot(local[..., 0], local[..., 1]), np.arctan2(local[..., 1], local[..., 0]), local[..., 2]
+    origin = np.stack([a.origin for a in axes])[:, None]  # (s, 1, 3)
+    basis = np.stack([a.basis for a in axes])  # (s, 3, 3)
+    d = [aligned[..., j] - origin[..., j] for j in range(3)]  # (s, n) each: components written out, ~3x faster
+    x, y, z = (d[0] * basis[:, k, 0, None] + d[1] * basis[:, k, 1, None] + d[2] * basis[:, k, 2, None]
+               for k in range(3))  # than a batched matmul with an inner size of 3
+    return np.hypot(x, y), np.arctan2(y, x), z
 
 
 def quadrature_grid(mesh: SurfaceMesh, rows: int = GRID_ROWS, columns: int = GRID_COLUMNS) -> SurfaceMesh:
@@ -179,10 +182,41 @@ def _basis_at(mesh: SurfaceMesh, degree, theta: np.ndarray, z: np.ndarray):
             cat([dleg * f[:, None] for f in four], 1))
 
 
+def _reference_degree(mesh: SurfaceMesh, candidates=AUTO_DEGREES) -> tuple[int, int]:
+    """``smoothing.reference_radius_degree`` (GCV over ``candidates``) from one Gram matrix of the largest basis,
+    whose leading blocks (Legendre-degree-major columns per number of harmonics) are those of every candidate
+    (``smoothing._nested_gcv`` forms one per number of harmonics); falls back to it on a singular block."""
+    nz_max = max(int(c[0]) for c in candidates)
+    nt_max = max(int(c[1]) for c in candidates)
+    basis, ok_ref = smoothing_basis(mesh, (nz_max, nt_max))
+    ok = ok_ref & np.isfinite(mesh.r)
+    n = int(ok.sum())
+    y = mesh.r[ok] - np.mean(mesh.r[ok])
+    B = basis[ok]
+    gram, bty = B.T @ B, B.T @ y
+    best, best_score = None, np.inf
+    wanted = {(int(c[0]), int(c[1])) for c in candidates}
+    for nt in sorted({int(c[1]) for c in candidates}):
+        cols = (np.arange(nz_max + 1)[:, None] + (nz_max + 1) * np.arange(2 * nt + 1)[None]).ravel()
+        try:
+            chol = np.linalg.cholesky(gram[np.ix_(cols, cols)])
+        except np.linalg.LinAlgError:
+            return reference_radius_degree(mesh, candidates)
+        proj = solve_triangular(chol, bty[cols], lower=True)
+        rss = np.maximum(float(y @ y) - np.cumsum(proj**2), 0.0)
+        for nz in range(nz_max + 1):
+            p = (nz + 1) * (2 * nt + 1)
+            if (nz, nt) in wanted and p <= MAX_BASIS_FRACTION * n:
+                score = float(rss[p - 1] / (n * (1.0 - p / n) ** 2))
+                if score < best_score:
+                    best, best_score = (nz, nt), score
+    return best if best is not None else reference_radius_degree(mesh, candidates)
+
+
 def _reference_radius(mesh: SurfaceMesh):
     """(degree, coefficients (n_basis,)) of the smooth reference radius (``smoothing.smooth_reference_radius``'s
     fit, its basis chosen by GCV)."""
-    degree = reference_radius_degree(mesh)
+    degree = _reference_degree(mesh)
     coef = _coefficients(mesh, degree, np.where(mesh.used, mesh.r, np.nan)[None], None)[0]
     return tuple(int(v) for v in degree), coef
 
