@@ -6,8 +6,8 @@
   the matching over time, and the figures of one frame's matching against OpenPTV's own result.
 - The matching by likelihood ratio of one detection setting (``run_setting``; benchmarks.research.likelihood_matching),
   measured as ``bench_likelihood_matching`` reports it and ``bench_real_data`` / ``bench_same_yardstick`` reuse it.
-- The identification benchmarks' simulated tubes (``simulate``, ``cold_prepare``: bench_identification, ab_timing,
-  ident_equality).
+- The identification benchmarks' simulated tubes (``simulate``, ``cold_prepare``, the ``--data`` option,
+  ``rel_errors``: bench_ident_timing, bench_ident_exact, bench_ident_noise, ab_timing, ident_equality).
 """
 
 from __future__ import annotations
@@ -389,3 +389,16 @@ def cold_prepare(sim, *, clamped: bool = True, **options):
     getattr(vfm, "_STATE_CACHE", {}).clear()
     return prepare(sim.positions, sim.pressure, sim.axial_force, thickness=sim.thickness,
                    ends="clamped" if clamped else "free", **options)
+
+
+def add_data_argument(ap) -> None:
+    """The ``--data`` option of the identification benchmarks: clamped ends unless "homogeneous"; "clamped-synth"
+    is ``simulate(..., synth=True)``."""
+    ap.add_argument("--data", choices=["clamped", "clamped-synth", "homogeneous"], default="clamped",
+                    help="membrane tube clamped on cannulae (rig_sim, default; or the tests' independent solver, "
+                         "6 pressures 15-90 mmHg) or homogeneous")
+
+
+def rel_errors(result, truth):
+    """Relative error of each of ``truth``'s parameters in ``result.parameters``: {name: estimate / truth - 1}."""
+    return {k: result.parameters[k] / truth[k] - 1.0 for k in truth}

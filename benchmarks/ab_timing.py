@@ -3,8 +3,9 @@
     OMP_NUM_THREADS=1 python -m benchmarks.ab_timing <old tree> [--rounds 3] [--cold 40]
 
 Each round runs, in a subprocess per tree (old first, then this one), from the tree's root:
-``python -m benchmarks.bench_identification --part timing --quick --no-nelder-mead --in-process`` (each tree's
-own file: the same measurement as long as their timing parts agree), and ``--cold`` cold ``prepare`` calls of the Fung bench data
+``python -m benchmarks.bench_ident_timing --part timing --quick --no-nelder-mead --in-process`` (each tree's
+own file, ``bench_identification`` in a tree from before the split: the same measurement as long as their timing
+parts agree), and ``--cold`` cold ``prepare`` calls of the Fung bench data
 (mesh and surface-state caches cleared, CPU time). Prints every figure per round and its median over the
 rounds per tree, with the load average before and after: on a shared machine absolute times are upper
 bounds, the ratios of one run are what count. Then, finest-grained, ``--calls`` cold ``prepare`` calls of
@@ -58,7 +59,9 @@ print("COLD", np.median(times) * 1e3, np.min(times) * 1e3)
 
 def run(tree: Path, cold: int) -> dict:
     env = dict(os.environ, PYTHONPATH=str(tree), OMP_NUM_THREADS="1")
-    out = subprocess.run([sys.executable, "-m", "benchmarks.bench_identification", "--part", "timing", "--quick",
+    script = ("benchmarks.bench_ident_timing" if (tree / "benchmarks" / "bench_ident_timing.py").exists()
+              else "benchmarks.bench_identification")  # a tree from before the split of bench_identification
+    out = subprocess.run([sys.executable, "-m", script, "--part", "timing", "--quick",
                           "--no-nelder-mead", "--in-process"], env=env, cwd=tree, capture_output=True, text=True,
                          check=True).stdout
     figures = {label: float(m.group(1)) for label, rx in FIGURES if (m := re.search(rx, out))}

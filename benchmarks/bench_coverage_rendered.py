@@ -28,7 +28,7 @@ from rig_sim.mechanics import PAPER_PARAMETERS
 ROOT = Path(__file__).resolve().parents[1]
 TRUTH = PAPER_PARAMETERS["fung"]
 COVERED = ("beta", "alpha11", "alpha22")
-# notes that do not make a fit "flagged" (the same rule as bench_identification's coverage part)
+# notes that do not make a fit "flagged" (the same rule as bench_ident_noise's coverage part)
 NOT_FAILURES = ("alpha12 ", "c ")
 
 

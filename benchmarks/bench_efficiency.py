@@ -13,6 +13,11 @@ Run: ``python -m benchmarks.bench_efficiency [--models fung,delfino,hgo] [--sigm
 [--walls membrane,thick] [--ends free,clamped] [--stretches 1.1 | 1.05/1.1/1.15] [--seeds 40]
 [--estimators default,noise,efficient] [--diagnose]``. The default is a reduced quick set (Fung, Delfino and HGO at 0.17 mm,
 membrane, free ends, one stretch, 40 seeds). Prints Markdown tables (docs/validation/efficiency.md).
+
+``--part speed [--seeds 20]``: time per fit of the efficient path, Fung at 0.17 mm (300 markers x 8 loaded steps and
+the reference, free membrane), in-process, against the same path with its first gap covariance (every derivative by
+``prepare``: ``benchmarks._efficient_fd``) and the paper's fit, side by side on the same seeds (the order rotated
+per seed); and the largest relative difference of the parameters between the two covariances.
 """
 
 from __future__ import annotations
@@ -27,11 +32,14 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
+from identification import efficient as efficient_module  # noqa: E402
 from identification.optimize import identify  # noqa: E402  (the fit under the case's stated wall and ends)
 from identification.information import TubeExperiment, cramer_rao_bound  # noqa: E402
 from identification.models import get_model  # noqa: E402
 from identification.tube_forward import MeasurementNoise, TubeGeometry, TubeSteps  # noqa: E402
 from rig_sim.mechanics import PAPER_PARAMETERS, simulate_test  # noqa: E402
+
+from ._efficient_fd import FiniteDifferenceGapCovariance  # noqa: E402
 
 R, H, L = 10e-3, 1.3e-3, 35e-3
 #: Unmarked strip next to each cannula of the clamped tube (the free tube is marked over its whole length).
@@ -177,6 +185,56 @@ def table(cases: list[dict], estimators) -> str:
     return "\n".join(lines)
 
 
+#: ``--part speed``: label -> (identify options, the gap covariance of the efficient path or None)
+SPEED_VARIANTS = {
+    "paper's fit": (dict(smoothing="auto"), None),
+    "efficient, every derivative by prepare (before)": (dict(smoothing="auto", weighting="efficient"),
+                                                        FiniteDifferenceGapCovariance),
+    "efficient": (dict(smoothing="auto", weighting="efficient"), efficient_module.GapCovariance),
+}
+
+
+def _timed_fit(x, p, f, options, covariance):
+    """Seconds and parameters of one fit of the free membrane Fung case with the given gap covariance class."""
+    product = efficient_module.GapCovariance
+    if covariance is not None:
+        efficient_module.GapCovariance = covariance
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            t0 = time.perf_counter()
+            res = identify(x, p, f, thickness=H, model="fung", wall="membrane", ends="free", **options)
+            return time.perf_counter() - t0, np.array(list(res.parameters.values()))
+    finally:
+        efficient_module.GapCovariance = product
+
+
+def speed(n_seeds: int, first_seed: int = 0) -> str:
+    """Median time per fit of each of ``SPEED_VARIANTS`` on the same seeds (Fung, 0.17 mm, free membrane, one
+    stretch), and the largest relative parameter difference of the efficient path before and after."""
+    sim = simulate_case("fung", wall="membrane", ends="free", stretches=(1.1,))
+    names = list(SPEED_VARIANTS)
+    times = {k: [] for k in names}
+    params = {k: [] for k in names}
+    for i, seed in enumerate(range(first_seed, first_seed + n_seeds)):
+        x, p, f = noisy_data(sim, 0.17e-3, np.random.default_rng([20261127, seed]))
+        for k in names[i % len(names):] + names[:i % len(names)]:
+            t, est = _timed_fit(x, p, f, *SPEED_VARIANTS[k])
+            times[k].append(t)
+            params[k].append(est)
+    before, after = np.array(params[names[1]]), np.array(params[names[2]])
+    rel = np.max(np.abs(after - before) / np.maximum(np.abs(before), 1e-300), axis=0)
+    lines = ["| fit (Fung 0.17 mm, 300 markers x 8 steps + reference) | median ms per fit | x the paper's fit |",
+             "|---|---|---|"]
+    paper = float(np.median(times[names[0]]))
+    lines += [f"| {k} | {np.median(v) * 1e3:.0f} | {np.median(v) / paper:.1f} |" for k, v in times.items()]
+    lines.append(f"\n{n_seeds} seeds; per-seed ratio before / after: median "
+                 f"{np.median(np.array(times[names[1]]) / np.array(times[names[2]])):.2f}; largest relative parameter "
+                 "difference after vs before: " + ", ".join(
+                     f"{n} {r:.1e}" for n, r in zip(get_model("fung").parameter_names, rel)))
+    return "\n".join(lines)
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--models", default="fung,delfino,hgo")
@@ -190,8 +248,13 @@ def main(argv=None) -> None:
     parser.add_argument("--estimators", default="default,noise,efficient")
     parser.add_argument("--diagnose", action="store_true", help="where the information is lost: each noise source "
                         "alone and each lever, first model and sigma, free membrane, one stretch")
+    parser.add_argument("--part", choices=("efficiency", "speed"), default="efficiency",
+                        help="speed: time per fit of the efficient path before and after (Fung 0.17 mm; --seeds)")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)
+    if args.part == "speed":
+        print(speed(args.seeds, args.first_seed))
+        return
     if args.diagnose:
         print(diagnose(args.models.split(",")[0], float(args.sigmas_mm.split(",")[0]) * 1e-3, args.seeds))
         return

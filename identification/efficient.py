@@ -13,9 +13,10 @@ function of its markers, so marker noise reaches the gaps only through the coeff
 (covariance ``sigma^2 (B^T B)^-1`` per component and step). The derivative of every gap with respect to every
 coefficient comes from re-preparing the data with the field perturbed along that basis function, at all loaded
 steps at once (a step's gaps depend only on its own field and the reference), and once more for the reference
-configuration (treated as measured: its error enters every step's gaps, hence the correlation across steps). The
-readings (pressure, force) enter the external work linearly, with standard deviation
-``sqrt((relative x reading)^2 + floor^2)``. No forward model of the specimen is solved: the balance stays a
+configuration (treated as measured: its error enters every step's gaps, hence the correlation across steps); the
+rigid basis functions are left out and the re-preparations reuse what the perturbation does not change
+(``gap_jacobian``). The readings (pressure, force) enter the external work linearly, with standard deviation
+``sqrt((relative x reading)^2 + floor^2)``, their derivatives in closed form. No forward model of the specimen is solved: the balance stays a
 virtual fields method and works on heterogeneous data alike.
 
 Units SI; gaps in the optimiser's normalised units (divided by ``VFMData.scale``).
@@ -32,10 +33,11 @@ import numpy as np
 
 from .errors import IdentificationError
 from .fit import identify_prepared
+from .gap_jacobian import Reprepare, perturbed_sets, reading_sensitivities, rigid_columns
 from .kinematics import align_steps
 from .resimulation import basis_size, fitted_positions, marker_noise_level, remeasured_mesh
 from .smoothing import smoothing_basis
-from .vfm import VFMData, internal_virtual_work, prepare
+from .vfm import PrepareSettings, VFMData, default_fields, internal_virtual_work
 
 __all__ = ["EfficientSettings", "GapCovariance", "whitening_matrix"]
 
@@ -112,8 +114,9 @@ def _directions(mesh, aligned: np.ndarray) -> np.ndarray:
 class GapCovariance:
     """First-order covariance of the normalised gaps of ``data`` (shape (n_res, n_res), n_res = n_fields n_steps).
 
-    Built once from the perturbed preparations (about ``2 x basis size + 2`` calls of ``prepare``); ``at(params)``
-    then evaluates the covariance at any parameters with a few virtual-work evaluations.
+    Built once: the readings' part in closed form, the markers' from the perturbed preparations (one ``prepare``
+    per non-rigid smoothing basis function of the loaded steps and of the reference, ``gap_jacobian``);
+    ``at(params)`` then evaluates the covariance at any parameters with a few virtual-work evaluations.
     """
 
     def __init__(self, data: VFMData, positions: np.ndarray, settings: EfficientSettings,
@@ -127,64 +130,54 @@ class GapCovariance:
         x = np.asarray(positions, dtype=float)
         aligned, _, _ = align_steps(x, x[0])
         p, f = data.pressure, data.axial_force
-        mesh = data.mesh
-
-        def prep(pos, pressure=p, force=f, m=mesh):
-            with np.errstate(all="ignore"):
-                return prepare(pos, pressure, force, thickness=data.thickness, mesh=m, **opts)
-
-        self.base = prep(aligned)
-        eps = settings.step
-        # the readings: all loaded steps at once (a step's external work depends on its own readings only)
-        dp = eps * np.maximum(np.abs(p), 100.0)
-        df = eps * np.maximum(np.abs(f), 0.1)
-        self.d_pressure, self.d_force = prep(aligned, p + dp), prep(aligned, force=f + df)
-        self.dp, self.df = dp, df
-        self.sp = np.hypot(settings.pressure_relative * p, settings.pressure_floor) * (np.arange(p.size) > 0)
-        self.sf = np.hypot(settings.force_relative * f, settings.force_floor) * (np.arange(p.size) > 0)
-        # the markers: the smoothing coefficients of the loaded steps and of the reference
-        self.modes: list[tuple] = []  # (component basis covariance (n_b, n_b), [loaded VFMData], [reference VFMData])
+        prep = Reprepare(data, aligned, PrepareSettings.from_options(opts.pop("settings", None), **opts))
+        # the data as prepared for the fit serve as the unperturbed set when they were prepared alike (no markers
+        # rejected as outliers, equal weights): the same numbers to rounding, one ``prepare`` saved
+        given = PrepareSettings.from_options(**{k: v for k, v in dict(prepare_options or {}).items()
+                                                if k in ("settings", "marker_weights", "reference_noise_correction")})
+        alike = not np.any(data.n_outliers) and given.marker_weights is None and not given.reference_noise_correction
+        self.base = data if alike else prep(aligned)
+        loaded = np.arange(p.size) > 0
+        self.sp = np.hypot(settings.pressure_relative * p, settings.pressure_floor) * loaded
+        self.sf = np.hypot(settings.force_relative * f, settings.force_floor) * loaded
+        self.readings = self._reading_gaps(prep, aligned, p)  # (n_f, n_s) each: d gap / d reading x its sigma
+        # the markers: (coefficient covariance (n_steps or 1, n_b, n_b), [loaded VFMData], [reference VFMData])
+        self.modes: list[tuple] = []
         self.reference_sets: list[VFMData] = []  # re-measured references (``reference_replicates``)
         if data.smoothing is None:
             log.info("efficient weighting of unsmoothed data: the readings' noise only")
             return
         sigma = self._marker_sigma(positions)
-        e = _directions(mesh, aligned)
-        ok = mesh.used & np.all(np.isfinite(aligned), axis=-1).all(axis=0)
-        for j, degree in enumerate(data.smoothing):
-            B, ok_ref = smoothing_basis(mesh, degree)
-            use = ok & ok_ref
-            Bu = B[use]
-            pinv = np.linalg.solve(Bu.T @ Bu, Bu.T)  # coefficients of a field sampled at the used markers
-            s2 = sigma[:, use] ** 2  # (n_steps, n_used)
-            cov = np.einsum("bn,sn,cn->sbc", pinv, s2, pinv)  # (n_steps, n_b, n_b)
-            loaded = []
-            for i in range(B.shape[1]):
-                pos = aligned.copy()
-                pos[1:] += eps * B[:, i, None] * e[j][1:]
-                loaded.append(prep(pos))
-            self.modes.append((cov * (np.arange(len(cov)) > 0)[:, None, None], loaded, []))
-        # the reference configuration: its error is shared by all steps
-        if settings.reference_replicates:
+        e = _directions(data.mesh, aligned)
+        ok = data.mesh.used & np.all(np.isfinite(aligned), axis=-1).all(axis=0)
+        for j, degree in enumerate(data.smoothing):  # the loaded steps' smoothing coefficients
+            cov, B, keep = _coefficient_covariance(data.mesh, degree, ok, sigma, j)
+            sets = perturbed_sets(prep, aligned, B, e[j], settings.step, slice(1, None), keep)
+            self.modes.append((cov[:, keep][:, :, keep] * loaded[:, None, None], sets, []))
+        if settings.reference_replicates:  # the reference configuration: its error is shared by all steps
             rng = np.random.default_rng(settings.seed)
             for _ in range(int(settings.reference_replicates)):
                 ref = aligned.copy()
                 ref[0] += sigma[0][:, None] * rng.standard_normal(ref[0].shape)
-                self.reference_sets.append(prep(ref, m=remeasured_mesh(mesh, ref[0])))
+                self.reference_sets.append(prep(ref, m=remeasured_mesh(data.mesh, ref[0])))
             return
         for j, degree in enumerate(data.smoothing):  # linearised on a basis of at least ``reference_degree``
             degree = (max(degree[0], settings.reference_degree[0]), max(degree[1], settings.reference_degree[1]))
-            B, ok_ref = smoothing_basis(mesh, degree)
-            use = ok & ok_ref
-            Bu = B[use]
-            pinv = np.linalg.solve(Bu.T @ Bu, Bu.T)
-            cov = np.einsum("bn,sn,cn->sbc", pinv, sigma[:1, use] ** 2, pinv)
-            reference = []
-            for i in range(B.shape[1]):
-                ref = aligned.copy()
-                ref[0] += eps * B[:, i] [:, None] * e[j][0]
-                reference.append(prep(ref, m=remeasured_mesh(mesh, ref[0])))
-            self.modes.append((cov, [], reference))
+            cov, B, keep = _coefficient_covariance(data.mesh, degree, ok, sigma[:1], j)
+            sets = perturbed_sets(prep, aligned, B, e[j], settings.step, slice(0, 1), keep,
+                                  remesh=lambda ref: remeasured_mesh(data.mesh, ref))
+            self.modes.append((cov[:, keep][:, :, keep], [], sets))
+
+    def _reading_gaps(self, prep: Reprepare, aligned, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The gaps' derivatives with respect to the pressure and force readings times their standard deviations,
+        (n_fields, n_steps) each, in closed form (``gap_jacobian.reading_sensitivities``)."""
+        s = prep.s
+        load_end = (s.fields if s.fields is not None else default_fields(self.data.mesh, self.data.wall)).load_end
+        zero = p == 0
+        unit = prep(aligned, np.where(zero, 1.0, p)) if zero[1:].any() else None
+        d_pressure, d_force = reading_sensitivities(self.base, load_end, unit)
+        scale = self.data.scale[:, None]
+        return -d_pressure / scale * self.sp, -d_force / scale * self.sf
 
     def _marker_sigma(self, positions) -> np.ndarray:
         """Per-coordinate marker noise (m), shape (n_steps, n_markers)."""
@@ -205,11 +198,9 @@ class GapCovariance:
         """Covariance (n_res, n_res) of the normalised gaps (field-major ravel of (n_fields, n_steps))."""
         self.model = model
         n_f, n_s = self.data.evw.shape
-        g0 = self._gaps(self.base, params)
+        g0 = self._gaps(self.base, params) if self.modes or self.reference_sets else None
         cov = np.zeros((n_f, n_s, n_f, n_s))
-        # readings: independent per step
-        gp = (self._gaps(self.d_pressure, params) - g0) / self.dp * self.sp
-        gf = (self._gaps(self.d_force, params) - g0) / self.df * self.sf
+        gp, gf = self.readings  # readings: independent per step
         step_cov = np.einsum("ks,ls->skl", gp, gp) + np.einsum("ks,ls->skl", gf, gf)
         for c_b, loaded, reference in self.modes:
             if loaded:  # a loaded step's own noise: (f, s, b)
@@ -225,6 +216,19 @@ class GapCovariance:
         cov[:, idx, :, idx] += step_cov
         cov[:, 0], cov[:, :, :, 0] = 0.0, 0.0  # the reference step: no load, no information (its gap ~ 0)
         return cov.reshape(n_f * n_s, n_f * n_s)
+
+
+def _coefficient_covariance(mesh, degree, ok: np.ndarray, sigma: np.ndarray, component: int):
+    """Covariance of the smoothing coefficients of one component (0, 1, 2: radial, circumferential, axial),
+    ``sigma^2 (B^T B)^-1`` per step (shape (n_steps, n_b, n_b), sigma (n_steps, n_markers) m per coordinate), the
+    basis B (n_markers, n_b) and the columns whose perturbation can change a gap (n_b,) bool: all but the rigid
+    ones of the circumferential and axial components (``gap_jacobian.rigid_columns``), on the markers ``ok``."""
+    B, ok_ref = smoothing_basis(mesh, degree)
+    use = ok & ok_ref
+    Bu = B[use]
+    pinv = np.linalg.solve(Bu.T @ Bu, Bu.T)  # coefficients of a field sampled at the used markers
+    cov = np.einsum("bn,sn,cn->sbc", pinv, sigma[:, use] ** 2, pinv)
+    return cov, B, ~rigid_columns(B, use) if component > 0 else np.ones(B.shape[1], bool)
 
 
 def whitening_matrix(cov: np.ndarray, floor: float = 1e-10) -> np.ndarray:

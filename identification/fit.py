@@ -48,7 +48,7 @@ EXACT_GAP = 1e-5
 AGREEING_STARTS = 1e-6
 #: ``scipy.optimize.least_squares`` method of the projected search. "dogbox" (rectangular trust
 #: regions) needs half the iterations of "trf" on these small, well-scaled problems (Fung 8 vs 18
-#: evaluations on the bench data, same minimum; ``bench_identification --part timing``).
+#: evaluations on the bench data, same minimum; ``bench_ident_timing --part timing``).
 LSQ_METHOD = "dogbox"
 #: Typical magnitude of parameters that may be zero or negative (for the scale of their changes).
 TYPICAL = {"alpha12": 1.0, "phi": 0.5}
@@ -266,7 +266,7 @@ def _trusted(vp: _Projection, xq: np.ndarray, cost: float, ok: bool) -> bool:
     """A first fit that needs no other start: converged, inside the bounds, RMS gap below ``GAP_FOR_FLAGS``.
 
     With the linear parameters projected out, the first start's minimum was the best one on every
-    data set of ``bench_identification --part starts``; the other starts stay for doubtful fits.
+    data set of ``bench_ident_timing --part starts``; the other starts stay for doubtful fits.
     """
     lo, hi = vp.tr.lower[vp.nl], vp.tr.upper[vp.nl]
     width = np.where(np.isfinite(hi - lo), hi - lo, 1.0)

@@ -151,21 +151,28 @@ class SurfaceState:
     smoothing: tuple | None = None  # degrees used: three (nz, nt) pairs (r, theta, z), or None
 
 
-def step_cylindrical(mesh: SurfaceMesh, aligned: np.ndarray):
+def step_cylindrical(mesh: SurfaceMesh, aligned: np.ndarray, start: list | None = None):
     """Cylindrical coordinates of every step about its own fitted axis.
 
     The axis of each (rigidly aligned) step is refitted from its own markers, starting from the
-    reference axis, so that a non-rigid deformation that fools the rigid alignment (e.g. an axial
+    reference axis (or from ``start``, one ``Axis`` per step: the same minimum in fewer iterations when
+    they are close to it), so that a non-rigid deformation that fools the rigid alignment (e.g. an axial
     stretch of an unevenly marked tube) does not tilt the axis.
 
     Returns ``r, theta, z`` of shape (n_steps, n_markers) and the list of step axes.
     """
     observed = np.all(np.isfinite(aligned), axis=-1) & mesh.used
-    axes = refit_axes(aligned, observed, mesh.axis)
+    axes = refit_axes(aligned, observed, mesh.axis, start=start)
+    return (*cylindrical_about(aligned, axes), axes)
+
+
+def cylindrical_about(aligned: np.ndarray, axes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``r, theta, z`` (n_steps, n_markers) of the positions ``aligned`` (n_steps, n_markers, 3) about each step's
+    axis (``axes``, one ``Axis`` per step)."""
     origin = np.stack([a.origin for a in axes])  # (n_steps, 3)
     basis = np.stack([a.basis for a in axes])  # (n_steps, 3, 3)
     local = (aligned - origin[:, None]) @ np.swapaxes(basis, 1, 2)  # (n_steps, n_markers, 3)
-    return np.hypot(local[..., 0], local[..., 1]), np.arctan2(local[..., 1], local[..., 0]), local[..., 2], axes
+    return np.hypot(local[..., 0], local[..., 1]), np.arctan2(local[..., 1], local[..., 0]), local[..., 2]
 
 
 def surface_state(mesh: SurfaceMesh, aligned: np.ndarray, quadrature: int = 1,
@@ -191,9 +198,6 @@ def surface_state(mesh: SurfaceMesh, aligned: np.ndarray, quadrature: int = 1,
     """
     if quadrature not in QUADRATURE:
         raise ValueError(f"quadrature must be one of {sorted(QUADRATURE)}; got {quadrature}")
-    bary, qw = QUADRATURE[quadrature]
-    geo = triangle_geometry(mesh)
-    tri = mesh.triangles
     r, th, z, axes = step_cylindrical(mesh, aligned)  # (n_steps, n_markers)
     if estimate_noise or reject_outliers or isinstance(smoothing, str) or reference_noise_correction:
         outliers, noise = marker_outliers(mesh, r, th, z)
@@ -216,6 +220,20 @@ def surface_state(mesh: SurfaceMesh, aligned: np.ndarray, quadrature: int = 1,
         if smooth_reference:
             R_ref = smooth_reference_radius(mesh)
             r = r + (R_ref - mesh.r)[None]  # same displacement, from the smooth reference surface
+    return interpolated_state(mesh, (r, th, z), R_ref, quadrature,
+                              dict(outliers=outliers, noise=noise, axes=tuple(axes), smoothing=smoothing))
+
+
+def interpolated_state(mesh: SurfaceMesh, cylindrical: tuple, reference_radius: np.ndarray, quadrature: int,
+                       about: dict) -> SurfaceState:
+    """The ``SurfaceState`` of the (smoothed) current cylindrical coordinates ``cylindrical = (r, theta, z)``, each
+    (n_steps, n_markers), on the reference radius ``reference_radius`` (n_markers,) m; ``about``: the state's
+    ``outliers``, ``noise``, ``axes`` and ``smoothing`` (``surface_state``'s second half)."""
+    bary, qw = QUADRATURE[quadrature]
+    geo = triangle_geometry(mesh)
+    tri = mesh.triangles
+    r, th, z = cylindrical
+    R_ref = reference_radius
     cyl = np.stack([r, th, z])[:, :, tri]  # (r, theta, z) at the vertices: (3, n_steps, n_tri, 3)
     valid = np.all(np.isfinite(cyl), axis=(0, -1))
     # unwrap the current angles of each triangle relative to its first vertex
@@ -234,8 +252,7 @@ def surface_state(mesh: SurfaceMesh, aligned: np.ndarray, quadrature: int = 1,
         R=Rv @ bary.T, R_xi=_grad(Rv, geo.dinv),
         r=rv @ bary.T, r_xi=r_xi,
         theta=thv @ bary.T, theta_xi=theta_xi, z_xi=z_xi,
-        valid=valid, outliers=outliers, noise=noise, r_markers=r, theta_markers=th, z_markers=z, axes=tuple(axes),
-        bary=bary, qweight=qw, geometry=geo, smoothing=smoothing,
+        valid=valid, r_markers=r, theta_markers=th, z_markers=z, bary=bary, qweight=qw, geometry=geo, **about,
     )
 
 

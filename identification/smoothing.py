@@ -126,6 +126,8 @@ def _unique_rows(ok: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``np.unique(ok, axis=0, return_inverse=True)`` of a boolean (n_rows, n) array, same rows in the same
     (lexicographic) order, without its structured-dtype overhead (~1 ms a call; a bootstrap makes ~100):
     the rows are packed into bytes (first element the most significant bit) and compared as such."""
+    if len(ok) and (ok == ok[:1]).all():  # every row alike (every step saw the same markers): the same answer
+        return ok[:1].copy(), np.zeros(len(ok), dtype=np.intp)
     packed = np.ascontiguousarray(np.packbits(ok, axis=1))
     keys = packed.view(np.dtype((np.void, packed.shape[1]))).ravel()
     _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)

@@ -154,7 +154,7 @@ def fit_clouds(pts: np.ndarray, w: np.ndarray, frame0: np.ndarray, c0: np.ndarra
 
 
 def refit_axes(points: np.ndarray, observed: np.ndarray, initial: Axis, *, profile_degree: int = 4,
-               max_iterations: int = 50) -> list[Axis]:
+               max_iterations: int = 50, start: list[Axis] | None = None) -> list[Axis]:
     """Refit the axis of each step from ``initial`` (``mesh.fit_axis(step, initial=initial)`` for all steps).
 
     Parameters
@@ -164,6 +164,9 @@ def refit_axes(points: np.ndarray, observed: np.ndarray, initial: Axis, *, profi
     observed : ndarray, shape (n_steps, n_markers) bool
         Markers to fit; steps with fewer than ``MIN_MARKERS`` keep ``initial``.
     initial : Axis
+    start : list of Axis, optional
+        One per step: where each step's fit starts (default ``initial``); the orientation and angular origin
+        are ``initial``'s whatever the start.
 
     Returns
     -------
@@ -177,8 +180,12 @@ def refit_axes(points: np.ndarray, observed: np.ndarray, initial: Axis, *, profi
     pts = np.where(ok[fit, :, None], points[fit], 0.0)
     w = ok[fit].astype(float)
     n_fit = len(pts)
-    frame0 = np.broadcast_to(_frame(initial.direction), (n_fit, 3, 3))
-    c0 = np.broadcast_to(initial.origin, (n_fit, 3))
+    if start is None:
+        frame0 = np.broadcast_to(_frame(initial.direction), (n_fit, 3, 3))
+        c0 = np.broadcast_to(initial.origin, (n_fit, 3))
+    else:  # any orthonormal frame about the starting direction serves: the axis's own
+        frame0 = np.stack([start[k].basis for k in np.flatnonzero(fit)])
+        c0 = np.stack([start[k].origin for k in np.flatnonzero(fit)])
     res, d, o, r = fit_clouds(pts, w, frame0, c0, initial.radius, profile_degree=profile_degree,
                               max_iterations=max_iterations)
     for step, axis in zip(np.flatnonzero(fit), axes_from(pts, w, d, o, r, res, initial.direction, initial.basis[0])):

@@ -276,9 +276,7 @@ def prepare(
         if dense is not None:
             return dense
     if fields is None:
-        # thick: fields flat at the measured boundaries (thick_fields: the clamped FE tube's Delfino beta
-        # -3.3 % -> -0.9 %); membrane: the paper's fields
-        fields = flat_end_fields(mesh) if wall == "thick" else paper_fields(mesh)
+        fields = default_fields(mesh, wall)
     check_fields(fields, mesh)
     aligned, _, _ = align_steps(x, reference)
     # a bootstrap replicate (estimate_noise=False) is never seen again: not cached (the cache's states hold ~10
@@ -287,6 +285,21 @@ def prepare(
     st = state(mesh, aligned, quadrature, smoothing, reject_outliers, marker_weights,
                smooth_reference=smooth_reference,
                reference_noise_correction=reference_noise_correction, estimate_noise=estimate_noise)
+    return balance(st, mesh, fields, p, f, e0, s)
+
+
+def default_fields(mesh: SurfaceMesh, wall: str) -> VirtualFields:
+    """``prepare``'s virtual fields when none are given: for ``wall="thick"`` fields flat at the measured boundaries
+    (``thick_fields``: the clamped FE tube's Delfino beta -3.3 % -> -0.9 %); for the membrane the paper's."""
+    return flat_end_fields(mesh) if wall == "thick" else paper_fields(mesh)
+
+
+def balance(st, mesh: SurfaceMesh, fields: VirtualFields, p: np.ndarray, f: np.ndarray, e0: float,
+            s: PrepareSettings) -> VFMData:
+    """The virtual-work balance of the surface state ``st`` (``kinematics.surface_state``), ``prepare``'s second
+    half: pressure ``p`` (Pa) and force ``f`` (N) of shape (n_steps,), thickness ``e0`` (m), and of the settings
+    ``s`` the wall, ends, n_layers and clamp_radius."""
+    wall, ends, n_layers, clamp_radius = s.wall, s.ends, s.n_layers, s.clamp_radius
     if not st.valid.any(axis=1).all():
         bad = np.flatnonzero(~st.valid.any(axis=1)).tolist()
         raise DegenerateDataError(f"steps {bad} have no triangle with all three markers observed")

@@ -1,12 +1,16 @@
-"""VIC-3D CSV exports and generic point tables (CSV / NPZ with a column map) -> DICPoints in metres."""
+"""VIC-3D CSV exports and generic point tables (CSV / NPZ with a column map) -> DICPoints in metres. VIC-3D: small
+steps written here, and a real export (tests/data/vic3d-export)."""
 
 import numpy as np
 import pytest
 
+from _data import data_path
 from acquisition.dic import DICImportError, parse_column_map, read_point_table, read_vic3d_csv
+from vfmlab.cli import main
 
-# A VIC-3D export as Correlated Solutions writes it: quoted header, image coordinates x, y (px), image displacements
-# u, v (px), sigma (px; -1 = not correlated), reference position X, Y, Z (mm), displacement U, V, W (mm), strains.
+# Small steps with VIC-3D's columns: quoted header, image coordinates x, y (px), image displacements u, v (px), sigma
+# (px; -1 = not correlated), reference position X, Y, Z (mm), displacement U, V, W (mm), strains. (A real export has
+# more columns, in another order, and spaces in its header: test_vic3d_real_export.)
 VIC_HEADER = '"x","y","u","v","sigma","X","Y","Z","U","V","W","exx","eyy","exy"'
 REF = np.array([[-5.0, -2.5, 1.25], [0.0, -2.5, 1.0], [5.0, -2.5, 1.5]])  # mm
 
@@ -58,6 +62,45 @@ def test_vic3d_bad_files(tmp_path, vic_files):
         read_vic3d_csv([garbled])
     with pytest.raises(DICImportError, match="unit must be one of"):
         read_vic3d_csv(paths, unit="inch")
+
+
+REAL = ("vic3d-export/def_init_vic3d.csv", "vic3d-export/def_final_vic3d.csv")
+
+
+def test_vic3d_real_export():
+    """Two steps of a real VIC-3D export (every 16th row: 264 points, 59 not correlated), header as VIC-3D writes it:
+    ``' "X",  "Y",  "Z",  "U", ...'``, 31 columns, rows ``-17.4253,16.2764,...``."""
+    res = read_vic3d_csv([data_path(p) for p in REAL])
+    assert res.points.shape == (2, 264, 3) and res.step_names == ("def_init_vic3d.csv", "def_final_vic3d.csv")
+    missing = np.isnan(res.points).any(axis=2)
+    assert missing.sum(axis=1).tolist() == [59, 59] and np.array_equal(missing[0], missing[1])  # sigma = -1
+    np.testing.assert_array_equal(np.isnan(res.quality), missing)
+    # the file's 16th row: X Y Z -17.4253 16.2764 -297.282 mm in both steps (the reference position), U V W
+    # 0.000731875 0.00284753 0.00140777 mm, then 4.0753 -1.23297 -0.789928 mm; sigma 0.00242078, 0.00541662 px
+    np.testing.assert_allclose(res.points[:, 15] * 1e3,
+                               [[-17.4253 + 0.000731875, 16.2764 + 0.00284753, -297.282 + 0.00140777],
+                                [-17.4253 + 4.0753, 16.2764 - 1.23297, -297.282 - 0.789928]], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(res.quality[:, 15], [0.00242078, 0.00541662], rtol=1e-12)
+    moved = np.linalg.norm(res.displacements()[1], axis=1)[~missing[1]] * 1e3
+    assert 4.03 < moved.min() and moved.max() < 4.34  # mm: 4.035-4.331 between the two steps
+
+
+def test_vic3d_real_export_on_the_command_line(tmp_path, capsys):
+    loads = tmp_path / "loads.csv"
+    loads.write_text("step,pressure_kPa,axial_force_N,stretch\n0,2,0.1,1\n1,3,0.2,1.01\n")
+    out = tmp_path / "vic.h5"
+    assert main(["import-dic", *(str(data_path(p)) for p in REAL), "--format", "vic3d", "--loads", str(loads),
+                 "--thickness-mm", "1.0", "-o", str(out)]) == 0
+    assert "Imported 264 markers × 2 steps" in capsys.readouterr().out
+
+
+def test_vic3d_real_header_bad_row(tmp_path):
+    header = data_path(REAL[0]).read_text().splitlines()[0]
+    cut = tmp_path / "cut.csv"
+    cut.write_text(header + "\n-17.4253,16.2764,-297.282\n")
+    with pytest.raises(DICImportError, match=r"cut.csv: every row must hold 31 numbers") as exc:
+        read_vic3d_csv([cut])
+    assert "\n" not in str(exc.value)
 
 
 def test_generic_csv_with_column_map(tmp_path):

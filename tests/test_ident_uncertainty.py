@@ -2,7 +2,7 @@
 
 Closed-form homogeneous data of the paper's protocol (one stretch, 7 pressure levels to 150 mmHg,
 300 markers) with i.i.d. Gaussian noise on every coordinate of every marker, reference included.
-The full studies (50 seeds, 0.01 / 0.05 / 0.17 mm) are ``python -m benchmarks.bench_identification
+The full studies (50 seeds, 0.01 / 0.05 / 0.17 mm) are ``python -m benchmarks.bench_ident_noise
 --part coverage`` and ``--part noise``; here a reduced seed set with honest tolerances.
 """
 

@@ -1,7 +1,9 @@
 """DIC points from tables: VIC-3D (Correlated Solutions) CSV exports, and any CSV / NPZ with a column mapping.
 
-VIC-3D exports one CSV per step, the same grid of points in the same row order in every file. Columns used (names
-as VIC-3D writes them, quoted or not, case-sensitive since ``x`` and ``X`` differ):
+VIC-3D exports one CSV per step, the same grid of points in the same row order in every file; its header has the
+names quoted, after a comma and spaces (`` "X",  "Y",  "Z",``), its rows only commas (a real export:
+tests/data/vic3d-export). Columns used (names as VIC-3D writes them, quoted or not, case-sensitive since ``x`` and
+``X`` differ; the others, e.g. strains, are ignored):
 
 - ``X``, ``Y``, ``Z``: the point in the reference state, in VIC-3D's world frame, ``unit`` (mm by default);
 - ``U``, ``V``, ``W``: its displacement at this step, same unit (lower-case ``u``, ``v``, ``w`` are accepted when
@@ -26,17 +28,22 @@ from .result import DICImportError, DICPoints, length_scale
 __all__ = ["parse_vic3d_csv", "read_vic3d_csv", "read_point_table", "parse_column_map", "points_from_columns"]
 
 
+def _delimiter(header: str, first_row: str | None) -> str | None:
+    """Of comma, semicolon, tab in the header: the first found as often in the first row, else the first found;
+    None = whitespace separated (never spaces when one of them is there: VIC-3D writes ``"X",  "Y",`` in the header
+    and ``1,2,`` in the rows)."""
+    present = [d for d in (",", ";", "\t") if d in header]
+    same = [d for d in present if first_row is not None and first_row.count(d) == header.count(d)]
+    return (same or present or [None])[0]
+
+
 def _rows(text: str, where: str) -> tuple[list[str], np.ndarray]:
     """Header and float rows of a comma / semicolon / whitespace separated table."""
     lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
     if not lines:
         raise DICImportError(f"{where}: empty table")
-    try:
-        dialect = csv.Sniffer().sniff(lines[0], delimiters=",;\t ")
-        delim = dialect.delimiter
-    except csv.Error:
-        delim = ","
-    if delim == " ":
+    delim = _delimiter(lines[0], lines[1] if len(lines) > 1 else None)
+    if delim is None:
         table = [[c.strip('"') for c in ln.split()] for ln in lines]
     else:
         reader = csv.reader(io.StringIO("\n".join(lines)), delimiter=delim, skipinitialspace=True)
