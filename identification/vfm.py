@@ -295,22 +295,17 @@ def default_fields(mesh: SurfaceMesh, wall: str) -> VirtualFields:
 
 
 def balance(st, mesh: SurfaceMesh, fields: VirtualFields, p: np.ndarray, f: np.ndarray, e0: float,
-            s: PrepareSettings) -> VFMData:
+            s: PrepareSettings, *, work_mesh: SurfaceMesh | None = None,
+            quadrature: DenseQuadrature | None = None) -> VFMData:
     """The virtual-work balance of the surface state ``st`` (``kinematics.surface_state``), ``prepare``'s second
     half: pressure ``p`` (Pa) and force ``f`` (N) of shape (n_steps,), thickness ``e0`` (m), and of the settings
-    ``s`` the wall, ends, n_layers and clamp_radius."""
-    wall, ends, n_layers, clamp_radius = s.wall, s.ends, s.n_layers, s.clamp_radius
+    ``s`` the wall, ends, n_layers and clamp_radius. ``work_mesh``: the mesh whose triangles ``st`` and the nodes
+    ``fields`` are on (default ``mesh``; a dense cloud's quadrature grid, ``quadrature``)."""
+    wall, ends = s.wall, s.ends
+    work_mesh = mesh if work_mesh is None else work_mesh
     if not st.valid.any(axis=1).all():
         bad = np.flatnonzero(~st.valid.any(axis=1)).tolist()
         raise DegenerateDataError(f"steps {bad} have no triangle with all three markers observed")
-    return _balance(st, mesh, mesh, fields, p, f, e0, s)
-
-
-def _balance(st, mesh: SurfaceMesh, work_mesh: SurfaceMesh, fields: VirtualFields, p, f, e0: float,
-             s: PrepareSettings, quadrature: DenseQuadrature | None = None) -> VFMData:
-    """The virtual-work balance of the surface state ``st`` on the triangles of ``work_mesh`` (``mesh``, or a
-    dense cloud's quadrature grid) with ``fields`` given at its nodes."""
-    wall, ends = s.wall, s.ends
     wg = _wall_geometry(fields, work_mesh, st, e0)
     c, work_density, surface = _internal_work_terms(wg, wall, s.n_layers)
     pressure_work, end_work, n_end, strip_force = _external_work(wg, surface, work_mesh, st, fields, p, f, wall, ends,
@@ -363,7 +358,7 @@ def _prepare_dense(x, p, f, e0: float, mesh: SurfaceMesh, s: PrepareSettings) ->
     if not st.valid.any(axis=1).all():
         bad = np.flatnonzero(~st.valid.any(axis=1)).tolist()
         raise DegenerateDataError(f"steps {bad} have no valid quadrature cell")
-    return _balance(st, mesh, quadrature.grid, fields, p, f, e0, s, quadrature)
+    return balance(st, mesh, fields, p, f, e0, s, work_mesh=quadrature.grid, quadrature=quadrature)
 
 
 #: Meshes of recently seen reference configurations (a reprocessing run meshes the same markers again).
