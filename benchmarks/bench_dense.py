@@ -55,7 +55,7 @@ PHASES = {
                   ("smoothing.py", "smooth_reference_radius"), ("dense.py", "_coefficients"),
                   ("dense.py", "_reference_radius")],
     # minus axes, outliers, smoothing
-    "kinematics": [("kinematics.py", "surface_state"), ("dense.py", "dense_state")],
+    "kinematics": [("kinematics.py", "surface_state"), ("dense.py", "dense_state"), ("dense.py", "marker_survey")],
     "prepare": [("vfm.py", "prepare")],  # minus mesh and kinematics: the virtual work
     "fit": [("fit.py", "identify_prepared")],
 }
