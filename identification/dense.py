@@ -29,7 +29,7 @@ from .mesh import SurfaceMesh, wrap_angle
 from .outliers import marker_outliers
 from .smoothing import (AUTO_DEGREES, MAX_BASIS_FRACTION, _displacements, _unique_rows, per_component_degrees,
                         reference_radius_degree, resolve_smoothing, smoothing_basis)
-from .errors import DegenerateDataError
+from .errors import DegenerateDataError, IdentificationError
 from .step_axes import refit_axes
 from .thick_fields import flat_end_fields
 from .virtual_fields import VirtualFields, check_fields, paper_fields
@@ -115,8 +115,9 @@ def quadrature_grid(mesh: SurfaceMesh, rows: int = GRID_ROWS, columns: int = GRI
 
 def grid_fields(fields: VirtualFields | None, mesh: SurfaceMesh, grid: SurfaceMesh, wall: str) -> VirtualFields | None:
     """The virtual fields on the grid's nodes: the default ones built there, given ones (at the markers of
-    ``mesh``) interpolated along Z when they depend on Z alone (paper, flat-end and band fields); None otherwise
-    (``prepare`` then takes the full path)."""
+    ``mesh``) interpolated along Z when they depend on Z alone (paper, flat-end and band fields: consecutive
+    markers in Z differ by at most a tenth of the largest value, and the fields stay admissible on the grid's end
+    rows); None otherwise (``prepare`` then takes the full path)."""
     if fields is None:
         out = flat_end_fields(grid) if wall == "thick" else paper_fields(grid)
     else:
@@ -125,13 +126,18 @@ def grid_fields(fields: VirtualFields | None, mesh: SurfaceMesh, grid: SurfaceMe
         z = mesh.z[ok][order]
         v = fields.values[:, ok][:, order]  # (f, n, 3)
         scale = max(float(np.abs(v).max()), 1e-300)
-        if np.percentile(np.abs(np.diff(v, axis=1)), 99.9) > 0.02 * scale:
+        if np.percentile(np.abs(np.diff(v, axis=1)), 99.9) > 0.1 * scale:
             return None  # not a function of Z alone
         zu, first = np.unique(z, return_index=True)
         vu = v[:, first]
         values = np.stack([np.stack([np.interp(grid.z, zu, vu[k, :, c]) for c in range(3)], -1)
                            for k in range(fields.n_fields)])
         out = VirtualFields(names=fields.names, values=values, load_end=fields.load_end)
+        try:
+            check_fields(out, grid)
+        except IdentificationError:
+            return None  # not admissible on the grid's end rows: the full path
+        return out
     check_fields(out, grid)
     return out
 
