@@ -5,8 +5,9 @@
                                                 [--commands-only]
 
 Prints, as markdown, the median wall time (s) over ``--repeats`` fresh processes of ``vfmlab --help``,
-``vfmlab info S``, ``vfmlab identify S --uncertainty gauss-newton`` and ``vfmlab identify S`` (defaults:
-bootstrap uncertainty), the CPU of one bootstrap re-identification (in one process, serial: the
+``vfmlab info S``, ``vfmlab identify S --uncertainty gauss-newton``, ``vfmlab identify S --weighting paper
+--uncertainty bootstrap`` (the defaults before issue 24) and ``vfmlab identify S`` (defaults: the efficient
+weighting with its generalised least-squares intervals), the CPU of one bootstrap re-identification (in one process, serial: the
 replicates of ``identification.uncertainty.bootstrap`` with the command's settings, min over repeats of the
 mean of 16), then the import-time breakdown of ``identify`` (``python -X importtime``, self
 time summed by top-level package) and the modules it must not import (drivers, pyserial, matplotlib...).
@@ -50,7 +51,9 @@ COMMANDS = {
     "--help": ["--help"],
     "info S": ["info", "{s}"],
     "identify S --uncertainty gauss-newton": ["identify", "{s}", "--uncertainty", "gauss-newton"],
-    "identify S (default: bootstrap)": ["identify", "{s}"],
+    "identify S --weighting paper --uncertainty bootstrap": ["identify", "{s}", "--weighting", "paper",
+                                                             "--uncertainty", "bootstrap"],
+    "identify S (defaults)": ["identify", "{s}"],
 }
 
 
@@ -101,6 +104,9 @@ def make_session(work: Path) -> Path:
                  ["reconstruct", str(partial)]):
         _vfmlab(ROOT, args, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     partial.rename(session)
+    results = partial.with_name(partial.name + ".results")  # the derived results beside the file (issue 28)
+    if results.exists():
+        results.rename(session.with_name(session.name + ".results"))
     return session
 
 
@@ -114,6 +120,9 @@ def _copies(session: Path, tmp: Path, trees: list[Tree], repeats: int) -> dict:
             for k in range(repeats):
                 out[r, label, k] = tmp / f"r{r}-{len(out)}.h5"
                 shutil.copyfile(session, out[r, label, k])
+                beside = session.with_name(session.name + ".results")  # results beside the file (issue 28)
+                if beside.exists():
+                    shutil.copytree(beside, out[r, label, k].with_name(out[r, label, k].name + ".results"))
     time.sleep(SETTLE)
     return out
 
@@ -170,6 +179,9 @@ def import_breakdown(tree: Tree, session: Path, tmp: Path) -> tuple[dict, list[s
     modules of ``MUST_NOT_IMPORT`` it imported, and the total."""
     target = tmp / f"imports-{abs(hash(tree))}.h5"
     shutil.copyfile(session, target)
+    beside = session.with_name(session.name + ".results")
+    if beside.exists():
+        shutil.copytree(beside, target.with_name(target.name + ".results"))
     args = [tree.python, "-X", "importtime", "-m", "vfmlab", "identify", str(target), "--uncertainty",
             "gauss-newton"]
     err = subprocess.run(args, env=_env(tree.root), cwd=tree.root, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
@@ -210,12 +222,36 @@ def max_relative_difference(a: Path, b: Path) -> float:
     return worst
 
 
+def in_process(session: Path, repeats: int) -> str:
+    """Median wall time of ``identification.identify`` on the session's inputs, in this process, with the defaults
+    and with the defaults before issue 24 (``weighting="paper", uncertainty="bootstrap"``), alternated."""
+    from identification import identify
+    from vfmlab.pipeline import read_identification_inputs
+
+    d = read_identification_inputs(session)
+    args = (d["positions"], d["pressure"], d["force"])
+    variants = {"defaults": {}, 'weighting="paper", uncertainty="bootstrap"': dict(weighting="paper",
+                                                                                   uncertainty="bootstrap")}
+    times: dict = defaultdict(list)
+    for k in range(repeats + 1):  # the first round warms the caches of the process
+        for label, kw in variants.items():
+            t0 = time.perf_counter()
+            identify(*args, thickness=d["thickness"], **kw)
+            if k:
+                times[label].append(time.perf_counter() - t0)
+    return ("\nIn-process `identification.identify(positions, pressure, force, thickness=...)` (median of "
+            f"{repeats}, load average {os.getloadavg()[0]:.1f}): "
+            + ", ".join(f"{label} {np.median(v):.3f} s" for label, v in times.items()))
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--session", type=Path, help="a rendered session with marker tracks (copied, never changed)")
     parser.add_argument("--work", type=Path, default=Path(tempfile.gettempdir()) / "vfmlab-bench-cli",
                         help="folder where the rendered session is made once (without --session)")
     parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--synthetic", type=int, metavar="N_MARKERS",
+                        help="time a rig_sim.synthetic_session session of N markers (made in --work) instead")
     parser.add_argument("--compare-root", type=Path, help="another source tree of vfmlab, timed alongside")
     parser.add_argument("--compare-python", help="the interpreter of the compared tree (default: this one); with no "
                                                  "--compare-root, this tree on that interpreter (e.g. a venv with "
@@ -223,7 +259,14 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--commands-only", action="store_true",
                         help="only the command timings and the stored-result comparison")
     args = parser.parse_args(argv)
-    if args.session is None:
+    if args.synthetic:
+        from rig_sim.synthetic_session import make_session as make_synthetic
+
+        args.work.mkdir(parents=True, exist_ok=True)
+        session = args.work / f"synthetic-{args.synthetic}.h5"
+        if not session.exists():
+            make_synthetic(session, n_markers=args.synthetic)
+    elif args.session is None:
         args.work.mkdir(parents=True, exist_ok=True)
         session = make_session(args.work)
     else:
@@ -245,9 +288,11 @@ def main(argv: list[str] | None = None) -> None:
             print(f"| `vfmlab {label}` | " + " | ".join(" / ".join(f"{t:.3f}" for t in medians[r, label])
                                                      for r in range(len(trees))) + " |")
         if len(trees) == 2:
-            label = "identify S (default: bootstrap)"
+            label = "identify S --weighting paper --uncertainty bootstrap"  # the same command in both trees
             diff = max_relative_difference(copies[0, label, 0], copies[1, label, 0])
-            print(f"\nLargest relative difference of the stored identification results between the trees: {diff:.1e}")
+            print(f"\nLargest relative difference of the stored identification results between the trees ({label}): "
+                  f"{diff:.1e}")
+        print(in_process(session, args.repeats))
         if args.commands_only:
             return
         per = [replicate_cpu(tree, session, args.repeats) for tree in trees]

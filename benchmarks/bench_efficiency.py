@@ -11,7 +11,7 @@ bound^2 / RMS^2 (RMS error over the seeds, so bias counts).
 
 Run: ``python -m benchmarks.bench_efficiency [--models fung,delfino,hgo] [--sigmas-mm 0.01,0.05,0.17]
 [--walls membrane,thick] [--ends free,clamped] [--stretches 1.1 | 1.05/1.1/1.15] [--seeds 40]
-[--estimators default,noise,efficient] [--diagnose]``. The default is a reduced quick set (Fung, Delfino and HGO at 0.17 mm,
+[--estimators default,noise,efficient] [--diagnose] [--coverage gls,bootstrap]``. The default is a reduced quick set (Fung, Delfino and HGO at 0.17 mm,
 membrane, free ends, one stretch, 40 seeds). Prints Markdown tables (docs/validation/efficiency.md).
 
 ``--part speed [--seeds 20]``: time per fit of the efficient path, Fung at 0.17 mm (300 markers x 8 loaded steps and
@@ -128,6 +128,45 @@ DIAGNOSIS = [
     ("all noise, efficient + reference_noise_correction", True, True, True,
      dict(smoothing="auto", weighting="efficient", reference_noise_correction=True)),
 ]
+
+
+def coverage(model: str, sigma: float, methods, *, wall: str = "membrane", ends: str = "free", stretches=(1.1,),
+             n_seeds: int = 40, first_seed: int = 0) -> str:
+    """Coverage of the efficient fit's 95 % intervals (``uncertainty`` each of ``methods``: "gls", "bootstrap"):
+    the fraction of seeds whose interval holds the truth, per parameter; the median half-width (%), the RMS of
+    (estimate - truth) / standard error, and w95, the factor on the half-width that would cover 95 % of the seeds
+    (the 95th percentile of |z| / 1.96; the stderr's (estimate - truth) / stderr, the interval in log scale for the
+    positive parameters: close, not equal)."""
+    sim = simulate_case(model, wall=wall, ends=ends, stretches=tuple(stretches))
+    names = get_model(model).parameter_names
+    truth = PAPER_PARAMETERS[model]
+    hits = {m: [] for m in methods}
+    half = {m: [] for m in methods}
+    z = {m: [] for m in methods}
+    times = {m: [] for m in methods}
+    for seed in range(first_seed, first_seed + n_seeds):
+        x, p, f = noisy_data(sim, sigma, np.random.default_rng([20261127, seed]))
+        for m in methods:
+            t0 = time.perf_counter()
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                res = identify(x, p, f, thickness=H, model=model, wall=wall, ends=ends, smoothing="auto",
+                               weighting="efficient", uncertainty=m)
+            times[m].append(time.perf_counter() - t0)
+            iv = res.uncertainty.interval
+            hits[m].append([iv[n][0] <= truth[n] <= iv[n][1] for n in names])
+            half[m].append([(iv[n][1] - iv[n][0]) / 2 / abs(truth[n]) * 100 for n in names])
+            z[m].append([(res.parameters[n] - truth[n]) / res.stderr[n] for n in names])
+    label = f"{model} {sigma * 1e3:g} mm {wall} {ends} {'/'.join(f'{s:g}' for s in stretches)}"
+    rows = ["| case | uncertainty | " + " | ".join(f"{n} covered / half-width (%) / RMS z / w95" for n in names)
+            + " | s per fit |", "|---|---|" + "---|" * len(names) + "---|"]
+    for m in methods:
+        h, w, zz = np.array(hits[m]), np.array(half[m]), np.array(z[m])
+        # w95: the factor on the half-width that would have covered 95 % of these seeds
+        cells = [f"{h[:, i].mean():.0%} / {np.median(w[:, i]):.3g} / {np.sqrt(np.mean(zz[:, i] ** 2)):.2f} / "
+                 f"{np.quantile(np.abs(zz[:, i]), 0.95) / 1.96:.2f}" for i in range(len(names))]
+        rows.append(f"| {label} ({len(h)} seeds) | {m} | " + " | ".join(cells) + f" | {np.median(times[m]):.2f} |")
+    return "\n".join(rows)
 
 
 def diagnose(model: str, sigma: float, n_seeds: int) -> str:
@@ -248,12 +287,24 @@ def main(argv=None) -> None:
     parser.add_argument("--estimators", default="default,noise,efficient")
     parser.add_argument("--diagnose", action="store_true", help="where the information is lost: each noise source "
                         "alone and each lever, first model and sigma, free membrane, one stretch")
+    parser.add_argument("--coverage", default=None, help="coverage of the efficient fit's 95 %% intervals with "
+                        "these uncertainty methods (gls,bootstrap), each case of the other options")
     parser.add_argument("--part", choices=("efficiency", "speed"), default="efficiency",
                         help="speed: time per fit of the efficient path before and after (Fung 0.17 mm; --seeds)")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)
     if args.part == "speed":
         print(speed(args.seeds, args.first_seed))
+        return
+    if args.coverage:
+        for model in args.models.split(","):
+            for sigma in (float(s) * 1e-3 for s in args.sigmas_mm.split(",")):
+                for wall in args.walls.split(","):
+                    for ends in args.ends.split(","):
+                        for st in args.stretches.split(","):
+                            print(coverage(model, sigma, args.coverage.split(","), wall=wall, ends=ends,
+                                           stretches=tuple(float(s) for s in st.split("/")), n_seeds=args.seeds,
+                                           first_seed=args.first_seed), flush=True)
         return
     if args.diagnose:
         print(diagnose(args.models.split(",")[0], float(args.sigmas_mm.split(",")[0]) * 1e-3, args.seeds))

@@ -14,7 +14,7 @@ from typing import Mapping
 
 import numpy as np
 
-from .defaults import DEFAULTS, PREFERRED_WALL
+from .defaults import DEFAULTS, PREFERRED_WALL, uncertainty_for
 from .models import Model
 from .noise_weights import used_positions
 from .optimize import identify as identify_one
@@ -83,7 +83,11 @@ def identify(
         None (default): the data decide; where they cannot, the result is doubtful with both in ``hypotheses``.
     optimizer, uncertainty, uncertainty_options, weighting :
         As ``optimize.identify``; the bootstrap simulates ``DEFAULTS.pressure_noise`` / ``force_noise`` /
-        ``load_noise_fraction`` unless ``uncertainty_options`` says otherwise.
+        ``load_noise_fraction`` unless ``uncertainty_options`` says otherwise. The defaults: the efficient
+        weighting (generalised least squares) with its own covariance's 95 % intervals ("auto" -> "gls");
+        ``optimizer="nelder-mead"`` is the paper's method and takes the paper's cost (and "auto" the bootstrap).
+        The settings not stated are decided on the paper's (cheap) fits; the efficient fit is made once, under
+        the setting chosen.
     smoothing : "auto" (default), None or (axial degree, harmonics)
     judged : bool
         False: only the fit under the stated setting (``ends`` and ``wall`` must be given), no verdict.
@@ -95,10 +99,14 @@ def identify(
     IdentificationResult with ``verdict`` ("trusted" | "doubtful"), ``verdict_reasons``,
     ``parameter_verdicts``, ``parameter_reasons`` and ``hypotheses``.
     """
+    if optimizer != "lsq" and weighting != "paper":  # Nelder-Mead: the paper's method, for comparison (as the CLI)
+        weighting = "paper"
+    uncertainty = uncertainty_for(uncertainty, weighting)
     stated = {"ends": ends is not None, "wall": wall is not None}
     walls = [wall] if wall is not None else [PREFERRED_WALL, "membrane" if PREFERRED_WALL == "thick" else "thick"]
     ends_list = [ends] if ends is not None else ["clamped", "free"]
-    unc_options = _uncertainty_options(uncertainty_options) if uncertainty == "bootstrap" else uncertainty_options
+    unc_options = (_uncertainty_options(uncertainty_options) if uncertainty in ("bootstrap", "gls")
+                   else uncertainty_options)  # "gls" takes the bootstrap's where the data are unsmoothed
     common = dict(thickness=thickness, model=model, optimizer=optimizer, smoothing=smoothing, **options)
 
     def final(w: str, e: str):

@@ -14,14 +14,17 @@ from typing import Mapping
 
 import numpy as np
 
+from .defaults import uncertainty_for
 from .efficient import EfficientSettings, identify_efficient
+from .efficient_uncertainty import gls_uncertainty
 from .reference import refine_reference
 from .resimulation import remeasured_mesh
 from .errors import IdentificationError
 from .fit import IdentificationResult, identify_prepared
-from .models import Model
+from .models import Model, get_model
 from .noise_weights import weighted_flags, in_physical_units, used_positions, gap_noise, weighted_data, weights_from_noise
-from .uncertainty import with_uncertainty
+from .resimulation import basis_size, fitted_positions, marker_noise_level
+from .uncertainty import uncertainty_flags, with_uncertainty
 from .vfm import prepare
 
 __all__ = ["identify", "identify_noise_weighted", "identify_gls", "WEIGHTINGS", "drop_partial_steps", "per_step_rows", "MIN_COVERAGE",
@@ -107,20 +110,24 @@ def identify(
     ends : {"clamped", "free"}
     optimizer : {"lsq", "nelder-mead"}
     initial : mapping, optional
-    uncertainty : {"gauss-newton", "bootstrap"}
+    uncertainty : {"gauss-newton", "bootstrap", "gls", "auto"}
         "bootstrap": standard errors and 95 % intervals from re-simulated measurements
         (``uncertainty.bootstrap``; ~20 re-identifications) instead of the Gauss-Newton ones,
-        which are too small when the markers are noisy.
+        which are too small when the markers are noisy. "gls" (``weighting="efficient"`` only): from the
+        generalised least squares' own first-order covariance (``efficient_uncertainty``; no re-identification).
+        "auto": "gls" for ``weighting="efficient"``, "bootstrap" for the others.
     uncertainty_options : mapping, optional
-        Passed to ``uncertainty.bootstrap`` (marker_sigma, pressure_noise, force_noise, n_replicates, seed).
-    weighting : {"paper", "noise"}
+        Passed to ``uncertainty.bootstrap`` (marker_sigma, pressure_noise, force_noise, n_replicates, seed);
+        "gls" ignores them (its noise model is ``efficient``'s) unless the data are unsmoothed (below).
+    weighting : {"paper", "noise", "efficient"}
         "paper": the paper's cost (one scale per field). "noise": each virtual-work gap weighted by
         the inverse of its measured noise (``noise_weights.identify_noise_weighted``; smoothed data
         only, ``optimizer="lsq"``): at 0.17 mm marker noise Fung beta within 5 % in 80 % of seeds
         instead of 38 % (docs/validation/identification.md "Noise"). "efficient": generalised least squares
         over the full first-order covariance of the gaps (marker noise through the smoothing basis, the reference
         step treated as measured, the readings' noise; ``efficient``), iterated; ``optimizer="lsq"`` only
-        (docs/validation/efficiency.md).
+        (docs/validation/efficiency.md). Exact-looking (unsmoothed) data keep the paper's fit, and its
+        bootstrap for "gls".
     efficient : EfficientSettings, optional
         Noise model of the readings, marker noise and iterations of ``weighting="efficient"``.
     prepare_options
@@ -128,10 +135,9 @@ def identify(
         ``smoothing="auto"`` smooths with a basis chosen from the data (generalised
         cross-validation, ``smoothing.select_smoothing``) unless the markers look exact.
     """
-    if uncertainty not in ("gauss-newton", "bootstrap"):
-        raise ValueError(f"uncertainty must be 'gauss-newton' or 'bootstrap'; got {uncertainty!r}")
     if weighting not in WEIGHTINGS:
         raise ValueError(f"weighting must be one of {WEIGHTINGS}; got {weighting!r}")
+    uncertainty = uncertainty_for(uncertainty, weighting)
     if weighting == "efficient":
         if optimizer != "lsq" or initial is not None:
             raise ValueError(f"weighting='efficient' needs optimizer='lsq' and no initial guess; got "
@@ -219,11 +225,12 @@ def identify_gls(positions, pressure, axial_force, *, thickness: float, model="f
                  settings: EfficientSettings | None = None, **prepare_options):
     """``identify`` with ``weighting="efficient"``: the paper's fit, then generalised least squares over the full
     covariance of the gaps (``efficient.identify_efficient``). Returns an ``IdentificationResult`` whose ``data``,
-    ``ivw``, ``evw`` and ``residuals`` are the paper's (unweighted), like ``identify_noise_weighted``; its
-    ``stderr`` are the generalised least squares' (from the covariance model, not the residual scatter).
-    ``uncertainty="bootstrap"`` is not available yet for this weighting."""
-    if uncertainty != "gauss-newton":
-        raise ValueError(f"weighting='efficient' supports uncertainty='gauss-newton' only; got {uncertainty!r}")
+    ``ivw``, ``evw`` and ``residuals`` are the paper's (unweighted), like ``identify_noise_weighted``.
+
+    ``uncertainty``: "gauss-newton" (the generalised least squares' ``stderr``, no interval), "gls" (``stderr``
+    and 95 % intervals from its covariance, ``efficient_uncertainty``) or "bootstrap" (re-simulated
+    measurements, each fitted with the same whitening). Exact-looking data (no smoothing: the paper's fit is
+    kept) get the bootstrap for "gls"."""
     settings = settings or EfficientSettings()
     first = identify(positions, pressure, axial_force, thickness=thickness, model=model, **prepare_options)
     options = {k: v for k, v in prepare_options.items() if k not in ("n_starts",)}
@@ -234,6 +241,46 @@ def identify_gls(positions, pressure, axial_force, *, thickness: float, model="f
         first = replace(identify(x, first.data.pressure, first.data.axial_force, thickness=thickness, model=model,
                                  mesh=remeasured_mesh(first.data.mesh, x[0]), smoothing=first.data.smoothing,
                                  **given), steps=first.steps, flags=first.flags)
-    result, _ = identify_efficient(first, x, model, settings, options)
-    result = dataclasses.replace(result, flags=weighted_flags(result, first, first.data, model))
-    return in_physical_units(result, first.data, model)
+    result, W = identify_efficient(first, x, model, settings, options)
+    result = dataclasses.replace(result, flags=_identifiability_of(first, weighted_flags(result, first, first.data,
+                                                                                          model)))
+    boot = {k: v for k, v in options.items() if k not in ("mesh", "smoothing", "reject_outliers", "marker_weights",
+                                                           "wall", "ends")}
+    n_input = np.shape(positions)[0]
+    dropped = [] if first.steps is None else sorted(set(range(n_input)) - set(first.steps))
+    if uncertainty in ("bootstrap", "gls") and (W is None or first.data.smoothing is None):
+        return with_uncertainty(first, first.data, x, prepare_options=boot,
+                                **(per_step_rows(uncertainty_options, n_input, dropped) or {}))
+    if uncertainty == "bootstrap":  # the whitened result: the replicates' gaps are whitened alike
+        result = with_uncertainty(result, first.data, x, prepare_options=boot, whitening=W,
+                                  **(per_step_rows(uncertainty_options, n_input, dropped) or {}))
+    result = in_physical_units(result, first.data, model)
+    if uncertainty == "gls":
+        result = _with_gls(result, first.data, W, x, settings)
+    return result
+
+
+def _identifiability_of(first, flags) -> tuple[str, ...]:
+    """``flags`` with the paper's fit's "NAME is poorly identifiable" flags instead of their own: identifiability
+    is the data's (a change of NAME compensated within a 1 % gap of the external work), while the whitened gaps
+    are in noise units, where every parameter looks resolved."""
+    poorly = tuple(f for f in first.flags if " is poorly identifiable" in f)
+    return tuple(f for f in flags if " is poorly identifiable" not in f) + poorly
+
+
+def _with_gls(result, data, W, positions, settings: EfficientSettings):
+    """``result`` with the generalised least squares' ``Uncertainty`` (``efficient_uncertainty``), its
+    ``stderr`` and flags (as ``uncertainty.with_uncertainty`` gives the bootstrap's)."""
+    if settings.marker_sigma is not None:
+        level = float(np.median(settings.marker_sigma))
+    else:
+        _, residual = fitted_positions(data, positions)
+        level = float(marker_noise_level(data, residual, basis_size(data.smoothing)))
+    unc = gls_uncertainty(result, data, W, marker_noise=level, pressure_noise=settings.pressure_floor,
+                          force_noise=settings.force_floor)
+    model = get_model(result.model)
+    poorly = tuple(n for n in model.parameter_names if any(f.startswith(f"{n} is poorly") for f in result.flags))
+    flags = uncertainty_flags(unc, result.parameters, dict(zip(model.parameter_names, model.positive)), poorly,
+                              units=dict(zip(model.parameter_names, model.units)))
+    stderr = {k: (v if np.isfinite(v) else result.stderr[k]) for k, v in unc.stderr.items()}
+    return replace(result, stderr=stderr, flags=tuple(result.flags) + tuple(flags), uncertainty=unc)

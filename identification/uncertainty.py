@@ -81,6 +81,9 @@ class Uncertainty:
         Replicates whose identification failed.
     gauss_newton_stderr : dict
         The Gauss-Newton standard errors of the fit (SI), for comparison.
+    method : str
+        "bootstrap" (this module), or "gls": the first-order covariance of a generalised least-squares fit
+        (``efficient_uncertainty``: no replicates, ``bias`` NaN).
     """
 
     stderr: dict
@@ -94,6 +97,7 @@ class Uncertainty:
     model_error_factor: float
     n_failed: int
     gauss_newton_stderr: dict
+    method: str = "bootstrap"
 
     @property
     def n_replicates(self) -> int:
@@ -122,6 +126,7 @@ def bootstrap(
     map_replicates: Callable | None = None,
     progress: Callable[[int, int, str], None] | None = None,
     load_noise_fraction: float = 0.0,
+    whitening: np.ndarray | None = None,
 ) -> Uncertainty:
     """Parametric bootstrap of an identification (see the module docstring).
 
@@ -157,6 +162,9 @@ def bootstrap(
     load_noise_fraction : float
         Noise of a pressure or force reading as a fraction of the reading, added (in quadrature) to
         ``pressure_noise`` and ``force_noise`` (``identification.DEFAULTS``: 0.1 %).
+    whitening : ndarray, shape (n_fields * n_steps, n_fields * n_steps), optional
+        The whitening ``result`` was fitted with (``weighting="efficient"``): every replicate is fitted with
+        the same matrix (``result.residuals`` must then be the whitened ones).
     """
     model = get_model(result.model)
     level, replicates = resimulated_measurements(data, positions, marker_sigma=marker_sigma,
@@ -166,7 +174,7 @@ def bootstrap(
     options = dict(prepare_options or {})
     estimate = np.array([result.parameters[n] for n in model.parameter_names])
     reps, rms, failed = [], [], 0
-    fit = functools.partial(_replicate_fit, data, model, result.parameters, options, gap_weights)
+    fit = functools.partial(_replicate_fit, data, model, result.parameters, options, gap_weights, whitening)
     tell = progress or (lambda done, total, what: None)
     tell(0, n_replicates, "bootstrap")
     for i, (values, value_rms) in enumerate((map_replicates or map)(fit, replicates)):
@@ -180,18 +188,18 @@ def bootstrap(
                       level, pressure_noise, force_noise, failed)
 
 
-def _replicate_fit(data: VFMData, model, initial, options, gap_weights, replicate) -> tuple:
+def _replicate_fit(data: VFMData, model, initial, options, gap_weights, whitening, replicate) -> tuple:
     """(parameters (n_params,) SI, RMS gap) of one replicate ``(pos, p, f, mesh)``; (None, nan) if its
     identification failed or did not converge (small, so that another process can send it back)."""
     pos, p, f, mesh = replicate
-    res = _reidentify(data, model, initial, pos, p, f, mesh, options, gap_weights)
+    res = _reidentify(data, model, initial, pos, p, f, mesh, options, gap_weights, whitening)
     values = None if res is None else np.array([res.parameters[n] for n in model.parameter_names])
     if values is None or not res.converged or not np.all(np.isfinite(_to_x(model, values))):
         return None, float("nan")
     return values, float(np.sqrt(np.mean(res.residuals**2)))
 
 
-def _reidentify(data: VFMData, model, initial, pos, p, f, mesh, options, gap_weights):
+def _reidentify(data: VFMData, model, initial, pos, p, f, mesh, options, gap_weights, whitening=None):
     """One replicate prepared like ``data`` and identified from ``initial`` (one start); None if it fails."""
     if mesh is None:
         return None
@@ -202,7 +210,7 @@ def _reidentify(data: VFMData, model, initial, pos, p, f, mesh, options, gap_wei
                         dense_reuse=data.quadrature, **options)
             if gap_weights is not None:
                 d = weighted_data(d, gap_weights)
-            return identify_prepared(d, model, initial=initial, n_starts=1)
+            return identify_prepared(d, model, initial=initial, n_starts=1, whitening=whitening)
     except (IdentificationError, ValueError, np.linalg.LinAlgError) as exc:
         log.debug("bootstrap replicate failed: %s", exc)
         return None

@@ -10,7 +10,8 @@ by more than ``AGREE`` of its 95 % half-width is doubtful, with the option to pa
 degrees of freedom says whether the model fits within the noise (``POOR_FIT``).
 
 Trusted means: every setting given or supported by the data, the model fits within the noise, no other law
-fits clearly better, and a 95 % interval meant to cover (the bootstrap's). Thresholds measured in
+fits clearly better, and a 95 % interval meant to cover (the bootstrap's, or the efficient fit's covariance's:
+``efficient_uncertainty``). Thresholds measured in
 ``docs/validation/trust.md`` (``python -m benchmarks.bench_trust --part table``). Pure functions over arrays.
 """
 
@@ -278,7 +279,7 @@ def judge(result, chosen: Hypothesis, others, *, stated: dict, laws: Mapping[str
     notes += law_notes
     if result.uncertainty is None:
         all_doubt.append("Gauss-Newton errors: the 95 % interval is not meant to cover on noisy markers; use the "
-                         "bootstrap (uncertainty='bootstrap', --uncertainty bootstrap)")
+                         "default intervals (uncertainty='auto', --uncertainty auto) or the bootstrap")
     if not result.converged:
         all_doubt.append("the optimiser did not converge")
     for flag in result.flags:  # "NAME is poorly identifiable ..." that the bootstrap did not resolve either

@@ -49,10 +49,19 @@ def _num(value: float, fmt: str) -> str:
     return text.replace("-", " ", 1) if float(text) == 0 else text  # never "-0.00"
 
 
+def _reachable_cell(reach, name: str) -> str:
+    """The 95 % half-width (% of value) the protocol can reach for one parameter, or "n/a"."""
+    if reach is None or not reach.available or name not in reach.half_width:
+        return "n/a"
+    from vfmlab.display import num
+
+    return f"{num(reach.half_width[name], 3)} %"
+
+
 def render_live_results(status) -> Group:
     """The "results while the test runs" panel: the latest parameters of each model with their
     standard errors (kPa, degrees or dimensionless), steps reconstructed, markers tracked."""
-    from vfmlab.display import parameter_unit
+    from vfmlab.display import num, parameter_unit
 
     head = Text(f"{status.steps_reconstructed} steps reconstructed · {status.tracked} markers tracked · "
                 f"{status.message}", style="dim")
@@ -60,16 +69,22 @@ def render_live_results(status) -> Group:
     if status.estimates:
         table = Table(box=None, padding=(0, 2), show_edge=False)
         for column, justify in (("model", "left"), ("parameter", "left"), ("value", "right"), ("± std. err.", "right"),
-                                ("steps", "right"), ("verdict", "left")):
+                                ("± 95 %", "right"), ("reachable", "right"), ("steps", "right"), ("verdict", "left")):
             table.add_column(column, justify=justify)
+        reach = getattr(status, "reachable", None) or {}
         for model, est in status.estimates.items():
+            can = reach.get(model)
             for i, name in enumerate(est.names):
                 scale, unit = parameter_unit(model, name)
+                got = 196.0 * est.stderr[i] / abs(est.values[i]) if est.values[i] else float("nan")
                 table.add_row(model if i == 0 else "", escape(f"{name} [{unit}]") if unit else name,
-                              f"{est.values[i] / scale:.4g}", f"{est.stderr[i] / scale:.2g}",
-                              str(len(est.rows)) if i == 0 else "",
+                              f"{est.values[i] / scale:.4g}", f"{est.stderr[i] / scale:.2g}", f"{num(got, 3)} %",
+                              _reachable_cell(can, name), str(len(est.rows)) if i == 0 else "",
                               (getattr(est.result, "parameter_verdicts", None) or {}).get(name, ""))
         parts.append(table)
+        notes = {r.describe() for r in reach.values()} if reach else set()
+        for note in sorted(notes):
+            parts.append(Text(note + " (design's prediction before the test: 'vfmlab design')", style="dim"))
     left_out = [f"rows {list(status.skipped_rows)} failed (not in the estimates)" if status.skipped_rows else "",
                 f"rows {list(status.partial_rows)} seen only in part" if status.partial_rows else ""]
     if any(left_out):

@@ -326,6 +326,10 @@ def _live_results(path: Path, specimen: SpecimenFile, rig: RigConfig, models: tu
 
     kwargs = dict(thickness=specimen.thickness, radius=specimen.radius, models=tuple(models),
                   load_cell_measures=rig.load_cell.measures, ends=getattr(specimen, "ends", "") or None)
+    if protocol is not None:  # what the protocol can reach, beside the live estimates (vfmlab design's prediction)
+        from vfmlab.stages.reachable import protocol_reachable
+
+        kwargs["reachable"] = protocol_reachable(protocol, specimen, models, force_measures=rig.load_cell.measures)
     kwargs.update(options or {})
     return LiveResults(path, **kwargs)
 

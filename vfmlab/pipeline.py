@@ -179,13 +179,13 @@ def identify_stored(path: str | os.PathLike, *, model: str = _D.model, wall: str
         exact), or None. The standard errors and 95 % intervals come from a parametric bootstrap
         (``identification.uncertainty``) with the sensor noise of ``PRESSURE_NOISE``/``FORCE_NOISE``.
     markers : markers result to use (default: the latest).
-    uncertainty : "bootstrap" (default, intervals that cover the truth; ~16 re-identifications) or
-        "gauss-newton" (fast, too small on noisy data).
-    weighting : "paper" (default: the paper's cost) or "noise" (each virtual-work gap weighted by the
-        inverse of its noise as re-simulated i.i.d. marker noise predicts; smoothed data and
-        ``optimizer="lsq"`` only, else the paper's cost). "noise" halves the errors on i.i.d. marker
-        noise but not on rendered sessions, whose low-pressure steps carry systematic errors it does
-        not model (docs/validation/identification.md "Noise").
+    uncertainty : "auto" (default: "gls" for the efficient weighting, "bootstrap" for the others), "gls" (the
+        efficient fit's own generalised least-squares covariance, no re-identification), "bootstrap" (~16
+        re-identifications of re-simulated measurements) or "gauss-newton" (fast, too small on noisy data).
+    weighting : "efficient" (default: generalised least squares over the full covariance of the virtual-work
+        gaps, issue 24, docs/validation/efficiency.md), "paper" (the paper's cost) or "noise" (each gap weighted
+        by the inverse of its noise as re-simulated i.i.d. marker noise predicts). The weightings need smoothed
+        data and ``optimizer="lsq"`` (else the paper's cost).
     check : judge the result (``identification.verdict``: end conditions, wall form and law
         against the data's own evidence, in noise units): ``verdict`` and the reasons are stored.
     invoked_by : recorded in the result's attributes (e.g. "identify", "reprocess").
@@ -208,8 +208,8 @@ def identify_stored(path: str | os.PathLike, *, model: str = _D.model, wall: str
         if len(smoothing) != 2 or min(smoothing) < 0:
             raise StageError(f"smoothing must be 'auto' or two non-negative integers (axial, harmonics); "
                              f"got {smoothing!r}")
-    if weighting not in ("noise", "paper"):
-        raise StageError(f"weighting must be 'noise' or 'paper'; got {weighting!r}")
+    if weighting not in ("efficient", "noise", "paper"):
+        raise StageError(f"weighting must be 'efficient', 'noise' or 'paper'; got {weighting!r}")
     weighting = weighting if optimizer == "lsq" else "paper"  # Nelder-Mead: the paper's method, for comparison
     data = read_identification_inputs(path, markers)
     ends, ends_source, ends_notes, warnings = resolve_ends(data["session_ends"], ends)
@@ -226,7 +226,7 @@ def identify_stored(path: str | os.PathLike, *, model: str = _D.model, wall: str
                               "marker_sigma": data["uncertainty"], "pressure_noise": PRESSURE_NOISE,
                               "force_noise": FORCE_NOISE,
                               # the re-identifications on both cores: the same results, ~half the time idle
-                              "map_replicates": fork_map, "progress": progress} if uncertainty == "bootstrap" else None)
+                              "map_replicates": fork_map, "progress": progress} if uncertainty != "gauss-newton" else None)
     except (IdentificationError, ValueError) as exc:
         raise StageError(f"{path}: cannot identify {model}: {exc}") from None
     result = replace(result, flags=tuple(warnings) + tuple(result.flags))
@@ -279,13 +279,21 @@ def identification_arrays(result: Any, rows: np.ndarray, checks: Any = None) -> 
     attrs = {"cost": result.cost, "converged": result.converged, "flags": list(result.flags),
              "message": result.message, "n_evaluations": result.n_evaluations,
              "field_names": list(result.field_names), "smoothing_used": json.dumps(data_smoothing(result)),
-             "uncertainty": ("parametric bootstrap, 95 % intervals" if getattr(result, "uncertainty", None) is not None
-                             else "gauss-newton")}
+             "uncertainty": _uncertainty_said(getattr(result, "uncertainty", None))}
     if checks is not None:
         attrs.update({"check_taper": list(checks.taper), "check_gap": checks.gap,
                       "check_gap_other_ends": checks.gap_other_ends, "check_gap_other_wall": checks.gap_other_wall})
     attrs.update(verdict_attrs(result))
     return arrays, {}, attrs
+
+
+def _uncertainty_said(unc: Any) -> str:
+    """The stored ``uncertainty`` attribute: how the intervals were made."""
+    if unc is None:
+        return "gauss-newton"
+    if getattr(unc, "method", "bootstrap") == "gls":
+        return "generalised least-squares covariance, 95 % intervals"
+    return "parametric bootstrap, 95 % intervals"
 
 
 def verdict_attrs(result: Any) -> dict[str, Any]:

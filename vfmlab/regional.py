@@ -118,7 +118,7 @@ def _settings_from_data(data, model, wall, ends, smoothing) -> tuple[str, str, l
     from identification import identify
 
     r = identify(data["positions"], data["pressure"], data["force"], thickness=data["thickness"], model=model,
-                 wall=wall, ends=ends, smoothing=smoothing, uncertainty="gauss-newton")
+                 wall=wall, ends=ends, smoothing=smoothing, uncertainty="gauss-newton", weighting="paper")
     return r.data.wall, r.data.ends, [f"settings from the homogeneous fit: {x}" for x in r.verdict_reasons]
 
 
@@ -134,7 +134,8 @@ def identify_regional_stored(path: str | os.PathLike, *, regions: RegionsSpec | 
     ----------
     path : session file.
     regions : RegionsSpec, or what ``parse_regions`` reads (a band count, "auto", "legendre:K").
-    uncertainty : "bootstrap" (default: standard errors and 95 % intervals that cover the truth) or "gauss-newton".
+    uncertainty : "bootstrap" (default; "auto" says the same here: standard errors and 95 % intervals that cover the
+        truth) or "gauss-newton". ("gls" is the efficient homogeneous fit's: refused.)
     model, wall, ends, smoothing, markers, invoked_by : as ``pipeline.identify_stored`` (ends None: the session's).
     progress : called as ``progress(done, total, what)`` by the fits and the bootstrap (which take the time).
 
@@ -149,6 +150,10 @@ def identify_regional_stored(path: str | os.PathLike, *, regions: RegionsSpec | 
         spec = regions if isinstance(regions, RegionsSpec) else parse_regions(regions)
     except ValueError as exc:
         raise StageError(str(exc)) from None
+    if uncertainty not in ("auto", "bootstrap", "gauss-newton"):
+        raise StageError(f"regional fits take uncertainty 'auto' (the bootstrap), 'bootstrap' or 'gauss-newton'; "
+                         f"got {uncertainty!r}")
+    uncertainty = "bootstrap" if uncertainty == "auto" else uncertainty
     data = read_identification_inputs(path, markers)
     ends, ends_source, ends_notes, ends_warnings = resolve_ends(data["session_ends"], ends)
     data["notes"] = list(data["notes"]) + ends_notes + ends_warnings

@@ -37,9 +37,10 @@ Examples:
               help="Optimiser (identify).")
 @click.option("--smooth", default="auto", show_default=True, metavar="auto|none|AXIAL,HARMONICS",
               help="Smooth the measured displacements before identifying (as 'vfmlab identify --smooth').")
-@click.option("--weighting", type=click.Choice(["paper", "noise"]), default="paper", show_default=True,
-              help="The paper's cost, or virtual-work gaps weighted by their noise (as 'vfmlab identify "
-                   "--weighting'; Nelder-Mead always uses the paper's).")
+@click.option("--weighting", type=click.Choice(["efficient", "paper", "noise"]), default="efficient",
+              show_default=True,
+              help="Generalised least squares over the gaps' noise covariance, the paper's cost, or gaps weighted by "
+                   "their noise (as 'vfmlab identify --weighting'; Nelder-Mead always uses the paper's).")
 @click.option("--set", "set_pairs", multiple=True, metavar="KEY=VALUE",
               help="Extra setting for the reconstruct stage (JSON value), repeatable.")
 @click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,

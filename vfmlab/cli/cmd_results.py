@@ -32,10 +32,11 @@ def command(session, kind, compare, as_json):
     and differences of their parameters)."""
     from vfmlab.display import side_by_side_table
     from vfmlab.results import compare_results, list_results, side_by_side
+    from vfmlab.stages.reachable import with_reachable
     from vfmlab.views.results import comparison_lines, result_lines
 
     with cli_session(session) as s:
-        data = compare_results(s, *compare) if compare else list_results(s, kind)
+        data = compare_results(s, *compare) if compare else with_reachable(s, list_results(s, kind))
     if as_json:
         print_json(data)
         return

@@ -39,6 +39,7 @@ class Context:
         self.fields_error: str | None = None
         self._curves: dict[str, Any] | None = None
         self._fits: dict[str, Any] | None = None
+        self._reachable: dict[str, Any] = {}
         if self.markers is not None:
             try:
                 self.fields = compute_fields(self.markers, self.steps, self.latest_idents)
@@ -60,6 +61,15 @@ class Context:
             return absent("No marker reconstruction is stored in this session (run 'vfmlab reconstruct' or "
                           "'vfmlab import-markers'), so there are no surface fields to show.")
         return absent(f"The surface fields could not be computed from {self.markers['name']}: {self.fields_error}")
+
+    def reachable(self, result: Mapping[str, Any]) -> Any:
+        """The half-widths the bound allows this identification result
+        (:func:`vfmlab.stages.reachable.session_reachable`; never raises), computed once per result."""
+        if result["name"] not in self._reachable:
+            from vfmlab.stages.reachable import session_reachable
+
+            self._reachable[result["name"]] = session_reachable(self.session, result)
+        return self._reachable[result["name"]]
 
     def curves(self) -> dict[str, Any]:
         """The mean mid-span curves (:func:`vfmlab.fields.stress_strain_curves`); needs ``fields``."""

@@ -18,6 +18,7 @@ import numpy as np
 from vfmlab.display import display_quantity, num
 from vfmlab.report import curves
 from vfmlab.results import parameter_units
+from vfmlab.stages.reachable import achieved_half_width
 
 __all__ = ["Verdict", "caveat", "intervals", "read_verdict", "section"]
 
@@ -61,13 +62,16 @@ def read_verdict(attrs: Mapping[str, Any]) -> Verdict:
 
 
 def intervals(result: Mapping[str, Any]) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray, str]:
-    """(names, values, low, high, source) of a result's parameters (SI): the stored 95 % interval
-    (bootstrap), else value ± 1.96 standard errors."""
+    """(names, values, low, high, source) of a result's parameters (SI): the stored 95 % interval (the
+    bootstrap's or the efficient fit's covariance's, as its ``uncertainty`` attribute says), else value ± 1.96
+    standard errors."""
     a = result["arrays"]
     names = [str(n) for n in np.atleast_1d(a.get("parameter_names", []))]
     values = np.asarray(a.get("parameters", []), float)
     if "interval_low" in a and "interval_high" in a:
-        return names, values, np.asarray(a["interval_low"], float), np.asarray(a["interval_high"], float), "bootstrap"
+        how = str(result.get("attrs", {}).get("uncertainty", ""))
+        source = "generalised least squares" if how.startswith("generalised least-squares") else "bootstrap"
+        return names, values, np.asarray(a["interval_low"], float), np.asarray(a["interval_high"], float), source
     err = np.asarray(a.get("stderr", np.full(len(values), np.nan)), float)
     return names, values, values - _Z95 * err, values + _Z95 * err, "±1.96 s.e."
 
@@ -90,7 +94,19 @@ def caveat(result: Mapping[str, Any], quality: Mapping[str, float] | None = None
     return None
 
 
-def _cell(result: Mapping[str, Any], verdict: Verdict, name: str) -> str:
+def _reach(achieved: float, reach: Any, name: str) -> str:
+    """"±a % achieved / ±r % reachable" of one parameter (the reachable one "n/a" with its reason as a tooltip)."""
+    got = f"±{num(achieved, 3)} %" if np.isfinite(achieved) else NO_VERDICT
+    if reach is not None and reach.available and name in reach.half_width:
+        can = f"±{num(reach.half_width[name], 3)} %"
+        why = reach.describe()
+    else:
+        can, why = "n/a", reach.describe() if reach is not None else "reachable n/a"
+    return (f'<br><span class="reach" data-param="{html.escape(name)}" title="{html.escape(why)}">{got} achieved / '
+            f'{can} reachable</span>')
+
+
+def _cell(result: Mapping[str, Any], verdict: Verdict, name: str, reach: Any = None) -> str:
     names, values, lo, hi, _ = intervals(result)
     if name not in names:
         return ""
@@ -104,13 +120,15 @@ def _cell(result: Mapping[str, Any], verdict: Verdict, name: str) -> str:
     title = f' title="{html.escape(why)}"' if why else ""
     return (f'<span class="value" data-of="{html.escape(result["name"])}" data-param="{html.escape(name)}" '
             f'data-value="{float(values[i])!r}">{num(shown, 4)}</span> '
-            f'{html.escape(u or "")}<br><span class="interval">[{num(low, 3)}, {num(high, 3)}]</span><br>'
+            f'{html.escape(u or "")}<br><span class="interval">[{num(low, 3)}, {num(high, 3)}]</span>'
+            f'{_reach(float(achieved_half_width(values[i:i + 1], lo[i:i + 1], hi[i:i + 1])[0]), reach, name)}<br>'
             f'<span class="verdict {html.escape(pv)}"{title}>{html.escape(pv)}</span>')
 
 
 def _side_by_side(ctx, qualities: Mapping[str, Mapping[str, float]]) -> str:
     results = ctx.latest_idents
     verdicts = [read_verdict(r["attrs"]) for r in results]
+    reach = [ctx.reachable(r) for r in results]
     params: list[str] = []
     for r in results:
         params += [n for n in intervals(r)[0] if n not in params]
@@ -125,10 +143,12 @@ def _side_by_side(ctx, qualities: Mapping[str, Mapping[str, float]]) -> str:
                                                                                        "N", 1.0)):
         rows.append([label] + [f"{num(qualities[r['name']][key] * k, 3)} {unit}" if r["name"] in qualities else
                                NO_VERDICT for r in results])
-    rows += [[html.escape(n)] + [_cell(r, v, n) for r, v in zip(results, verdicts)] for n in params]
+    rows += [[html.escape(n)] + [_cell(r, v, n, c) for r, v, c in zip(results, verdicts, reach)] for n in params]
     body = "".join("<tr><th>" + row[0] + "</th>" + "".join(f'<td class="num">{c}</td>' for c in row[1:]) + "</tr>"
                    for row in rows)
-    return f'<table id="models-side-by-side"><tr><th></th>{head}</tr>{body}</table>'
+    notes = "".join(f'<li>{html.escape(r["name"])}: {html.escape(c.describe())}</li>' for r, c in zip(results, reach))
+    return (f'<table id="models-side-by-side"><tr><th></th>{head}</tr>{body}</table>'
+            f'<ul id="reachable-notes" class="small">{notes}</ul>')
 
 
 def section(ctx, rep) -> str:
@@ -144,7 +164,10 @@ def section(ctx, rep) -> str:
     out = [f"<p>The newest identification of each model, side by side: value, 95 % interval "
            f"({html.escape(' or '.join(sorted(sources)))}) and verdict of each parameter; the misfits are the RMS "
            "differences between the pressure and axial force each model predicts at the measured deformation and "
-           f"the measured ones. A verdict shows {NO_VERDICT} for results written before verdicts were stored.</p>",
+           f"the measured ones. A verdict shows {NO_VERDICT} for results written before verdicts were stored. "
+           "\"Achieved\" is the half-width of the 95 % interval in % of the value; \"reachable\" the half-width "
+           "the Cramér-Rao bound allows this test (its steps, markers and the marker noise its data show; docs/validation/bound.md): an "
+           "achieved interval well above it says the estimator, not the data, limits the result.</p>",
            _side_by_side(ctx, qualities)]
     if fits is None:
         out.append(ctx.no_fields())

@@ -7,7 +7,7 @@ from rich.table import Table
 
 from vfmlab.display import num, quantity, settings_text
 
-__all__ = ["comparison_lines", "result_lines"]
+__all__ = ["comparison_lines", "reachable_lines", "result_lines"]
 
 
 def esc(value) -> str:
@@ -35,6 +35,7 @@ def result_lines(row: dict, settings: str) -> list:
             out.append(f"    {esc(line)}")
         for flag in flags:
             out.append(f"    [yellow]warning:[/] {esc(flag)}")
+        out += reachable_lines(row)
     elif row["kind"] == "markers" and "n_markers" in row:
         out.append(f"    {row['n_markers']} markers × {row['n_steps']} steps, "
                       f"{row['completeness'] * 100:.1f} % of marker-steps reconstructed")
@@ -42,6 +43,22 @@ def result_lines(row: dict, settings: str) -> list:
         out.append(f"    {len(row['rms_px'])} cameras, reprojection RMS "
                       + ", ".join(f"{esc(c)} {v:.3f} px" for c, v in zip(row["cameras"], row["rms_px"])))
     return out
+
+
+def reachable_lines(row: dict) -> list:
+    """The 95 % half-width achieved (1.96 standard errors) beside the one the bound allows this test, per parameter
+    (:func:`vfmlab.stages.reachable.with_reachable`); nothing when the row does not carry it."""
+    reach = row.get("reachable")
+    if not reach:
+        return []
+    hw = reach.get("half_width_95_percent") or {}
+    if not hw:
+        return [f"    [dim]{esc(reach.get('note', 'reachable n/a'))}[/]"]
+    cells = []
+    for n, p in row["parameters"].items():
+        got = 196.0 * p["stderr"] / abs(p["value"]) if p["value"] else float("nan")
+        cells.append(f"{esc(n)} ±{num(got, 3)} % / ±{num(hw[n], 3)} %" if n in hw else f"{esc(n)} ±{num(got, 3)} % / n/a")
+    return [f"    ± 95 % achieved / reachable: {', '.join(cells)}", f"    [dim]({esc(reach.get('note', ''))})[/]"]
 
 
 def comparison_lines(data: dict) -> list:
