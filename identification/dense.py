@@ -228,14 +228,16 @@ def _reference_radius(mesh: SurfaceMesh):
 
 
 def marker_survey(mesh: SurfaceMesh, aligned: np.ndarray, smoothing, reject_outliers: bool, estimate_noise: bool,
-                  reuse: DenseQuadrature | None = None) -> tuple:
+                  reuse: DenseQuadrature | None = None, start: tuple | None = None) -> tuple:
     """What ``dense_state`` learns of the markers before smoothing: every step's axis (``reuse``'s for a
-    replicate), the mis-tracked markers (n_steps, n_markers) bool and the noise estimate (n_steps,) m
-    (``outliers.marker_outliers``; none and NaN when nothing needs them, as for a replicate)."""
+    replicate; fitted from ``start``, one ``Axis`` per step, if given), the mis-tracked markers (n_steps, n_markers)
+    bool and the noise estimate (n_steps,) m (``outliers.marker_outliers``; none and NaN when nothing needs them,
+    as for a replicate)."""
     if reuse is not None:
         axes = tuple(reuse.axes)
     else:  # as kinematics.step_cylindrical
-        axes = tuple(refit_axes(aligned, np.all(np.isfinite(aligned), axis=-1) & mesh.used, mesh.axis))
+        axes = tuple(refit_axes(aligned, np.all(np.isfinite(aligned), axis=-1) & mesh.used, mesh.axis,
+                                start=None if start is None else list(start)))
     n_s, n_m = aligned.shape[:2]
     if (estimate_noise and reuse is None) or reject_outliers or isinstance(smoothing, str):
         outliers, noise = marker_outliers(mesh, *step_coordinates(aligned, axes))

@@ -23,6 +23,7 @@ Units SI; shapes in the docstrings.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Callable
 
 import numpy as np
@@ -125,6 +126,8 @@ class Reprepare:
         mesh = d.mesh if m is None else m
         with np.errstate(all="ignore"):
             if not self.lean:
+                if d.quadrature is not None:  # a dense cloud: the axis fits start from the data's
+                    s = replace(s, axes_start=d.quadrature.axes)
                 return prepare(positions, p, f, thickness=d.thickness, mesh=mesh, settings=s)
             return self._lean(np.asarray(positions, dtype=float), p, f, mesh)
 

@@ -173,6 +173,7 @@ class PrepareSettings:
     reference_noise_correction: bool = False
     estimate_noise: bool = True
     dense_reuse: DenseQuadrature | None = None
+    axes_start: tuple | None = None
 
     @classmethod
     def from_options(cls, settings: PrepareSettings | None = None, **options) -> PrepareSettings:
@@ -253,6 +254,9 @@ def prepare(
         On a dense cloud (``dense``: more than ``dense.DENSE_POINTS`` markers, smoothed), the step axes of the
         data a bootstrap replicate re-measures (``VFMData.quadrature``): the replicate, simulated in the data's
         aligned frame, is neither re-aligned nor are its axes refitted.
+    axes_start : tuple of Axis, optional
+        On a dense cloud, one per step: where every step's axis fit starts (the same minimum in fewer iterations;
+        ``gap_jacobian.Reprepare`` starts its re-preparations from the data's, ``VFMData.quadrature.axes``).
 
     A smoothed cloud of more than ``dense.DENSE_POINTS`` markers is smoothed on all of them and its balance
     evaluated on a quadrature grid of bounded size (``dense``; ``VFMData.quadrature`` says so).
@@ -346,7 +350,8 @@ def _prepare_dense(x, p, f, e0: float, mesh: SurfaceMesh, s: PrepareSettings) ->
     if hit is not None and hit[0] is mesh:
         survey = hit[1]
     else:
-        survey = marker_survey(mesh, aligned, s.smoothing, s.reject_outliers, s.estimate_noise, s.dense_reuse)
+        survey = marker_survey(mesh, aligned, s.smoothing, s.reject_outliers, s.estimate_noise, s.dense_reuse,
+                               s.axes_start)
         if key is not None:
             if len(_STATE_CACHE) >= _STATE_CACHE_SIZE:
                 _STATE_CACHE.pop(next(iter(_STATE_CACHE)))
