@@ -120,8 +120,9 @@ def _directions(mesh, aligned: np.ndarray) -> np.ndarray:
 class GapCovariance:
     """First-order covariance of the normalised gaps of ``data`` (shape (n_res, n_res), n_res = n_fields n_steps).
 
-    Built once: the readings' part in closed form, the markers' from the perturbed preparations (one ``prepare``
-    per non-rigid smoothing basis function of the loaded steps and of the reference, ``gap_jacobian``);
+    Built once: the readings' part in closed form, the markers' from the perturbed preparations (per non-rigid
+    smoothing basis function, the loaded steps moved, all functions prepared together, and the reference moved, one
+    ``prepare`` each; ``perturbed_sets``, ``gap_jacobian``, computed by ``settings.map_sets``);
     ``at(params)`` then evaluates the covariance at any parameters with a few virtual-work evaluations.
     """
 
