@@ -150,8 +150,8 @@ class GapCovariance:
         self.readings = self._reading_gaps(prep, aligned, p)  # (n_f, n_s) each: d gap / d reading x its sigma
         # the markers: per component, (coefficient covariance (n_steps or 1, n_b, n_b), loaded?, its columns)
         self.modes: list[tuple] = []
-        self.loaded: VFMData | None = None  # the loaded steps moved per loaded column, set-major (``perturbed_sets``)
-        self.reference: VFMData | None = None  # every step per reference column, set-major
+        self.loaded: list[VFMData] = []  # the loaded steps moved per loaded column, set-major, per job (``perturbed_sets``)
+        self.reference: list[VFMData] = []  # every step per reference column, set-major, per job
         self.reference_sets: list[VFMData] = []  # re-measured references (``reference_replicates``)
         if data.smoothing is None:
             log.info("efficient weighting of unsmoothed data: the readings' noise only")
@@ -206,6 +206,9 @@ class GapCovariance:
     def _gaps(self, d: VFMData, params) -> np.ndarray:
         return (internal_virtual_work(d, self.model, params) - d.evw) / self.data.scale[:, None]
 
+    def _stacked_gaps(self, parts: list[VFMData], params) -> np.ndarray:
+        return np.concatenate([self._gaps(d, params) for d in parts], axis=1)
+
     def at(self, model, params: Mapping[str, float]) -> np.ndarray:
         """Covariance (n_res, n_res) of the normalised gaps (field-major ravel of (n_fields, n_steps))."""
         self.model = model
@@ -216,12 +219,12 @@ class GapCovariance:
         step_cov = np.einsum("ks,ls->skl", gp, gp) + np.einsum("ks,ls->skl", gf, gf)
         n_loaded = sum(n for _, is_loaded, n in self.modes if is_loaded)
         G = H = None
-        if self.loaded is not None:  # the loaded steps' own noise: (f, s, b), the reference step's column 0
-            g = self._gaps(self.loaded, params).reshape(n_f, n_loaded, n_s - 1)
+        if self.loaded:  # the loaded steps' own noise: (f, s, b), the reference step's column 0
+            g = self._stacked_gaps(self.loaded, params).reshape(n_f, n_loaded, n_s - 1)
             G = np.zeros((n_f, n_s, n_loaded))
             G[:, 1:] = np.swapaxes(g - g0[:, None, 1:], 1, 2) / self.settings.step
-        if self.reference is not None:  # the reference's noise, shared by all steps: (f, s, b)
-            h = self._gaps(self.reference, params).reshape(n_f, -1, n_s)
+        if self.reference:  # the reference's noise, shared by all steps: (f, s, b)
+            h = self._stacked_gaps(self.reference, params).reshape(n_f, -1, n_s)
             H = np.swapaxes(h - g0[:, None], 1, 2) / self.settings.step
         first = {True: 0, False: 0}
         for c_b, is_loaded, n in self.modes:
