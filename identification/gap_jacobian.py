@@ -7,8 +7,8 @@ work) and on the markers through the smoothed displacement field. This module gi
   virtual work of a unit pressure and ``N = F + p (A_loop - A_clamp)`` (clamped ends) or ``F`` (free ends), so
   ``dEVW/dp = W_p + load_end dN/dp`` and ``dEVW/dF = load_end``, read off the data set itself (one re-preparation
   at unit pressure only if a loaded step was read at exactly zero pressure);
-- the markers' part by finite differences along the smoothing basis functions (``perturbed_sets``), one
-  preparation per function, **leaving out the rigid ones** (``rigid_columns``): a uniform circumferential or axial
+- the markers' part by finite differences along the smoothing basis functions (module ``perturbed_sets``; the
+  moved loaded steps of all functions prepared together, ``Reprepare.stacked``), **leaving out the rigid ones** (``rigid_columns``): a uniform circumferential or axial
   displacement of a step (a rotation about, a translation along the axis) is removed by the rigid alignment of
   ``prepare`` (Kabsch) and leaves every gap unchanged (measured: its finite difference is the step's truncation
   error, 1e-4 of the radial mode's at 0.17 mm), so its preparation is saved;
