@@ -1,6 +1,7 @@
 """Dense clouds (issue 25): time and memory of ``identification.identify`` against the number of points per step.
 
     OMP_NUM_THREADS=1 python -m benchmarks.bench_dense [--points 300 1000 3000 10000 30000 50000] [--noise 0.17]
+    OMP_NUM_THREADS=1 python -m benchmarks.bench_dense --compare 10000   # quadrature path against the full mesh
 
 Data: the closed-form homogeneous Fung tube (``rig_sim.homogeneous_tube``, paper parameters), 24 loaded steps
 (axial stretches 1.05, 1.1, 1.15 x 8 pressures 0-150 mmHg) after the stress-free reference, N points per step
@@ -19,6 +20,11 @@ on both cores: ``map_replicates``). Each N runs in a fresh subprocess (cold mesh
 - memory: peak resident set of the subprocess (``ru_maxrss``) and its growth during ``identify``.
 
 The slope is the least-squares slope of log(time) against log(N) over the N >= 3000 rows (1: linear cost).
+Above ``identification.dense.DENSE_POINTS`` mesh markers the balance is evaluated on the quadrature grid
+(column "quadrature nodes"; 0 = the full marker mesh).
+
+``--compare N``: the same data identified on the quadrature path and on the full marker mesh (the threshold
+raised for the second run, in the same process): estimates, bootstrap standard errors, interval widths, CPU.
 """
 
 from __future__ import annotations
@@ -46,8 +52,10 @@ PHASES = {
     "axes": [("step_axes.py", "refit_axes"), ("kinematics.py", "align_steps")],
     "outliers": [("outliers.py", "marker_outliers")],
     "smoothing": [("smoothing.py", "resolve_smoothing"), ("smoothing.py", "smooth_cylindrical"),
-                  ("smoothing.py", "smooth_reference_radius")],
-    "kinematics": [("kinematics.py", "surface_state")],  # minus axes, outliers, smoothing
+                  ("smoothing.py", "smooth_reference_radius"), ("dense.py", "_coefficients"),
+                  ("dense.py", "_reference_radius")],
+    # minus axes, outliers, smoothing
+    "kinematics": [("kinematics.py", "surface_state"), ("dense.py", "dense_state"), ("dense.py", "marker_survey")],
     "prepare": [("vfm.py", "prepare")],  # minus mesh and kinematics: the virtual work
     "fit": [("fit.py", "identify_prepared")],
 }
@@ -114,6 +122,7 @@ def measure(n_points: int, noise_mm: float) -> dict:
     return {"n": n_points, "steps": int(pos.shape[0] - 1), "total": total, "cpu": cpu, "main": main,
             "bootstrap": total - main, "phases": phases, "rss_mb": rss1 / 1024, "rss_growth_mb": (rss1 - rss0) / 1024,
             "triangles": int(gn.data.mesh.n_triangles), "beta": float(full.parameters["beta"]),
+            "nodes": 0 if gn.data.quadrature is None else int(gn.data.quadrature.grid.n_markers),
             "beta_ci": [float(v) for v in np.asarray(full.uncertainty.interval["beta"])]
             if getattr(full, "uncertainty", None) is not None else None}
 
@@ -129,20 +138,50 @@ def slope(rows: list[dict], key) -> float:
 
 def table(rows: list[dict]) -> str:
     names = list(rows[0]["phases"])
-    head = ["N", "triangles", "total s", "cpu s", "w/o bootstrap s", "bootstrap s"] + [f"{k} s" for k in names] + [
+    head = ["N", "triangles", "quadrature nodes", "total s", "cpu s", "w/o bootstrap s", "bootstrap s"] + [f"{k} s" for k in names] + [
         "peak RSS MB", "RSS growth MB", "beta (Pa)"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
-        cells = [f"{r['n']:,}", f"{r['triangles']:,}", f"{r['total']:.2f}", f"{r['cpu']:.2f}", f"{r['main']:.2f}",
+        cells = [f"{r['n']:,}", f"{r['triangles']:,}", f"{r.get('nodes', 0):,}", f"{r['total']:.2f}", f"{r['cpu']:.2f}", f"{r['main']:.2f}",
                  f"{r['bootstrap']:.2f}"] + [f"{r['phases'][k]:.3f}" for k in names] + [
             f"{r['rss_mb']:.0f}", f"{r['rss_growth_mb']:.0f}", f"{r['beta']:.0f}"]
         lines.append("| " + " | ".join(cells) + " |")
-    slopes = ["slope (N >= 3000)", "", f"{slope(rows, lambda r: r['total']):.2f}",
+    slopes = ["slope (N >= 3000)", "", "", f"{slope(rows, lambda r: r['total']):.2f}",
               f"{slope(rows, lambda r: r['cpu']):.2f}", f"{slope(rows, lambda r: r['main']):.2f}",
               f"{slope(rows, lambda r: r['bootstrap']):.2f}"] + [
         f"{slope(rows, lambda r, k=k: r['phases'][k]):.2f}" for k in names] + [
         f"{slope(rows, lambda r: r['rss_mb']):.2f}", f"{slope(rows, lambda r: max(r['rss_growth_mb'], 1)):.2f}", ""]
     lines.append("| " + " | ".join(slopes) + " |")
+    return "\n".join(lines)
+
+
+def compare(n_points: int, noise_mm: float) -> str:
+    """The quadrature path against the full marker mesh on the same data, in this process (a markdown table)."""
+    import identification.dense as dense
+    from identification import identify
+
+    pos, p, f, e0 = tube(n_points, noise_mm)
+    options = {"marker_sigma": np.full(pos.shape[:2], noise_mm * 1e-3), "pressure_noise": 3.0, "force_noise": 0.002}
+    kw = dict(thickness=e0, model="fung", wall="membrane", ends="free", optimizer="lsq", smoothing="auto",
+              weighting="paper", uncertainty="bootstrap", uncertainty_options=options)
+    rows, threshold = {}, dense.DENSE_POINTS
+    for path, limit in (("quadrature", threshold), ("full mesh", 10**12)):
+        dense.DENSE_POINTS = limit
+        _clear_caches()
+        c = time.process_time()
+        rows[path] = (identify(pos, p, f, **kw), time.process_time() - c)
+    dense.DENSE_POINTS = threshold
+    (q, cq), (m, cm) = rows["quadrature"], rows["full mesh"]
+    lines = [f"N = {n_points:,} points x {pos.shape[0] - 1} loaded steps, noise {noise_mm} mm; CPU s: quadrature "
+             f"{cq:.2f}, full mesh {cm:.2f}; {q.flags[-1] if q.data.quadrature is not None else 'full mesh both'}", "",
+             "| parameter | full mesh | quadrature | difference / SE | SE full | SE quadrature | 95 % width full | "
+             "95 % width quadrature |", "|---|---|---|---|---|---|---|---|"]
+    for k in m.parameters:
+        wm = np.diff(m.uncertainty.interval[k])[0]
+        wq = np.diff(q.uncertainty.interval[k])[0]
+        lines.append(f"| {k} | {m.parameters[k]:.5g} | {q.parameters[k]:.5g} | "
+                     f"{(q.parameters[k] - m.parameters[k]) / m.stderr[k]:+.3f} | {m.stderr[k]:.3g} | "
+                     f"{q.stderr[k]:.3g} | {wm:.3g} | {wq:.3g} |")
     return "\n".join(lines)
 
 
@@ -152,8 +191,12 @@ def main(argv=None) -> int:
     ap.add_argument("--noise", type=float, default=0.17, help="marker noise (mm, each coordinate)")
     ap.add_argument("--one", type=int, help=argparse.SUPPRESS)
     ap.add_argument("--json", help="also write the rows to this file")
+    ap.add_argument("--compare", type=int, metavar="N", help="quadrature path against the full mesh at N points")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)
+    if args.compare:
+        sys.stdout.write(compare(args.compare, args.noise) + "\n")
+        return 0
     if args.one:
         sys.stdout.write(json.dumps(measure(args.one, args.noise)) + "\n")
         return 0

@@ -360,6 +360,8 @@ def _flags(model: Model, data: VFMData, tr: _Transform, x, params, stderr, resol
     if np.any(data.n_outliers):
         flags.append(f"{int(np.sum(data.n_outliers))} marker observations disagreed with their neighbours "
                      "(mis-tracked?) and were ignored")
+    if data.quadrature is not None:  # a dense cloud (``dense``): say how its balance was evaluated
+        flags.append(data.quadrature.describe())
     return flags
 
 

@@ -23,6 +23,8 @@ Units SI; shapes in the docstrings.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from .axis import Axis
@@ -77,15 +79,17 @@ class Reprepare:
     close to ``aligned`` (n_steps, n_markers, 3) m, the unmoved markers of ``data`` rigidly aligned on their
     reference step: the same data set (to the axis fits' convergence, ~1e-12 relative), in about half the time.
 
-    Without smoothing, with outlier rejection, marker weights, the reference-noise correction or a reference step
-    other than 0 it is ``prepare`` itself.
+    Without smoothing, with outlier rejection, marker weights, the reference-noise correction, a reference step
+    other than 0 or a dense cloud (``dense``) it is ``prepare`` itself.
     """
 
     def __init__(self, data: VFMData, aligned: np.ndarray, settings: PrepareSettings):
         self.data, self.s = data, settings
         s = settings
+        # a dense cloud (``data.quadrature``): ``prepare`` itself, whose balance is on the same quadrature grid
         self.lean = (isinstance(s.smoothing, tuple) and s.marker_weights is None and not s.reject_outliers
-                     and not s.reference_noise_correction and not s.estimate_noise and s.reference_step == 0)
+                     and not s.reference_noise_correction and not s.estimate_noise and s.reference_step == 0
+                     and data.quadrature is None)
         if not self.lean:
             return
         mesh = data.mesh
@@ -105,6 +109,8 @@ class Reprepare:
         mesh = d.mesh if m is None else m
         with np.errstate(all="ignore"):
             if not self.lean:
+                if d.quadrature is not None:  # a dense cloud: the axis fits start from the data's
+                    s = replace(s, axes_start=d.quadrature.axes)
                 return prepare(positions, p, f, thickness=d.thickness, mesh=mesh, settings=s)
             return self._lean(np.asarray(positions, dtype=float), p, f, mesh)
 

@@ -69,7 +69,7 @@ def gap_noise(data: VFMData, positions: np.ndarray, parameters: Mapping[str, flo
             with np.errstate(all="ignore"):
                 d = prepare(pos, data.pressure, data.axial_force, thickness=data.thickness, wall=data.wall,
                             ends=data.ends, mesh=remeasured_mesh(data.mesh, pos[0]), smoothing=data.smoothing,
-                            reject_outliers=False, **options)
+                            reject_outliers=False, dense_reuse=data.quadrature, **options)
                 gaps.append((internal_virtual_work(d, model, parameters) - d.evw) / data.scale[:, None])
         except (IdentificationError, ValueError, np.linalg.LinAlgError) as exc:
             log.debug("gap-noise replicate failed: %s", exc)

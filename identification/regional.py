@@ -199,7 +199,7 @@ def prepare_regional(positions: np.ndarray, pressure: np.ndarray, axial_force: n
                   **prepare_options)
     data = prepare(positions, pressure, axial_force, fields=band_fields(mesh, field_edges), mesh=mesh, **common)
     layers = 1 if wall == "membrane" else int(n_layers)
-    zp = _point_z(mesh, data.c.shape[1], int(quadrature), layers)
+    zp = _point_z(data.points_mesh, data.c.shape[1], int(quadrature), layers)
     point_band = _cell_of(zp, cells)
     centres = 0.5 * (cells[1:] + cells[:-1])
     if kind == "bands":

@@ -12,6 +12,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from .dense import step_coordinates
 from .errors import IdentificationError
 from .kinematics import align_steps, step_cylindrical
 from .mesh import SurfaceMesh, to_cylindrical
@@ -68,10 +69,15 @@ def fitted_positions(data: VFMData, positions: np.ndarray, reference_step: int =
     if data.smoothing is None:
         return aligned, np.where(observed[..., None], 0.0, np.nan)
     mesh = data.mesh
-    r, th, z, axes = step_cylindrical(mesh, aligned)
-    outliers, _ = marker_outliers(mesh, r, th, z)
+    if data.quadrature is not None:  # a dense cloud: the axes and outliers of its preparation
+        axes, outliers = data.quadrature.axes, data.quadrature.outliers
+        r, th, z = step_coordinates(aligned, axes)
+    else:
+        r, th, z, axes = step_cylindrical(mesh, aligned)
+        outliers, _ = marker_outliers(mesh, r, th, z)
     r, th, z = (np.where(outliers, np.nan, a) for a in (r, th, z))
-    rs, ts, zs = smooth_cylindrical(mesh, r, th, z, data.smoothing)
+    smoothed = smooth_cylindrical(mesh, r, th, z, data.smoothing)
+    rs, ts, zs = smoothed
     # the reference surface's own noise is re-simulated too: take its smooth shape as the truth
     basis, ok_ref = smoothing_basis(mesh, max(data.smoothing[0], (4, 2)))
     coef, *_ = np.linalg.lstsq(basis[ok_ref], mesh.r[ok_ref], rcond=None)
@@ -79,7 +85,7 @@ def fitted_positions(data: VFMData, positions: np.ndarray, reference_step: int =
     fitted = _specimen_frame_to_world(rs, ts, zs, axes)
     keep = observed & mesh.used[None]
     fitted = np.where(keep[..., None], fitted, np.nan)
-    fitted_disp = _specimen_frame_to_world(*smooth_cylindrical(mesh, r, th, z, data.smoothing), axes)
+    fitted_disp = _specimen_frame_to_world(*smoothed, axes)
     residual = np.where((keep & ~outliers)[..., None], aligned - fitted_disp, np.nan)
     return fitted, residual
 

@@ -361,6 +361,15 @@ def smooth_reference_radius(mesh: SurfaceMesh, candidates=AUTO_DEGREES) -> np.nd
     the Legendre(Z) x Fourier(Theta) basis chosen by generalised cross-validation (as
     ``select_smoothing``); NaN outside the mesh."""
     R = np.where(mesh.used, mesh.r, np.nan)[None]
+    best = reference_radius_degree(mesh, candidates)
+    best_fit = _fit_basis(*smoothing_basis(mesh, best), R)[0][0]
+    log.info("reference radius smoothed on (axial degree, harmonics) %s", best)
+    return np.where(mesh.used, best_fit, np.nan)
+
+
+def reference_radius_degree(mesh: SurfaceMesh, candidates=AUTO_DEGREES) -> tuple[int, int]:
+    """The (axial degree, harmonics) of ``smooth_reference_radius``'s fit, chosen by generalised cross-validation."""
+    R = np.where(mesh.used, mesh.r, np.nan)[None]
     n_obs = int(np.sum(np.isfinite(R)))
     scores = _nested_gcv(mesh, candidates, R[0])
     best, best_score = None, np.inf
@@ -381,9 +390,7 @@ def smooth_reference_radius(mesh: SurfaceMesh, candidates=AUTO_DEGREES) -> np.nd
             best, best_score = deg, score
     if best is None:
         raise DegenerateDataError(f"too few markers ({n_obs}) to smooth the reference radius")
-    best_fit = _fit_basis(*smoothing_basis(mesh, best), R)[0][0]
-    log.info("reference radius smoothed on (axial degree, harmonics) %s", best)
-    return np.where(mesh.used, best_fit, np.nan)
+    return best
 
 
 def _nested_gcv(mesh: SurfaceMesh, candidates, values: np.ndarray) -> dict | None:

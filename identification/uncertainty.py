@@ -210,7 +210,8 @@ def _reidentify(data: VFMData, model, initial, pos, p, f, mesh, options, gap_wei
     try:
         with np.errstate(all="ignore"):
             d = prepare(pos, p, f, thickness=data.thickness, wall=data.wall, ends=data.ends, mesh=mesh,
-                        smoothing=data.smoothing, reject_outliers=False, estimate_noise=False, **options)
+                        smoothing=data.smoothing, reject_outliers=False, estimate_noise=False,
+                        dense_reuse=data.quadrature, **options)
             if gap_weights is not None:
                 d = weighted_data(d, gap_weights)
             return identify_prepared(d, model, initial=initial, n_starts=1, whitening=whitening)

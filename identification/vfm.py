@@ -36,6 +36,7 @@ from dataclasses import fields as fields_of
 import numpy as np
 
 from .errors import DegenerateDataError
+from .dense import DenseQuadrature, dense_state, grid_fields, marker_survey, quadrature_grid, wants_dense
 from ._wall import _external_work, _internal_work_terms, _wall_geometry, end_force
 from .kinematics import align_steps, surface_state
 from .mesh import SurfaceMesh, build_mesh
@@ -106,12 +107,19 @@ class VFMData:
     axial_force: np.ndarray
     thickness: float
     strip_force: np.ndarray | None = None
+    #: a dense cloud's quadrature (``dense.DenseQuadrature``): the integration points are on its grid's triangles
+    quadrature: DenseQuadrature | None = None
     #: parameter-independent intermediates of the cost (seeded virtual strains), filled on first use
     cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @property
     def n_steps(self) -> int:
         return self.c.shape[0]
+
+    @property
+    def points_mesh(self) -> SurfaceMesh:
+        """The mesh whose triangles carry the integration points: a dense cloud's quadrature grid, else ``mesh``."""
+        return self.mesh if self.quadrature is None else self.quadrature.grid
 
 
 def _check_inputs(positions, pressure, axial_force, thickness):
@@ -164,6 +172,8 @@ class PrepareSettings:
     smooth_reference: bool = True
     reference_noise_correction: bool = False
     estimate_noise: bool = True
+    dense_reuse: DenseQuadrature | None = None
+    axes_start: tuple | None = None
 
     @classmethod
     def from_options(cls, settings: PrepareSettings | None = None, **options) -> PrepareSettings:
@@ -240,6 +250,16 @@ def prepare(
     estimate_noise : bool
         False: leave ``VFMData.marker_noise`` NaN when nothing else needs the neighbour-mismatch noise
         estimate (``reject_outliers=False``, smoothing given as degrees): a bootstrap replicate's ~1.5 ms.
+    dense_reuse : DenseQuadrature, optional
+        On a dense cloud (``dense``: more than ``dense.DENSE_POINTS`` markers, smoothed), the step axes of the
+        data a bootstrap replicate re-measures (``VFMData.quadrature``): the replicate, simulated in the data's
+        aligned frame, is neither re-aligned nor are its axes refitted.
+    axes_start : tuple of Axis, optional
+        On a dense cloud, one per step: where every step's axis fit starts (the same minimum in fewer iterations;
+        ``gap_jacobian.Reprepare`` starts its re-preparations from the data's, ``VFMData.quadrature.axes``).
+
+    A smoothed cloud of more than ``dense.DENSE_POINTS`` markers is smoothed on all of them and its balance
+    evaluated on a quadrature grid of bounded size (``dense``; ``VFMData.quadrature`` says so).
     """
     s = PrepareSettings.from_options(settings, **options)
     wall, ends, fields, mesh, reference_step = s.wall, s.ends, s.fields, s.mesh, s.reference_step
@@ -255,6 +275,10 @@ def prepare(
     reference = x[reference_step]
     if mesh is None:
         mesh = _cached_mesh(reference, toward)
+    if wants_dense(mesh, smoothing, smooth_reference, reference_noise_correction):
+        dense = _prepare_dense(x, p, f, e0, mesh, s)
+        if dense is not None:
+            return dense
     if fields is None:
         fields = default_fields(mesh, wall)
     check_fields(fields, mesh)
@@ -275,18 +299,21 @@ def default_fields(mesh: SurfaceMesh, wall: str) -> VirtualFields:
 
 
 def balance(st, mesh: SurfaceMesh, fields: VirtualFields, p: np.ndarray, f: np.ndarray, e0: float,
-            s: PrepareSettings) -> VFMData:
+            s: PrepareSettings, *, work_mesh: SurfaceMesh | None = None,
+            quadrature: DenseQuadrature | None = None) -> VFMData:
     """The virtual-work balance of the surface state ``st`` (``kinematics.surface_state``), ``prepare``'s second
     half: pressure ``p`` (Pa) and force ``f`` (N) of shape (n_steps,), thickness ``e0`` (m), and of the settings
-    ``s`` the wall, ends, n_layers and clamp_radius."""
-    wall, ends, n_layers, clamp_radius = s.wall, s.ends, s.n_layers, s.clamp_radius
+    ``s`` the wall, ends, n_layers and clamp_radius. ``work_mesh``: the mesh whose triangles ``st`` and the nodes
+    ``fields`` are on (default ``mesh``; a dense cloud's quadrature grid, ``quadrature``)."""
+    wall, ends = s.wall, s.ends
+    work_mesh = mesh if work_mesh is None else work_mesh
     if not st.valid.any(axis=1).all():
         bad = np.flatnonzero(~st.valid.any(axis=1)).tolist()
         raise DegenerateDataError(f"steps {bad} have no triangle with all three markers observed")
-    wg = _wall_geometry(fields, mesh, st, e0)
-    c, work_density, surface = _internal_work_terms(wg, wall, n_layers)
-    pressure_work, end_work, n_end, strip_force = _external_work(wg, surface, mesh, st, fields, p, f, wall, ends,
-                                                                 e0, clamp_radius)
+    wg = _wall_geometry(fields, work_mesh, st, e0)
+    c, work_density, surface = _internal_work_terms(wg, wall, s.n_layers)
+    pressure_work, end_work, n_end, strip_force = _external_work(wg, surface, work_mesh, st, fields, p, f, wall, ends,
+                                                                 e0, s.clamp_radius)
     evw = pressure_work + end_work
     scale = np.sqrt(np.mean(evw**2, axis=1))
     if np.any(scale <= 0):
@@ -300,7 +327,43 @@ def balance(st, mesh: SurfaceMesh, fields: VirtualFields, p: np.ndarray, f: np.n
                    n_valid_triangles=n_valid, n_outliers=st.outliers.sum(axis=1),
                    marker_noise=float(np.nanmedian(st.noise)) if np.isfinite(st.noise).any() else float("nan"),
                    smoothing=st.smoothing, pressure=p, axial_force=f,
-                   thickness=e0, strip_force=strip_force)
+                   thickness=e0, strip_force=strip_force, quadrature=quadrature)
+
+
+def _prepare_dense(x, p, f, e0: float, mesh: SurfaceMesh, s: PrepareSettings) -> VFMData | None:
+    """``prepare`` of a dense cloud on its quadrature grid (``dense``); None where the full path is needed
+    (given fields that depend on more than Z, exact-looking markers)."""
+    if s.fields is not None:
+        check_fields(s.fields, mesh)
+    fields = grid_fields(s.fields, mesh, quadrature_grid(mesh), s.wall)
+    if fields is None:
+        log.info("dense cloud: the given virtual fields depend on more than Z; full mesh used")
+        return None
+    # a bootstrap replicate of a dense cloud is simulated in the data's aligned frame: no rigid motion to remove
+    aligned = x if s.dense_reuse is not None else align_steps(x, x[s.reference_step])[0]
+    # the same markers again (another wall form, model or the chosen smoothing given): their axes and outliers
+    # (a replicate is seen once: not cached)
+    key = None if s.dense_reuse is not None else (
+        "dense markers", id(mesh), _option_key(aligned),
+        s.estimate_noise or s.reject_outliers or isinstance(s.smoothing, str))
+    hit = _STATE_CACHE.get(key) if key is not None else None
+    if hit is not None and hit[0] is mesh:
+        survey = hit[1]
+    else:
+        survey = marker_survey(mesh, aligned, s.smoothing, s.reject_outliers, s.estimate_noise, s.dense_reuse,
+                               s.axes_start)
+        if key is not None:
+            if len(_STATE_CACHE) >= _STATE_CACHE_SIZE:
+                _STATE_CACHE.pop(next(iter(_STATE_CACHE)))
+            _STATE_CACHE[key] = (mesh, survey)
+    dense = dense_state(mesh, aligned, s.quadrature, s.smoothing, s.reject_outliers, s.marker_weights, survey)
+    if dense is None:
+        return None
+    st, quadrature = dense
+    if not st.valid.any(axis=1).all():
+        bad = np.flatnonzero(~st.valid.any(axis=1)).tolist()
+        raise DegenerateDataError(f"steps {bad} have no valid quadrature cell")
+    return balance(st, mesh, fields, p, f, e0, s, work_mesh=quadrature.grid, quadrature=quadrature)
 
 
 #: Meshes of recently seen reference configurations (a reprocessing run meshes the same markers again).
