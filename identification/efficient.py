@@ -27,13 +27,14 @@ from __future__ import annotations
 import dataclasses
 import logging
 from dataclasses import dataclass
-from typing import Mapping
+from typing import Callable, Mapping
 
 import numpy as np
 
 from .errors import IdentificationError
 from .fit import identify_prepared
-from .gap_jacobian import Reprepare, perturbed_sets, reading_sensitivities, rigid_columns
+from .gap_jacobian import Reprepare, reading_sensitivities, rigid_columns
+from .perturbed_sets import perturbed_works
 from .kinematics import align_steps
 from .resimulation import basis_size, fitted_positions, marker_noise_level, remeasured_mesh
 from .smoothing import smoothing_basis
@@ -74,6 +75,10 @@ class EfficientSettings:
         Generalised least-squares fits, each with the covariance at the previous estimate (default 2).
     step : float
         Finite-difference step of the perturbed fields (m) and of the readings (relative).
+    map_sets : callable, optional
+        ``map_sets(fn, jobs)`` computes the covariance's perturbed preparations (``perturbed_sets``): the builtin
+        ``map`` (default), or one over several processes with the same results (``vfmlab.parallel.fork_map``;
+        measured slower than serial on a loaded 2-core machine, docs/validation/efficiency.md).
     """
 
     pressure_relative: float = 1e-3
@@ -87,6 +92,7 @@ class EfficientSettings:
     seed: int = 0
     n_iterations: int = 2
     step: float = 1e-6
+    map_sets: Callable | None = None
 
     def __post_init__(self) -> None:
         for name in ("pressure_relative", "pressure_floor", "force_relative", "force_floor"):
@@ -114,8 +120,9 @@ def _directions(mesh, aligned: np.ndarray) -> np.ndarray:
 class GapCovariance:
     """First-order covariance of the normalised gaps of ``data`` (shape (n_res, n_res), n_res = n_fields n_steps).
 
-    Built once: the readings' part in closed form, the markers' from the perturbed preparations (one ``prepare``
-    per non-rigid smoothing basis function of the loaded steps and of the reference, ``gap_jacobian``);
+    Built once: the readings' part in closed form, the markers' from the perturbed preparations (per non-rigid
+    smoothing basis function, the loaded steps moved, all functions prepared together, and the reference moved, one
+    ``prepare`` each; ``perturbed_sets``, ``gap_jacobian``, computed by ``settings.map_sets``);
     ``at(params)`` then evaluates the covariance at any parameters with a few virtual-work evaluations.
     """
 
@@ -141,8 +148,10 @@ class GapCovariance:
         self.sp = np.hypot(settings.pressure_relative * p, settings.pressure_floor) * loaded
         self.sf = np.hypot(settings.force_relative * f, settings.force_floor) * loaded
         self.readings = self._reading_gaps(prep, aligned, p)  # (n_f, n_s) each: d gap / d reading x its sigma
-        # the markers: (coefficient covariance (n_steps or 1, n_b, n_b), [loaded VFMData], [reference VFMData])
+        # the markers: per component, (coefficient covariance (n_steps or 1, n_b, n_b), loaded?, its columns)
         self.modes: list[tuple] = []
+        self.loaded: list[VFMData] = []  # the loaded steps moved per loaded column, set-major, per job (``perturbed_sets``)
+        self.reference: list[VFMData] = []  # every step per reference column, set-major, per job
         self.reference_sets: list[VFMData] = []  # re-measured references (``reference_replicates``)
         if data.smoothing is None:
             log.info("efficient weighting of unsmoothed data: the readings' noise only")
@@ -150,23 +159,26 @@ class GapCovariance:
         sigma = self._marker_sigma(positions)
         e = _directions(data.mesh, aligned)
         ok = data.mesh.used & np.all(np.isfinite(aligned), axis=-1).all(axis=0)
-        for j, degree in enumerate(data.smoothing):  # the loaded steps' smoothing coefficients
+        moves = []  # the loaded steps' smoothing coefficients: the moves of steps 1.. per column
+        for j, degree in enumerate(data.smoothing):
             cov, B, keep = _coefficient_covariance(data.mesh, degree, ok, sigma, j)
-            sets = perturbed_sets(prep, aligned, B, e[j], settings.step, slice(1, None), keep)
-            self.modes.append((cov[:, keep][:, :, keep] * loaded[:, None, None], sets, []))
+            moves += [settings.step * B[:, i, None] * e[j, 1:] for i in np.flatnonzero(keep)]
+            self.modes.append((cov[:, keep][:, :, keep] * loaded[:, None, None], True, int(keep.sum())))
         if settings.reference_replicates:  # the reference configuration: its error is shared by all steps
+            self.loaded = perturbed_works(prep, aligned, moves, [], settings.map_sets or map)[0]
             rng = np.random.default_rng(settings.seed)
             for _ in range(int(settings.reference_replicates)):
                 ref = aligned.copy()
                 ref[0] += sigma[0][:, None] * rng.standard_normal(ref[0].shape)
                 self.reference_sets.append(prep(ref, m=remeasured_mesh(data.mesh, ref[0])))
             return
-        for j, degree in enumerate(data.smoothing):  # linearised on a basis of at least ``reference_degree``
+        columns = []  # linearised on a basis of at least ``reference_degree``
+        for j, degree in enumerate(data.smoothing):
             degree = (max(degree[0], settings.reference_degree[0]), max(degree[1], settings.reference_degree[1]))
             cov, B, keep = _coefficient_covariance(data.mesh, degree, ok, sigma[:1], j)
-            sets = perturbed_sets(prep, aligned, B, e[j], settings.step, slice(0, 1), keep,
-                                  remesh=lambda ref: remeasured_mesh(data.mesh, ref))
-            self.modes.append((cov[:, keep][:, :, keep], [], sets))
+            columns += [settings.step * B[:, i, None] * e[j, 0] for i in np.flatnonzero(keep)]
+            self.modes.append((cov[:, keep][:, :, keep], False, int(keep.sum())))
+        self.loaded, self.reference = perturbed_works(prep, aligned, moves, columns, settings.map_sets or map)
 
     def _reading_gaps(self, prep: Reprepare, aligned, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The gaps' derivatives with respect to the pressure and force readings times their standard deviations,
@@ -194,21 +206,34 @@ class GapCovariance:
     def _gaps(self, d: VFMData, params) -> np.ndarray:
         return (internal_virtual_work(d, self.model, params) - d.evw) / self.data.scale[:, None]
 
+    def _stacked_gaps(self, parts: list[VFMData], params) -> np.ndarray:
+        return np.concatenate([self._gaps(d, params) for d in parts], axis=1)
+
     def at(self, model, params: Mapping[str, float]) -> np.ndarray:
         """Covariance (n_res, n_res) of the normalised gaps (field-major ravel of (n_fields, n_steps))."""
         self.model = model
         n_f, n_s = self.data.evw.shape
-        g0 = self._gaps(self.base, params) if self.modes or self.reference_sets else None
+        g0 = self._gaps(self.base, params)
         cov = np.zeros((n_f, n_s, n_f, n_s))
         gp, gf = self.readings  # readings: independent per step
         step_cov = np.einsum("ks,ls->skl", gp, gp) + np.einsum("ks,ls->skl", gf, gf)
-        for c_b, loaded, reference in self.modes:
-            if loaded:  # a loaded step's own noise: (f, s, b)
-                G = np.stack([(self._gaps(d, params) - g0) / self.settings.step for d in loaded], -1)
-                step_cov += np.einsum("ksb,sbc,lsc->skl", G, c_b, G)
-            if reference:
-                H = np.stack([(self._gaps(d, params) - g0) / self.settings.step for d in reference], -1)
-                cov += np.einsum("ksb,bc,ltc->kslt", H, c_b[0], H)
+        n_loaded = sum(n for _, is_loaded, n in self.modes if is_loaded)
+        G = H = None
+        if self.loaded:  # the loaded steps' own noise: (f, s, b), the reference step's column 0
+            g = self._stacked_gaps(self.loaded, params).reshape(n_f, n_loaded, n_s - 1)
+            G = np.zeros((n_f, n_s, n_loaded))
+            G[:, 1:] = np.swapaxes(g - g0[:, None, 1:], 1, 2) / self.settings.step
+        if self.reference:  # the reference's noise, shared by all steps: (f, s, b)
+            h = self._stacked_gaps(self.reference, params).reshape(n_f, -1, n_s)
+            H = np.swapaxes(h - g0[:, None], 1, 2) / self.settings.step
+        first = {True: 0, False: 0}
+        for c_b, is_loaded, n in self.modes:
+            cols = slice(first[is_loaded], first[is_loaded] + n)
+            first[is_loaded] += n
+            if is_loaded and G is not None:
+                step_cov += np.einsum("ksb,sbc,lsc->skl", G[..., cols], c_b, G[..., cols])
+            elif not is_loaded and H is not None:
+                cov += np.einsum("ksb,bc,ltc->kslt", H[..., cols], c_b[0], H[..., cols])
         if self.reference_sets:  # re-measured references: their spread about the data (n_f, n_s)
             D = np.stack([(self._gaps(d, params) - g0).ravel() for d in self.reference_sets])
             cov += (D.T @ D / len(D)).reshape(n_f, n_s, n_f, n_s)

@@ -7,8 +7,8 @@ work) and on the markers through the smoothed displacement field. This module gi
   virtual work of a unit pressure and ``N = F + p (A_loop - A_clamp)`` (clamped ends) or ``F`` (free ends), so
   ``dEVW/dp = W_p + load_end dN/dp`` and ``dEVW/dF = load_end``, read off the data set itself (one re-preparation
   at unit pressure only if a loaded step was read at exactly zero pressure);
-- the markers' part by finite differences along the smoothing basis functions (``perturbed_sets``), one
-  preparation per function, **leaving out the rigid ones** (``rigid_columns``): a uniform circumferential or axial
+- the markers' part by finite differences along the smoothing basis functions (module ``perturbed_sets``; the
+  moved loaded steps of all functions prepared together, ``Reprepare.stacked``), **leaving out the rigid ones** (``rigid_columns``): a uniform circumferential or axial
   displacement of a step (a rotation about, a translation along the axis) is removed by the rigid alignment of
   ``prepare`` (Kabsch) and leaves every gap unchanged (measured: its finite difference is the step's truncation
   error, 1e-4 of the radial mode's at 0.17 mm), so its preparation is saved;
@@ -24,7 +24,6 @@ Units SI; shapes in the docstrings.
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Callable
 
 import numpy as np
 
@@ -35,7 +34,7 @@ from .smoothing import smooth_cylindrical, smooth_reference_radius
 from .step_axes import refit_axes
 from .vfm import PrepareSettings, VFMData, balance, default_fields, prepare
 
-__all__ = ["Reprepare", "reading_sensitivities", "rigid_columns", "perturbed_sets"]
+__all__ = ["Reprepare", "reading_sensitivities", "rigid_columns"]
 
 #: A basis column is constant (a rigid motion along a circumferential or axial direction) when its spread over the
 #: used markers is below this fraction of its largest value.
@@ -73,22 +72,6 @@ def rigid_columns(basis: np.ndarray, use: np.ndarray) -> np.ndarray:
     b = basis[use]
     spread = np.ptp(b, axis=0)
     return spread <= CONSTANT_COLUMN * np.maximum(np.abs(b).max(axis=0), 1e-300)
-
-
-def perturbed_sets(prep: Callable, aligned: np.ndarray, basis: np.ndarray, direction: np.ndarray, step: float,
-                   steps: slice, columns: np.ndarray, remesh: Callable | None = None) -> list[VFMData]:
-    """Data sets prepared with the markers of ``steps`` moved by ``step * basis[:, i] * direction``, per column i.
-
-    prep(positions, m=mesh) -> VFMData (``Reprepare``); aligned (n_steps, n_markers, 3) m; basis (n_markers, n_b);
-    direction (n_steps, n_markers, 3) unit vectors; columns (n_b,) bool, the columns to perturb; remesh(reference
-    (n_markers, 3)) -> mesh, for the perturbed reference step (None: the loaded steps, same mesh).
-    """
-    out = []
-    for i in np.flatnonzero(columns):
-        pos = aligned.copy()
-        pos[steps] += step * basis[:, i, None] * direction[steps]
-        out.append(prep(pos) if remesh is None else prep(pos, m=remesh(pos[0])))
-    return out
 
 
 class Reprepare:
@@ -131,12 +114,30 @@ class Reprepare:
                 return prepare(positions, p, f, thickness=d.thickness, mesh=mesh, settings=s)
             return self._lean(np.asarray(positions, dtype=float), p, f, mesh)
 
-    def _lean(self, positions: np.ndarray, p: np.ndarray, f: np.ndarray, mesh: SurfaceMesh) -> VFMData:
+    def stacked(self, loaded: np.ndarray) -> VFMData:
+        """One data set of the unmoved reference step and the loaded steps of several moved sets, set-major:
+        loaded (n_sets, n_steps - 1, n_markers, 3) m, positions of steps 1.. (the reference unmoved); returns
+        the data set of 1 + n_sets (n_steps - 1) steps whose step ``1 + i (n_steps - 1) + k`` is step ``k + 1``
+        of set i as ``self(positions)`` gives it (every step is prepared on its own: the same numbers to the
+        axis fits' convergence), in one vectorised pass. ``lean`` only."""
+        if not self.lean:
+            raise ValueError("stacked needs the lean settings (smoothing, no outliers, weights or noise estimate)")
+        n_sets, n_loaded = loaded.shape[:2]
+        origin = np.concatenate([[0], np.tile(np.arange(1, n_loaded + 1), n_sets)])
+        positions = np.concatenate([self.aligned[:1], np.asarray(loaded, dtype=float).reshape(-1, *loaded.shape[2:])])
+        d = self.data
+        with np.errstate(all="ignore"):
+            return self._lean(positions, d.pressure[origin], d.axial_force[origin], d.mesh, origin)
+
+    def _lean(self, positions: np.ndarray, p: np.ndarray, f: np.ndarray, mesh: SurfaceMesh,
+              origin: np.ndarray | None = None) -> VFMData:
         """``prepare``'s steps for the settings ``lean`` allows (``surface_state`` without outliers, weights or
-        noise estimate, then ``vfm.balance``)."""
+        noise estimate, then ``vfm.balance``); ``origin`` (n_positions,): the step of the data each position
+        step stands for (default: the same)."""
         s, same = self.s, mesh is self.data.mesh
         x, rotation, translation = align_steps(positions, positions[0])
-        axes = self._axes(positions, x, rotation, translation, mesh)
+        axes = self._axes(positions, x, rotation, translation, mesh,
+                          np.arange(len(positions)) if origin is None else origin)
         r, th, z = cylindrical_about(x, axes)
         r, th, z = smooth_cylindrical(mesh, r, th, z, s.smoothing)
         reference_radius = mesh.r
@@ -149,22 +150,24 @@ class Reprepare:
         fields = self.fields if same or s.fields is not None else default_fields(mesh, s.wall)
         return balance(st, mesh, fields, p, f, self.data.thickness, s)
 
-    def _axes(self, positions, x, rotation, translation, mesh: SurfaceMesh) -> list[Axis]:
+    def _axes(self, positions, x, rotation, translation, mesh: SurfaceMesh, origin: np.ndarray) -> list[Axis]:
         """Each step's axis (``step_cylindrical``'s): refitted for the steps whose markers moved, starting from the
         unmoved axis; carried along with the alignment for the others (their markers only moved rigidly with the
         reference, and the fit's minimum moves with them: ``_carried``). positions, x (n_steps, n_markers, 3) m,
-        the moved markers before and after their alignment by ``rotation`` (n_steps, 3, 3), ``translation``."""
-        same = (positions == self.aligned) | (np.isnan(positions) & np.isnan(self.aligned))
+        the moved markers before and after their alignment by ``rotation`` (n_steps, 3, 3), ``translation``;
+        origin (n_steps,) the unmoved step each step stands for."""
+        unmoved = self.aligned[origin]
+        same = (positions == unmoved) | (np.isnan(positions) & np.isnan(unmoved))
         moved = ~same.all(axis=(1, 2))
-        rotation0, translation0 = self.alignment
-        axes = list(self.axes)
+        rotation0, translation0 = self.alignment[0][origin], self.alignment[1][origin]
+        axes = [self.axes[k] for k in origin]
         for k in np.flatnonzero(~moved):
             turn = rotation[k] @ rotation0[k].T  # from the unmoved step's aligned frame to this one
             axes[k] = (mesh.axis if axes[k] is self.data.mesh.axis else
                        _carried(axes[k], turn, translation[k] - turn @ translation0[k], mesh.axis))
         if moved.any():
             observed = np.all(np.isfinite(x[moved]), axis=-1) & mesh.used
-            start = [self.axes[k] for k in np.flatnonzero(moved)]
+            start = [axes[k] for k in np.flatnonzero(moved)]
             for k, axis in zip(np.flatnonzero(moved), refit_axes(x[moved], observed, mesh.axis, start=start)):
                 axes[k] = axis
         return axes

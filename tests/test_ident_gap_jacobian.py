@@ -112,3 +112,37 @@ def test_rigid_modes_leave_the_gaps_unchanged(free):
     radial = gaps(_moved(data, aligned, slice(1, None), component=0, column=0)) - base
     axial = gaps(_moved(data, aligned, slice(1, None), component=2, column=0)) - base
     assert np.abs(axial).max() < 1e-6 * np.abs(radial).max()
+
+
+def test_stacked_loaded_steps_are_each_sets_own_preparation(free):
+    data, aligned, settings = free
+    again = Reprepare(data, aligned, settings)
+    sets = [_moved(data, aligned, slice(1, None), component=c, column=1) for c in (0, 2)]
+    stacked = again.stacked(np.stack([s[1:] for s in sets]))
+    n = data.n_steps - 1
+    assert stacked.n_steps == 1 + 2 * n
+    for i, moved in enumerate(sets):
+        own = again(moved)
+        part = slice(1 + i * n, 1 + (i + 1) * n)
+        for name, steps_axis in (("c", 0), ("work_density", 1), ("evw", 1)):
+            x, y = getattr(stacked, name), getattr(own, name)
+            x, y = np.moveaxis(x, steps_axis, 0)[part], np.moveaxis(y, steps_axis, 0)[1:]
+            assert np.max(np.abs(x - y)) <= 1e-10 * np.max(np.abs(y)), name
+
+
+def test_the_gap_covariance_is_the_same_through_an_injected_map(free):
+    from identification.efficient import EfficientSettings, GapCovariance
+    from vfmlab.parallel import fork_map
+
+    data, aligned, _ = free
+    calls = []
+
+    def forked(fn, jobs):
+        calls.append(len(jobs))
+        return fork_map(fn, jobs, workers=2)
+
+    serial = GapCovariance(data, aligned, EfficientSettings())
+    spread = GapCovariance(data, aligned, EfficientSettings(map_sets=forked))
+    assert calls and calls[0] >= 2  # loaded and reference jobs
+    params = PAPER_PARAMETERS["fung"]
+    np.testing.assert_array_equal(spread.at("fung", params), serial.at("fung", params))

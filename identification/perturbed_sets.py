@@ -1,0 +1,91 @@
+"""The perturbed preparations of ``efficient.GapCovariance`` as independent jobs for an injected map (issue 24).
+
+The markers' part of the gaps' covariance needs the data prepared once per non-rigid smoothing basis function
+with the loaded steps' markers moved along it, and once per function with the reference step's moved
+(``gap_jacobian``). Each preparation is independent of the others, so they are cut into jobs that any
+``map(fn, jobs)`` may compute: the builtin map (default; this package never forks), or one that spreads them over
+the machine's cores (``vfmlab.parallel.fork_map``, what the command line passes) with the same results. A job
+returns only what the covariance reads of its data sets (the right Cauchy-Green components ``c`` and the work
+densities, the external work): a few hundred kB, cheap to send back from a worker.
+
+- Loaded steps: a step's gaps depend on its own markers and the reference's only, so the moved loaded steps of
+  many basis functions are prepared together as the steps of one data set (``Reprepare.stacked``: one vectorised
+  pass instead of one ``prepare`` per function), at most ``STACKED_STEPS`` steps a job.
+- Reference step: a moved reference brings its own re-measured mesh, so each is its own preparation,
+  ``REFERENCE_SETS`` of them a job.
+
+Units SI; shapes in the docstrings.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Callable
+
+import numpy as np
+
+from .gap_jacobian import Reprepare
+from .resimulation import remeasured_mesh
+from .vfm import VFMData
+
+__all__ = ["PerturbedSets", "perturbed_works"]
+
+#: Moved loaded steps prepared in one vectorised pass (a job): at most this many (bounds the memory: a thick wall
+#: of 500 triangles takes ~0.4 MB a step; 96 add ~30 MB to the peak of 300 MB, 400 added 150 MB).
+STACKED_STEPS = 96
+
+#: Moved references prepared by one job.
+REFERENCE_SETS = 8
+
+#: What a job returns: c (n, n_points, 3), work_density (n_fields, n, n_points, 3), evw (n_fields, n), n steps.
+Works = tuple[np.ndarray, np.ndarray, np.ndarray]
+
+
+class PerturbedSets:
+    """A job's computation (picklable by reference in a forked worker): ``("loaded", moves)`` with moves
+    (n_sets, n_steps - 1, n_markers, 3) m added to the loaded steps, or ``("reference", moves)`` with moves
+    (n_sets, n_markers, 3) m added to the reference step (on its re-measured mesh). Returns the ``Works`` of the
+    moved steps of every set, set-major: n_sets (n_steps - 1) loaded steps, or n_sets n_steps steps."""
+
+    def __init__(self, prep: Reprepare, aligned: np.ndarray):
+        self.prep, self.aligned = prep, aligned
+
+    def __call__(self, job: tuple[str, np.ndarray]) -> Works:
+        kind, moves = job
+        if kind == "loaded" and self.prep.lean:
+            d = self.prep.stacked(self.aligned[1:][None] + moves)
+            return d.c[1:], d.work_density[:, 1:], d.evw[:, 1:]
+        sets = []
+        for move in moves:
+            pos = self.aligned.copy()
+            if kind == "loaded":
+                pos[1:] += move
+                d = self.prep(pos)
+                sets.append((d.c[1:], d.work_density[:, 1:], d.evw[:, 1:]))
+            else:
+                pos[0] += move
+                d = self.prep(pos, m=remeasured_mesh(self.prep.data.mesh, pos[0]))
+                sets.append((d.c, d.work_density, d.evw))
+        return _concatenate(sets)
+
+
+def _concatenate(sets: list[Works]) -> Works:
+    c, wd, evw = zip(*sets)
+    return np.concatenate(c), np.concatenate(wd, axis=1), np.concatenate(evw, axis=1)
+
+
+def perturbed_works(prep: Reprepare, aligned: np.ndarray, loaded: list[np.ndarray], reference: list[np.ndarray],
+                    map_sets: Callable = map) -> tuple[list[VFMData], list[VFMData]]:
+    """The data sets of the loaded steps moved by each of ``loaded`` ((n_steps - 1, n_markers, 3) m each) and of
+    the reference moved by each of ``reference`` ((n_markers, 3) m each), one ``prep.data``-like data set per
+    job, whose steps are the moved steps of its sets, set-major (n_sets (n_steps - 1) loaded, n_sets n_steps
+    reference steps; only ``c``, ``work_density`` and ``evw`` are theirs: what the gaps read), in the order of the
+    moves. ``map_sets(fn, jobs)``: how the jobs are computed (the builtin map, or one over several processes)."""
+    per = max(1, STACKED_STEPS // max(len(aligned) - 1, 1))
+    jobs = [("loaded", np.stack(loaded[i:i + per])) for i in range(0, len(loaded), per)]
+    n_loaded_jobs = len(jobs)
+    jobs += [("reference", np.stack(reference[i:i + REFERENCE_SETS]))
+             for i in range(0, len(reference), REFERENCE_SETS)]
+    works = [dataclasses.replace(prep.data, c=c, work_density=wd, evw=evw)
+             for c, wd, evw in map_sets(PerturbedSets(prep, aligned), jobs)]
+    return works[:n_loaded_jobs], works[n_loaded_jobs:]
