@@ -34,8 +34,8 @@ from .step_axes import refit_axes
 from .thick_fields import flat_end_fields
 from .virtual_fields import VirtualFields, check_fields, paper_fields
 
-__all__ = ["DENSE_POINTS", "DenseQuadrature", "dense_state", "grid_fields", "marker_survey", "quadrature_grid",
-           "step_coordinates", "wants_dense"]
+__all__ = ["DENSE_POINTS", "DenseQuadrature", "dense_state", "grid_fields", "marker_survey", "perturbation_settings",
+           "quadrature_grid", "step_coordinates", "wants_dense"]
 
 log = logging.getLogger(__name__)
 
@@ -78,6 +78,16 @@ def wants_dense(mesh: SurfaceMesh, smoothing, smooth_reference: bool, reference_
     radius smoothed too, no errors-in-variables correction."""
     return (smoothing is not None and smooth_reference and not reference_noise_correction
             and int(np.count_nonzero(mesh.used)) > DENSE_POINTS)
+
+
+def perturbation_settings(settings, quadrature: DenseQuadrature):
+    """``settings`` (``vfm.PrepareSettings``) for a re-preparation of a dense cloud whose markers were moved along
+    a smooth basis function in the data's aligned frame (``gap_jacobian.Reprepare``, the gaps' derivatives of the
+    efficient weighting): on the data's step axes, neither re-aligned nor refitted, as a bootstrap replicate
+    (``dense_reuse``). A smooth move changes the alignment and the axes only by rigid motions, which leave the
+    gaps unchanged; the fits of 25 axes to every point were most of each re-preparation's time
+    (docs/validation/dense.md)."""
+    return replace(settings, dense_reuse=quadrature, axes_start=None)
 
 
 def step_coordinates(aligned: np.ndarray, axes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
