@@ -89,10 +89,13 @@ def _phases(stats: pstats.Stats) -> dict:
 
 
 def _clear_caches():
+    import identification.dense as dense
     import identification.vfm as vfm
 
     vfm._MESH_CACHE.clear()
     vfm._STATE_CACHE.clear()
+    dense._REFERENCE_CACHE.clear()
+    dense._FIT_CACHE.clear()
 
 
 def measure(n_points: int, noise_mm: float) -> dict:

@@ -18,6 +18,7 @@ Frames and units: as ``kinematics`` (m, rad; cylindrical components (radial, cir
 
 from __future__ import annotations
 
+import hashlib
 import logging
 from dataclasses import dataclass, replace
 
@@ -34,7 +35,7 @@ from .step_axes import refit_axes
 from .thick_fields import flat_end_fields
 from .virtual_fields import VirtualFields, check_fields, paper_fields
 
-__all__ = ["DENSE_POINTS", "DenseQuadrature", "dense_state", "grid_fields", "marker_survey", "perturbation_settings",
+__all__ = ["DENSE_POINTS", "DenseQuadrature", "cached_fit", "dense_state", "grid_fields", "marker_survey", "perturbation_settings",
            "quadrature_grid", "step_coordinates", "wants_dense"]
 
 log = logging.getLogger(__name__)
@@ -229,12 +230,48 @@ def _reference_degree(mesh: SurfaceMesh, candidates=AUTO_DEGREES) -> tuple[int, 
     return best if best is not None else reference_radius_degree(mesh, candidates)
 
 
+#: The smooth reference radius of recently seen meshes (``_reference_radius``): the data's mesh comes again in the
+#: other wall form's preparation, the final fit's and every re-preparation of moved loaded steps.
+_REFERENCE_CACHE: dict = {}
+_REFERENCE_CACHE_SIZE = 4
+
+
+#: Results of recent computations on a dense cloud's markers (``cached_fit``).
+_FIT_CACHE: dict = {}
+_FIT_CACHE_SIZE = 4
+
+
+def cached_fit(label: tuple, mesh: SurfaceMesh, arrays: tuple, compute):
+    """``compute()`` (a tuple of arrays, returned read-only), reused when ``label``, the mesh object and the
+    contents of ``arrays`` come again (digests: a dense cloud's markers are tens of MB; e.g. the fitted positions
+    that the gap noise of each wall form, the efficient weighting and its intervals all re-simulate about)."""
+    key = (label, id(mesh)) + tuple(hashlib.sha1(np.ascontiguousarray(a).view(np.uint8)).hexdigest()
+                                    + str(a.shape) + a.dtype.str for a in arrays)
+    hit = _FIT_CACHE.get(key)
+    if hit is not None and hit[0] is mesh:
+        return hit[1]
+    out = tuple(compute())
+    for a in out:
+        a.flags.writeable = False
+    if len(_FIT_CACHE) >= _FIT_CACHE_SIZE:
+        _FIT_CACHE.pop(next(iter(_FIT_CACHE)))
+    _FIT_CACHE[key] = (mesh, out)
+    return out
+
+
 def _reference_radius(mesh: SurfaceMesh):
     """(degree, coefficients (n_basis,)) of the smooth reference radius (``smoothing.smooth_reference_radius``'s
-    fit, its basis chosen by GCV)."""
+    fit, its basis chosen by GCV); reused for the same mesh object (the entry holds it: its ``id`` stays its own)."""
+    hit = _REFERENCE_CACHE.get(id(mesh))
+    if hit is not None and hit[0] is mesh:
+        return hit[1]
     degree = _reference_degree(mesh)
     coef = _coefficients(mesh, degree, np.where(mesh.used, mesh.r, np.nan)[None], None)[0]
-    return tuple(int(v) for v in degree), coef
+    out = tuple(int(v) for v in degree), coef
+    if len(_REFERENCE_CACHE) >= _REFERENCE_CACHE_SIZE:
+        _REFERENCE_CACHE.pop(next(iter(_REFERENCE_CACHE)))
+    _REFERENCE_CACHE[id(mesh)] = (mesh, out)
+    return out
 
 
 def marker_survey(mesh: SurfaceMesh, aligned: np.ndarray, smoothing, reject_outliers: bool, estimate_noise: bool,
