@@ -96,6 +96,7 @@ def _clear_caches():
     vfm._STATE_CACHE.clear()
     dense._REFERENCE_CACHE.clear()
     dense._FIT_CACHE.clear()
+    dense._STATE_CACHE.clear()
 
 
 def measure(n_points: int, noise_mm: float) -> dict:

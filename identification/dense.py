@@ -35,7 +35,7 @@ from .step_axes import refit_axes
 from .thick_fields import flat_end_fields
 from .virtual_fields import VirtualFields, check_fields, paper_fields
 
-__all__ = ["DENSE_POINTS", "DenseQuadrature", "cached_fit", "dense_state", "grid_fields", "marker_survey", "perturbation_settings",
+__all__ = ["DENSE_POINTS", "DenseQuadrature", "cached_fit", "cached_state", "dense_state", "grid_fields", "marker_survey", "perturbation_settings",
            "quadrature_grid", "step_coordinates", "wants_dense"]
 
 log = logging.getLogger(__name__)
@@ -241,12 +241,45 @@ _FIT_CACHE: dict = {}
 _FIT_CACHE_SIZE = 4
 
 
+#: Quadrature states of recent dense clouds (``cached_state``): the gap noise of each wall form re-measures the
+#: same replicates (8 each), the final fit re-prepares the chosen setting's markers.
+_STATE_CACHE: dict = {}
+_STATE_CACHE_SIZE = 10
+
+
+def _digest(a) -> str:
+    a = np.ascontiguousarray(a)
+    return hashlib.sha1(a.view(np.uint8)).hexdigest() + str(a.shape) + a.dtype.str
+
+
+def cached_state(mesh: SurfaceMesh, aligned: np.ndarray, quadrature: int, smoothing, reject_outliers: bool,
+                 weights, survey: tuple):
+    """``dense_state(mesh, aligned, quadrature, smoothing, reject_outliers, weights, survey)``, reused when the same
+    markers, mesh coordinates, survey and options come again (a content key: a replicate's mesh is a new object).
+    The state returned is shared: not to be modified."""
+    axes, outliers, noise = survey
+    frame = [mesh.axis.origin, mesh.axis.basis, np.array([mesh.z_bottom, mesh.z_top])]
+    arrays = [aligned, mesh.r, mesh.theta, mesh.z, mesh.used, np.stack([a.origin for a in axes]),
+              np.stack([a.basis for a in axes]), outliers, noise] + frame
+    key = ("dense state", quadrature, repr(smoothing), bool(reject_outliers), mesh.n_markers,
+           None if weights is None else _digest(np.asarray(weights, dtype=float))) + tuple(_digest(a) for a in arrays)
+    hit = _STATE_CACHE.get(key)
+    if hit is not None:
+        log.info("%s", hit[1].describe())
+        return hit
+    out = dense_state(mesh, aligned, quadrature, smoothing, reject_outliers, weights, survey)
+    if out is not None:
+        if len(_STATE_CACHE) >= _STATE_CACHE_SIZE:
+            _STATE_CACHE.pop(next(iter(_STATE_CACHE)))
+        _STATE_CACHE[key] = out
+    return out
+
+
 def cached_fit(label: tuple, mesh: SurfaceMesh, arrays: tuple, compute):
     """``compute()`` (a tuple of arrays, returned read-only), reused when ``label``, the mesh object and the
     contents of ``arrays`` come again (digests: a dense cloud's markers are tens of MB; e.g. the fitted positions
     that the gap noise of each wall form, the efficient weighting and its intervals all re-simulate about)."""
-    key = (label, id(mesh)) + tuple(hashlib.sha1(np.ascontiguousarray(a).view(np.uint8)).hexdigest()
-                                    + str(a.shape) + a.dtype.str for a in arrays)
+    key = (label, id(mesh)) + tuple(_digest(a) for a in arrays)
     hit = _FIT_CACHE.get(key)
     if hit is not None and hit[0] is mesh:
         return hit[1]
