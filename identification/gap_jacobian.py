@@ -23,7 +23,6 @@ Units SI; shapes in the docstrings.
 
 from __future__ import annotations
 
-from dataclasses import replace
 from typing import Callable
 
 import numpy as np
