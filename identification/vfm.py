@@ -356,7 +356,8 @@ def _prepare_dense(x, p, f, e0: float, mesh: SurfaceMesh, s: PrepareSettings) ->
             if len(_STATE_CACHE) >= _STATE_CACHE_SIZE:
                 _STATE_CACHE.pop(next(iter(_STATE_CACHE)))
             _STATE_CACHE[key] = (mesh, survey)
-    dense = cached_state(mesh, aligned, s.quadrature, s.smoothing, s.reject_outliers, s.marker_weights, survey)
+    dense = cached_state(mesh, aligned, s.quadrature, s.smoothing, s.reject_outliers, s.marker_weights, survey,
+                         once=s.dense_reuse is not None and not s.estimate_noise)
     if dense is None:
         return None
     st, quadrature = dense
