@@ -11,7 +11,10 @@ Beyond the grid's end rows the virtual fields are zero or a rigid axial translat
 the end force acts across the grid's top row, so the balance is the same. A bootstrap replicate reuses the
 data's alignment and step axes (``DenseQuadrature``: rigid motions, measured to leave the replicates' spread
 unchanged) and re-smooths its re-noised points, re-choosing the reference radius's basis (that choice does
-widen the spread of alpha12 ~4x: docs/validation/dense.md).
+widen the spread of alpha12 ~4x: docs/validation/dense.md). So do the efficient weighting's moved sets
+(``perturbation_settings``). What the verdict, the efficient weighting and its intervals compute again on the
+same markers is reused: the smooth reference radius per mesh, the quadrature state per markers and options
+(``cached_state``), the fitted positions (``cached_fit``).
 
 Frames and units: as ``kinematics`` (m, rad; cylindrical components (radial, circumferential, axial)).
 """
@@ -35,8 +38,8 @@ from .step_axes import refit_axes
 from .thick_fields import flat_end_fields
 from .virtual_fields import VirtualFields, check_fields, paper_fields
 
-__all__ = ["DENSE_POINTS", "DenseQuadrature", "cached_fit", "cached_state", "dense_state", "grid_fields", "marker_survey", "perturbation_settings",
-           "quadrature_grid", "step_coordinates", "wants_dense"]
+__all__ = ["DENSE_POINTS", "DenseQuadrature", "cached_fit", "cached_state", "dense_state", "grid_fields",
+           "marker_survey", "perturbation_settings", "quadrature_grid", "step_coordinates", "wants_dense"]
 
 log = logging.getLogger(__name__)
 
@@ -238,7 +241,7 @@ _REFERENCE_CACHE_SIZE = 4
 
 #: Results of recent computations on a dense cloud's markers (``cached_fit``).
 _FIT_CACHE: dict = {}
-_FIT_CACHE_SIZE = 4
+_FIT_CACHE_SIZE = 2  # an entry holds two (n_steps, n_markers, 3) arrays: 60 MB at 50,000 points x 25 steps
 
 
 #: Quadrature states of recent dense clouds (``cached_state``): the gap noise of each wall form re-measures the
