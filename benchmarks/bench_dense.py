@@ -2,6 +2,7 @@
 
     OMP_NUM_THREADS=1 python -m benchmarks.bench_dense [--points 300 1000 3000 10000 30000 50000] [--noise 0.17]
     OMP_NUM_THREADS=1 python -m benchmarks.bench_dense --compare 10000   # quadrature path against the full mesh
+    OMP_NUM_THREADS=1 python -m benchmarks.bench_dense --defaults [--points 10000 50000] [--compare 10000]
 
 Data: the closed-form homogeneous Fung tube (``rig_sim.homogeneous_tube``, paper parameters), 24 loaded steps
 (axial stretches 1.05, 1.1, 1.15 x 8 pressures 0-150 mmHg) after the stress-free reference, N points per step
@@ -22,6 +23,11 @@ on both cores: ``map_replicates``). Each N runs in a fresh subprocess (cold mesh
 The slope is the least-squares slope of log(time) against log(N) over the N >= 3000 rows (1: linear cost).
 Above ``identification.dense.DENSE_POINTS`` mesh markers the balance is evaluated on the quadrature grid
 (column "quadrature nodes"; 0 = the full marker mesh).
+
+``--defaults``: ``identification.identify(positions, pressure, force, thickness=e0, model="fung")`` with nothing
+else stated (``identification.DEFAULTS``: efficient weighting, its "gls" intervals, wall and ends judged by the
+data, the verdict's other laws and gap noise): "total" and "cpu" that call, its phases from a profiled second
+call, no bootstrap columns; ``--compare`` then compares that call.
 
 ``--compare N``: the same data identified on the quadrature path and on the full marker mesh (the threshold
 raised for the second run, in the same process): estimates, bootstrap standard errors, interval widths, CPU.
@@ -89,10 +95,13 @@ def _phases(stats: pstats.Stats) -> dict:
 
 
 def _clear_caches():
+    import identification.dense as dense
     import identification.vfm as vfm
 
     vfm._MESH_CACHE.clear()
     vfm._STATE_CACHE.clear()
+    for name in ("_REFERENCE_CACHE", "_FIT_CACHE", "_STATE_CACHE"):
+        getattr(dense, name, {}).clear()
 
 
 def measure(n_points: int, noise_mm: float) -> dict:
@@ -127,6 +136,30 @@ def measure(n_points: int, noise_mm: float) -> dict:
             if getattr(full, "uncertainty", None) is not None else None}
 
 
+def measure_defaults(n_points: int, noise_mm: float) -> dict:
+    """One row of ``--defaults`` (``--one N --defaults``): ``identification.identify`` with its defaults."""
+    from identification import identify
+
+    pos, p, f, e0 = tube(n_points, noise_mm)
+    rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    _clear_caches()
+    t, c = time.perf_counter(), time.process_time()
+    res = identify(pos, p, f, thickness=e0, model="fung")
+    total, cpu = time.perf_counter() - t, time.process_time() - c
+    rss1 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    _clear_caches()
+    prof = cProfile.Profile()
+    prof.enable()
+    identify(pos, p, f, thickness=e0, model="fung")
+    prof.disable()
+    return {"n": n_points, "steps": int(pos.shape[0] - 1), "total": total, "cpu": cpu, "main": total,
+            "bootstrap": 0.0, "phases": _phases(pstats.Stats(prof)), "rss_mb": rss1 / 1024,
+            "rss_growth_mb": (rss1 - rss0) / 1024, "triangles": int(res.data.mesh.n_triangles),
+            "beta": float(res.parameters["beta"]), "defaults": True,
+            "nodes": 0 if res.data.quadrature is None else int(res.data.quadrature.grid.n_markers),
+            "setting": f"{res.data.wall} wall, {res.data.ends} ends, {res.verdict}"}
+
+
 def slope(rows: list[dict], key) -> float:
     sel = [r for r in rows if r["n"] >= 3000]
     if len(sel) < 2:
@@ -140,6 +173,8 @@ def table(rows: list[dict]) -> str:
     names = list(rows[0]["phases"])
     head = ["N", "triangles", "quadrature nodes", "total s", "cpu s", "w/o bootstrap s", "bootstrap s"] + [f"{k} s" for k in names] + [
         "peak RSS MB", "RSS growth MB", "beta (Pa)"]
+    if rows[0].get("defaults"):  # no bootstrap: the two columns say the same as "total"
+        head[5:7] = ["-", "-"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
         cells = [f"{r['n']:,}", f"{r['triangles']:,}", f"{r.get('nodes', 0):,}", f"{r['total']:.2f}", f"{r['cpu']:.2f}", f"{r['main']:.2f}",
@@ -155,7 +190,7 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def compare(n_points: int, noise_mm: float) -> str:
+def compare(n_points: int, noise_mm: float, defaults: bool = False) -> str:
     """The quadrature path against the full marker mesh on the same data, in this process (a markdown table)."""
     import identification.dense as dense
     from identification import identify
@@ -164,6 +199,8 @@ def compare(n_points: int, noise_mm: float) -> str:
     options = {"marker_sigma": np.full(pos.shape[:2], noise_mm * 1e-3), "pressure_noise": 3.0, "force_noise": 0.002}
     kw = dict(thickness=e0, model="fung", wall="membrane", ends="free", optimizer="lsq", smoothing="auto",
               weighting="paper", uncertainty="bootstrap", uncertainty_options=options)
+    if defaults:
+        kw = dict(thickness=e0, model="fung")
     rows, threshold = {}, dense.DENSE_POINTS
     for path, limit in (("quadrature", threshold), ("full mesh", 10**12)):
         dense.DENSE_POINTS = limit
@@ -173,7 +210,11 @@ def compare(n_points: int, noise_mm: float) -> str:
     dense.DENSE_POINTS = threshold
     (q, cq), (m, cm) = rows["quadrature"], rows["full mesh"]
     lines = [f"N = {n_points:,} points x {pos.shape[0] - 1} loaded steps, noise {noise_mm} mm; CPU s: quadrature "
-             f"{cq:.2f}, full mesh {cm:.2f}; {q.flags[-1] if q.data.quadrature is not None else 'full mesh both'}", "",
+             f"{cq:.2f}, full mesh {cm:.2f}; "
+             f"{q.data.quadrature.describe() if q.data.quadrature is not None else 'full mesh both'}"
+             + ("".join(f"; {name}: {r.data.wall} wall, {r.data.ends} ends, {r.verdict}, intervals "
+                        f"{r.uncertainty.method}" for name, r in (("quadrature", q), ("full mesh", m)))
+                if defaults else ""), "",
              "| parameter | full mesh | quadrature | difference / SE | SE full | SE quadrature | 95 % width full | "
              "95 % width quadrature |", "|---|---|---|---|---|---|---|---|"]
     for k in m.parameters:
@@ -192,24 +233,29 @@ def main(argv=None) -> int:
     ap.add_argument("--one", type=int, help=argparse.SUPPRESS)
     ap.add_argument("--json", help="also write the rows to this file")
     ap.add_argument("--compare", type=int, metavar="N", help="quadrature path against the full mesh at N points")
+    ap.add_argument("--defaults", action="store_true", help="identification.identify with its defaults (module doc)")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)
     if args.compare:
-        sys.stdout.write(compare(args.compare, args.noise) + "\n")
+        sys.stdout.write(compare(args.compare, args.noise, args.defaults) + "\n")
         return 0
     if args.one:
-        sys.stdout.write(json.dumps(measure(args.one, args.noise)) + "\n")
+        row = (measure_defaults if args.defaults else measure)(args.one, args.noise)
+        sys.stdout.write(json.dumps(row) + "\n")
         return 0
     rows = []
     for n in args.points:
         out = subprocess.run([sys.executable, "-m", "benchmarks.bench_dense", "--one", str(n), "--noise",
-                              str(args.noise)], capture_output=True, text=True, check=True)
+                              str(args.noise)] + (["--defaults"] if args.defaults else []), capture_output=True,
+                             text=True, check=True)
         rows.append(json.loads(out.stdout.strip().splitlines()[-1]))
         sys.stderr.write(f"N={n}: {rows[-1]['total']:.2f} s\n")
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(rows, fh, indent=1)
-    sys.stdout.write(f"{rows[0]['steps']} loaded steps, noise {args.noise} mm, fung, smoothing auto, bootstrap\n\n")
+    said = ("identification.identify defaults (" + "; ".join(f"{r['n']:,}: {r['setting']}" for r in rows) + ")"
+            if args.defaults else "smoothing auto, bootstrap")
+    sys.stdout.write(f"{rows[0]['steps']} loaded steps, noise {args.noise} mm, fung, {said}\n\n")
     sys.stdout.write(table(rows) + "\n")
     return 0
 

@@ -11,13 +11,17 @@ Beyond the grid's end rows the virtual fields are zero or a rigid axial translat
 the end force acts across the grid's top row, so the balance is the same. A bootstrap replicate reuses the
 data's alignment and step axes (``DenseQuadrature``: rigid motions, measured to leave the replicates' spread
 unchanged) and re-smooths its re-noised points, re-choosing the reference radius's basis (that choice does
-widen the spread of alpha12 ~4x: docs/validation/dense.md).
+widen the spread of alpha12 ~4x: docs/validation/dense.md). So do the efficient weighting's moved sets
+(``perturbation_settings``). What the verdict, the efficient weighting and its intervals compute again on the
+same markers is reused: the smooth reference radius per mesh, the quadrature state per markers and options
+(``cached_state``), the fitted positions (``cached_fit``).
 
 Frames and units: as ``kinematics`` (m, rad; cylindrical components (radial, circumferential, axial)).
 """
 
 from __future__ import annotations
 
+import hashlib
 import logging
 from dataclasses import dataclass, replace
 
@@ -34,8 +38,8 @@ from .step_axes import refit_axes
 from .thick_fields import flat_end_fields
 from .virtual_fields import VirtualFields, check_fields, paper_fields
 
-__all__ = ["DENSE_POINTS", "DenseQuadrature", "dense_state", "grid_fields", "marker_survey", "quadrature_grid",
-           "step_coordinates", "wants_dense"]
+__all__ = ["DENSE_POINTS", "DenseQuadrature", "cached_fit", "cached_state", "dense_state", "grid_fields",
+           "marker_survey", "perturbation_settings", "quadrature_grid", "step_coordinates", "wants_dense"]
 
 log = logging.getLogger(__name__)
 
@@ -78,6 +82,16 @@ def wants_dense(mesh: SurfaceMesh, smoothing, smooth_reference: bool, reference_
     radius smoothed too, no errors-in-variables correction."""
     return (smoothing is not None and smooth_reference and not reference_noise_correction
             and int(np.count_nonzero(mesh.used)) > DENSE_POINTS)
+
+
+def perturbation_settings(settings, quadrature: DenseQuadrature):
+    """``settings`` (``vfm.PrepareSettings``) for a re-preparation of a dense cloud whose markers were moved along
+    a smooth basis function in the data's aligned frame (``gap_jacobian.Reprepare``, the gaps' derivatives of the
+    efficient weighting): on the data's step axes, neither re-aligned nor refitted, as a bootstrap replicate
+    (``dense_reuse``). A smooth move changes the alignment and the axes only by rigid motions, which leave the
+    gaps unchanged; the fits of 25 axes to every point were most of each re-preparation's time
+    (docs/validation/dense.md)."""
+    return replace(settings, dense_reuse=quadrature, axes_start=None)
 
 
 def step_coordinates(aligned: np.ndarray, axes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -219,12 +233,85 @@ def _reference_degree(mesh: SurfaceMesh, candidates=AUTO_DEGREES) -> tuple[int, 
     return best if best is not None else reference_radius_degree(mesh, candidates)
 
 
+#: The smooth reference radius of recently seen meshes (``_reference_radius``): the data's mesh comes again in the
+#: other wall form's preparation, the final fit's and every re-preparation of moved loaded steps.
+_REFERENCE_CACHE: dict = {}
+_REFERENCE_CACHE_SIZE = 4
+
+
+#: Results of recent computations on a dense cloud's markers (``cached_fit``).
+_FIT_CACHE: dict = {}
+_FIT_CACHE_SIZE = 2  # an entry holds two (n_steps, n_markers, 3) arrays: 60 MB at 50,000 points x 25 steps
+
+
+#: Quadrature states of recent dense clouds (``cached_state``): the gap noise of each wall form re-measures the
+#: same replicates (8 each), the final fit re-prepares the chosen setting's markers.
+_STATE_CACHE: dict = {}
+_STATE_CACHE_SIZE = 10
+
+
+def _digest(a) -> str:
+    a = np.ascontiguousarray(a)
+    return hashlib.sha1(a.view(np.uint8)).hexdigest() + str(a.shape) + a.dtype.str
+
+
+def cached_state(mesh: SurfaceMesh, aligned: np.ndarray, quadrature: int, smoothing, reject_outliers: bool,
+                 weights, survey: tuple, once: bool = False):
+    """``dense_state(mesh, aligned, quadrature, smoothing, reject_outliers, weights, survey)``, reused when the same
+    markers, mesh coordinates, survey and options come again (a content key: a replicate's mesh is a new object).
+    The state returned is shared: not to be modified. ``once``: markers never seen again (a bootstrap replicate, a
+    moved set of the efficient weighting: ``estimate_noise=False``): neither looked up nor kept (the key's digests
+    of the markers cost ~20 ms at 50,000 points x 25 steps)."""
+    if once:
+        return dense_state(mesh, aligned, quadrature, smoothing, reject_outliers, weights, survey)
+    axes, outliers, noise = survey
+    frame = [mesh.axis.origin, mesh.axis.basis, np.array([mesh.z_bottom, mesh.z_top])]
+    arrays = [aligned, mesh.r, mesh.theta, mesh.z, mesh.used, np.stack([a.origin for a in axes]),
+              np.stack([a.basis for a in axes]), outliers, noise] + frame
+    key = ("dense state", quadrature, repr(smoothing), bool(reject_outliers), mesh.n_markers,
+           None if weights is None else _digest(np.asarray(weights, dtype=float))) + tuple(_digest(a) for a in arrays)
+    hit = _STATE_CACHE.get(key)
+    if hit is not None:
+        log.info("%s", hit[1].describe())
+        return hit
+    out = dense_state(mesh, aligned, quadrature, smoothing, reject_outliers, weights, survey)
+    if out is not None:
+        if len(_STATE_CACHE) >= _STATE_CACHE_SIZE:
+            _STATE_CACHE.pop(next(iter(_STATE_CACHE)))
+        _STATE_CACHE[key] = out
+    return out
+
+
+def cached_fit(label: tuple, mesh: SurfaceMesh, arrays: tuple, compute):
+    """``compute()`` (a tuple of arrays, returned read-only), reused when ``label``, the mesh object and the
+    contents of ``arrays`` come again (digests: a dense cloud's markers are tens of MB; e.g. the fitted positions
+    that the gap noise of each wall form, the efficient weighting and its intervals all re-simulate about)."""
+    key = (label, id(mesh)) + tuple(_digest(a) for a in arrays)
+    hit = _FIT_CACHE.get(key)
+    if hit is not None and hit[0] is mesh:
+        return hit[1]
+    out = tuple(compute())
+    for a in out:
+        a.flags.writeable = False
+    if len(_FIT_CACHE) >= _FIT_CACHE_SIZE:
+        _FIT_CACHE.pop(next(iter(_FIT_CACHE)))
+    _FIT_CACHE[key] = (mesh, out)
+    return out
+
+
 def _reference_radius(mesh: SurfaceMesh):
     """(degree, coefficients (n_basis,)) of the smooth reference radius (``smoothing.smooth_reference_radius``'s
-    fit, its basis chosen by GCV)."""
+    fit, its basis chosen by GCV); reused for the same mesh object (the entry holds it: its ``id`` stays its own)."""
+    hit = _REFERENCE_CACHE.get(id(mesh))
+    if hit is not None and hit[0] is mesh:
+        return hit[1]
     degree = _reference_degree(mesh)
     coef = _coefficients(mesh, degree, np.where(mesh.used, mesh.r, np.nan)[None], None)[0]
-    return tuple(int(v) for v in degree), coef
+    out = tuple(int(v) for v in degree), coef
+    if len(_REFERENCE_CACHE) >= _REFERENCE_CACHE_SIZE:
+        _REFERENCE_CACHE.pop(next(iter(_REFERENCE_CACHE)))
+    _REFERENCE_CACHE[id(mesh)] = (mesh, out)
+    return out
 
 
 def marker_survey(mesh: SurfaceMesh, aligned: np.ndarray, smoothing, reject_outliers: bool, estimate_noise: bool,

@@ -23,11 +23,11 @@ Units SI; shapes in the docstrings.
 
 from __future__ import annotations
 
-from dataclasses import replace
 
 import numpy as np
 
 from .axis import Axis
+from .dense import perturbation_settings
 from .kinematics import align_steps, cylindrical_about, interpolated_state, step_cylindrical
 from .mesh import SurfaceMesh
 from .smoothing import smooth_cylindrical, smooth_reference_radius
@@ -109,8 +109,8 @@ class Reprepare:
         mesh = d.mesh if m is None else m
         with np.errstate(all="ignore"):
             if not self.lean:
-                if d.quadrature is not None:  # a dense cloud: the axis fits start from the data's
-                    s = replace(s, axes_start=d.quadrature.axes)
+                if d.quadrature is not None:  # a dense cloud: on the data's alignment and axes (``dense``)
+                    s = perturbation_settings(s, d.quadrature)
                 return prepare(positions, p, f, thickness=d.thickness, mesh=mesh, settings=s)
             return self._lean(np.asarray(positions, dtype=float), p, f, mesh)
 

@@ -12,7 +12,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from .dense import step_coordinates
+from .dense import cached_fit, step_coordinates
 from .errors import IdentificationError
 from .kinematics import align_steps, step_cylindrical
 from .mesh import SurfaceMesh, to_cylindrical
@@ -45,6 +45,18 @@ def remeasured_mesh(mesh: SurfaceMesh, reference: np.ndarray) -> SurfaceMesh:
 
 
 def fitted_positions(data: VFMData, positions: np.ndarray, reference_step: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """The marker positions as the identification saw them, and their scatter about them (``_fitted_positions``;
+    of a dense cloud reused for the same markers, mesh, axes and smoothing: ``dense.cached_fit``)."""
+    if data.quadrature is not None and data.smoothing is not None:
+        q = data.quadrature
+        return cached_fit(("fitted positions", reference_step, repr(data.smoothing)), data.mesh,
+                          (np.asarray(positions, dtype=float), np.stack([a.origin for a in q.axes]),
+                           np.stack([a.basis for a in q.axes]), q.outliers),
+                          lambda: _fitted_positions(data, positions, reference_step))
+    return _fitted_positions(data, positions, reference_step)
+
+
+def _fitted_positions(data: VFMData, positions: np.ndarray, reference_step: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """The marker positions as the identification saw them, and their scatter about them.
 
     Parameters

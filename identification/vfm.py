@@ -36,7 +36,7 @@ from dataclasses import fields as fields_of
 import numpy as np
 
 from .errors import DegenerateDataError
-from .dense import DenseQuadrature, dense_state, grid_fields, marker_survey, quadrature_grid, wants_dense
+from .dense import DenseQuadrature, cached_state, grid_fields, marker_survey, quadrature_grid, wants_dense
 from ._wall import _external_work, _internal_work_terms, _wall_geometry, end_force
 from .kinematics import align_steps, surface_state
 from .mesh import SurfaceMesh, build_mesh
@@ -356,7 +356,8 @@ def _prepare_dense(x, p, f, e0: float, mesh: SurfaceMesh, s: PrepareSettings) ->
             if len(_STATE_CACHE) >= _STATE_CACHE_SIZE:
                 _STATE_CACHE.pop(next(iter(_STATE_CACHE)))
             _STATE_CACHE[key] = (mesh, survey)
-    dense = dense_state(mesh, aligned, s.quadrature, s.smoothing, s.reject_outliers, s.marker_weights, survey)
+    dense = cached_state(mesh, aligned, s.quadrature, s.smoothing, s.reject_outliers, s.marker_weights, survey,
+                         once=s.dense_reuse is not None and not s.estimate_noise)
     if dense is None:
         return None
     st, quadrature = dense
