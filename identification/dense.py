@@ -46,8 +46,8 @@ log = logging.getLogger(__name__)
 #: Markers of the mesh above which a smoothed cloud is evaluated on the quadrature grid.
 DENSE_POINTS = 3000
 #: Rows (axial) and columns (circumferential) of the quadrature grid's nodes.
-GRID_ROWS = 25
-GRID_COLUMNS = 48
+GRID_ROWS = 13
+GRID_COLUMNS = 24
 
 
 @dataclass(frozen=True)
