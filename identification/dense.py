@@ -28,7 +28,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.linalg import solve_triangular
 
-from .kinematics import QUADRATURE, SurfaceState, triangle_geometry
+from .kinematics import QUADRATURE, SurfaceState, masked_outliers, triangle_geometry
 from .mesh import SurfaceMesh, wrap_angle
 from .outliers import marker_outliers
 from .smoothing import (AUTO_DEGREES, MAX_BASIS_FRACTION, _displacements, _unique_rows, per_component_degrees,
@@ -337,14 +337,7 @@ def _marker_fields(mesh, aligned, smoothing, reject_outliers, weights, survey):
     """The survey's axes, outliers (those set unobserved) and noise, the smoothing degrees and the cylindrical
     coordinates (n_steps, n_markers) of the markers."""
     axes, outliers, noise = survey
-    r, th, z = step_coordinates(aligned, axes)
-    if reject_outliers:
-        if outliers.any():
-            log.warning("markers disagreeing with their neighbours (set unobserved) per step: %s",
-                        outliers.sum(axis=1).tolist())
-            r, th, z = (np.where(outliers, np.nan, a) for a in (r, th, z))
-    else:
-        outliers = np.zeros(r.shape, bool)
+    outliers, (r, th, z) = masked_outliers(outliers, step_coordinates(aligned, axes), reject_outliers)
     degrees = resolve_smoothing(mesh, r, th, z, smoothing, noise, weights)
     return axes, outliers, noise, degrees, (r, th, z)
 

@@ -175,6 +175,18 @@ def cylindrical_about(aligned: np.ndarray, axes) -> tuple[np.ndarray, np.ndarray
     return np.hypot(local[..., 0], local[..., 1]), np.arctan2(local[..., 1], local[..., 0]), local[..., 2]
 
 
+def masked_outliers(outliers: np.ndarray, coords: tuple, reject: bool) -> tuple[np.ndarray, tuple]:
+    """The outliers (n_steps, n_markers) set unobserved (NaN) in the cylindrical coordinates ``coords`` (r, theta,
+    z), each (n_steps, n_markers), when ``reject`` (logged per step); else no outlier and the coordinates as given."""
+    if not reject:
+        return np.zeros(coords[0].shape, bool), coords
+    if outliers.any():
+        log.warning("markers disagreeing with their neighbours (set unobserved) per step: %s",
+                    outliers.sum(axis=1).tolist())
+        coords = tuple(np.where(outliers, np.nan, a) for a in coords)
+    return outliers, coords
+
+
 def surface_state(mesh: SurfaceMesh, aligned: np.ndarray, quadrature: int = 1,
                   smoothing: tuple | str | None = None, reject_outliers: bool = True,
                   weights: np.ndarray | None = None, smooth_reference: bool = False,
@@ -203,13 +215,7 @@ def surface_state(mesh: SurfaceMesh, aligned: np.ndarray, quadrature: int = 1,
         outliers, noise = marker_outliers(mesh, r, th, z)
     else:
         outliers, noise = np.zeros(r.shape, bool), np.full(r.shape[0], np.nan)
-    if reject_outliers:
-        if outliers.any():
-            log.warning("markers disagreeing with their neighbours (set unobserved) per step: %s",
-                        outliers.sum(axis=1).tolist())
-            r, th, z = (np.where(outliers, np.nan, a) for a in (r, th, z))
-    else:
-        outliers = np.zeros(r.shape, bool)
+    outliers, (r, th, z) = masked_outliers(outliers, (r, th, z), reject_outliers)
     smoothing = resolve_smoothing(mesh, r, th, z, smoothing, noise, weights)
     R_ref = mesh.r
     if smoothing is not None:

@@ -22,9 +22,9 @@ from .reference_repeats import reference_marker_sigma
 from .resimulation import basis_size, fitted_positions, marker_noise_level, remeasured_mesh
 from .errors import IdentificationError
 from .fit import IdentificationResult, identify_prepared
-from .models import Model, get_model
+from .models import Model
 from .noise_weights import weighted_flags, in_physical_units, used_positions, gap_noise, weighted_data, weights_from_noise
-from .uncertainty import uncertainty_flags, with_uncertainty
+from .uncertainty import with_given_uncertainty, with_uncertainty
 from .vfm import prepare
 
 __all__ = ["identify", "identify_noise_weighted", "identify_gls", "WEIGHTINGS", "drop_partial_steps", "per_step_rows", "MIN_COVERAGE",
@@ -306,9 +306,4 @@ def _with_gls(result, data, W, positions, settings: EfficientSettings):
         level = float(marker_noise_level(data, residual, basis_size(data.smoothing)))
     unc = gls_uncertainty(result, data, W, marker_noise=level, pressure_noise=settings.pressure_floor,
                           force_noise=settings.force_floor)
-    model = get_model(result.model)
-    poorly = tuple(n for n in model.parameter_names if any(f.startswith(f"{n} is poorly") for f in result.flags))
-    flags = uncertainty_flags(unc, result.parameters, dict(zip(model.parameter_names, model.positive)), poorly,
-                              units=dict(zip(model.parameter_names, model.units)))
-    stderr = {k: (v if np.isfinite(v) else result.stderr[k]) for k, v in unc.stderr.items()}
-    return replace(result, stderr=stderr, flags=tuple(result.flags) + tuple(flags), uncertainty=unc)
+    return with_given_uncertainty(result, unc)

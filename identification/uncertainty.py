@@ -299,7 +299,12 @@ def uncertainty_flags(unc: Uncertainty, parameters: Mapping[str, float], positiv
 def with_uncertainty(result, data: VFMData, positions: np.ndarray, **options):
     """``result`` with bootstrap standard errors (``result.stderr``), the ``Uncertainty`` in
     ``result.uncertainty`` and its flags added; ``options`` go to ``bootstrap``."""
-    unc = bootstrap(data, result, positions, **options)
+    return with_given_uncertainty(result, bootstrap(data, result, positions, **options))
+
+
+def with_given_uncertainty(result, unc: Uncertainty):
+    """``result`` with the standard errors of ``unc`` (where finite), ``unc`` in ``result.uncertainty`` and its
+    flags added."""
     model = get_model(result.model)
     poorly = tuple(n for n in model.parameter_names if any(f.startswith(f"{n} is poorly") for f in result.flags))
     flags = uncertainty_flags(unc, result.parameters, dict(zip(model.parameter_names, model.positive)), poorly,
