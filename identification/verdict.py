@@ -253,6 +253,20 @@ def _law_reasons(result, chosen: Hypothesis, laws: Mapping[str, float], n_stretc
     return doubts, notes
 
 
+def fit_units(result, chosen: Hypothesis) -> tuple[float, str]:
+    """How far the result's gaps are from their noise (1: within it), and what that noise is.
+
+    The efficient fit's whitened gaps (``Uncertainty.model_error_factor`` of the "gls" intervals: sqrt of chi2 per
+    degree of freedom over the gaps' full covariance, floored at 1) where the result has them; else the chosen
+    setting's gaps over their per-gap spread. The per-gap spread ignores that every step's gaps share the
+    reference's error: on data whose reference was captured several times and averaged it put 10 of 40 correct
+    fits beyond 2 noise units (thick tube, one stretch, 0.17 mm), the full covariance none."""
+    unc = result.uncertainty
+    if unc is not None and getattr(unc, "method", "") == "gls" and np.isfinite(unc.model_error_factor):
+        return float(unc.model_error_factor), "generalised least squares over their full covariance"
+    return float(chosen.noise_units), "bootstrap spread of the gaps"
+
+
 def judge(result, chosen: Hypothesis, others, *, stated: dict, laws: Mapping[str, float] | None = None,
           paper_fit=None, forces: Mapping[str, float] | None = None):
     """``result`` (the fit under ``chosen``) with ``verdict``, ``verdict_reasons``, ``parameter_verdicts``,
@@ -265,11 +279,12 @@ def judge(result, chosen: Hypothesis, others, *, stated: dict, laws: Mapping[str
     names = list(result.parameters)
     doubts, notes, per = _settings_reasons(result, chosen, others, stated)
     all_doubt: list[str] = []
-    if chosen.noise_units ** 2 > POOR_FIT:
+    units, spread = fit_units(result, chosen)
+    if units ** 2 > POOR_FIT:
         notes = [f"the settings not given could not be judged: no setting fits within the noise (best "
                  f"{chosen.ends} ends, {chosen.wall} wall)"] if others and not all(stated.values()) else []
-        all_doubt.append(f"poor fit: the virtual-work gaps are {chosen.noise_units:.1f}x their noise (bootstrap "
-                         f"spread of the gaps); the {result.model} law or a setting does not describe these data")
+        all_doubt.append(f"poor fit: the virtual-work gaps are {units:.1f}x their noise ({spread}); the "
+                         f"{result.model} law or a setting does not describe these data")
     for label, chi2 in (forces or {}).items():
         if chi2 < chosen.chi2 - DECIDES:
             all_doubt.append(f"assumption contradicted: the force given fits as {label} "
