@@ -4,7 +4,8 @@ Frames: world frame of the rig (m). The fitted ``Axis`` defines a specimen frame
 the fitted axis, oriented towards the load-cell end; cylindrical coordinates (r, theta, z) are taken
 in that frame. The mesh is a Delaunay triangulation of the *unrolled* reference surface
 (R_mean * theta, z) with markers replicated at theta +/- 2 pi, so that it closes across the angular
-seam; triangles are kept once (centroid angle in [-pi, pi)). Sliver triangles are removed and
+seam (above ``STRIP_MARKERS`` markers only those near the seam or the ends are replicated: the same triangles);
+triangles are kept once (centroid angle in [-pi, pi)). Sliver triangles are removed and
 near-duplicate markers merged away before meshing; the counts are reported in ``SurfaceMesh.dropped``.
 """
 
