@@ -114,14 +114,19 @@ def with_ends(data: VFMData, ends: str) -> VFMData:
         raise ValueError(f"ends must be 'clamped' or 'free'; got {ends!r}")
     if data.strip_force is None:
         raise ValueError("data has no strip_force (prepared by an older identification.prepare)")
-    n_end = data.axial_force + (data.strip_force if ends == "clamped" else 0.0)
+    return with_end_force(data, data.axial_force + (data.strip_force if ends == "clamped" else 0.0), ends=ends)
+
+
+def with_end_force(data: VFMData, end_force: np.ndarray, **changes) -> VFMData:
+    """The same virtual-work data with another force (n_steps,) N across the load-cell end: only the end work,
+    the external work and its scale change (``changes``: further fields of the result, e.g. ``ends``)."""
     k = int(np.argmax(np.abs(data.end_force)))  # end_work = load_end (per field) x end force
     load_end = data.end_work[:, k] / data.end_force[k] if data.end_force[k] != 0 else np.zeros(len(data.scale))
-    end_work = load_end[:, None] * n_end[None]
+    end_work = load_end[:, None] * np.asarray(end_force, dtype=float)[None]
     evw = data.pressure_work + end_work
     scale = np.sqrt(np.mean(evw**2, axis=1))
-    return replace(data, ends=ends, end_force=n_end, end_work=end_work, evw=evw,
-                   scale=np.where(scale > 0, scale, data.scale))
+    return replace(data, end_force=end_force, end_work=end_work, evw=evw, scale=np.where(scale > 0, scale, data.scale),
+                   **changes)
 
 
 def _rms(residuals: np.ndarray) -> float:

@@ -23,7 +23,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from .checks import with_ends
+from .checks import with_end_force, with_ends
 from .errors import IdentificationError
 from .fit import axial_stretches, identify_prepared
 from .noise_weights import gap_noise
@@ -145,13 +145,7 @@ def with_force(data: VFMData, axial_force: np.ndarray) -> VFMData:
     changes)."""
     f = np.asarray(axial_force, dtype=float)
     n_end = f + (data.strip_force if data.ends == "clamped" and data.strip_force is not None else 0.0)
-    k = int(np.argmax(np.abs(data.end_force)))  # end_work = load_end (per field) x end force
-    load_end = data.end_work[:, k] / data.end_force[k] if data.end_force[k] != 0 else np.zeros(len(data.scale))
-    end_work = load_end[:, None] * n_end[None]
-    evw = data.pressure_work + end_work
-    scale = np.sqrt(np.mean(evw**2, axis=1))
-    return replace(data, axial_force=f, end_force=n_end, end_work=end_work, evw=evw,
-                   scale=np.where(scale > 0, scale, data.scale))
+    return with_end_force(data, n_end, axial_force=f)
 
 
 def force_gaps(h: Hypothesis) -> dict[str, float]:
