@@ -19,7 +19,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 __all__ = ["average_reference", "averaged_marker_sigma", "check_repeats", "identify_repeated", "input_steps",
-           "reference_marker_sigma"]
+           "kept_steps", "reference_marker_sigma"]
 
 log = logging.getLogger(__name__)
 
@@ -68,6 +68,12 @@ def average_reference(positions: np.ndarray, n_repeats: int) -> tuple[np.ndarray
     return np.concatenate([mean[None], x[n:]]), n_seen.astype(int)
 
 
+def kept_steps(n_steps: int, n_repeats: int) -> np.ndarray:
+    """Indices (n_steps - n_repeats + 1,) of the input steps the averaged data keep: the first capture (whose
+    readings stand for the averaged reference) and the loaded steps."""
+    return np.r_[0, np.arange(int(n_repeats), int(n_steps))]
+
+
 def averaged_marker_sigma(marker_sigma: np.ndarray, n_repeats: int) -> np.ndarray:
     """Per-marker noise (m) of the averaged steps: shape (n_steps, n_markers) -> (n_steps - n_repeats + 1, n_markers).
 
@@ -113,7 +119,7 @@ def identify_repeated(identify: Callable, positions, pressure, axial_force, n_re
     x = np.asarray(positions, dtype=float)
     n = check_repeats(n_repeats, x.shape[0]) if x.ndim == 3 else n_repeats
     averaged, n_seen = average_reference(x, n)
-    keep = np.r_[0, np.arange(n, x.shape[0])]
+    keep = kept_steps(x.shape[0], n)
     p = np.asarray(pressure, dtype=float).reshape(-1)[keep]
     f = np.asarray(axial_force, dtype=float).reshape(-1)[keep]
     unc = dict(uncertainty_options) if uncertainty_options is not None else None

@@ -56,12 +56,12 @@ def averaged_inputs(data: dict) -> dict:
     averaged into one step (``identification.reference_repeats``), for the identifications that take arrays
     without ``reference_repeats`` (regional): positions, pressure, force, rows and uncertainty shortened alike;
     ``data`` itself when there is one capture."""
-    from identification.reference_repeats import average_reference, averaged_marker_sigma
+    from identification.reference_repeats import average_reference, averaged_marker_sigma, kept_steps
 
     n = int(data.get("reference_repeats", 1))
     if n <= 1:
         return data
-    keep = np.r_[0, np.arange(n, len(data["rows"]))]
+    keep = kept_steps(len(data["rows"]), n)
     out = dict(data, positions=average_reference(data["positions"], n)[0], pressure=np.asarray(data["pressure"])[keep],
                force=np.asarray(data["force"])[keep], rows=np.asarray(data["rows"])[keep], reference_repeats=1)
     if data.get("uncertainty") is not None:
