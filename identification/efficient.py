@@ -27,7 +27,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 from dataclasses import dataclass
-from typing import Callable, Mapping
+from typing import Mapping
 
 import numpy as np
 
@@ -76,10 +76,6 @@ class EfficientSettings:
         Generalised least-squares fits, each with the covariance at the previous estimate (default 2).
     step : float
         Finite-difference step of the perturbed fields (m) and of the readings (relative).
-    map_sets : callable, optional
-        ``map_sets(fn, jobs)`` computes the covariance's perturbed preparations (``perturbed_sets``): the builtin
-        ``map`` (default), or one over several processes with the same results (``vfmlab.parallel.fork_map``;
-        measured slower than serial on a loaded 2-core machine, docs/validation/efficiency.md).
     """
 
     pressure_relative: float = 1e-3
@@ -93,7 +89,6 @@ class EfficientSettings:
     seed: int = 0
     n_iterations: int = 2
     step: float = 1e-6
-    map_sets: Callable | None = None
 
     def __post_init__(self) -> None:
         for name in ("pressure_relative", "pressure_floor", "force_relative", "force_floor"):
@@ -131,7 +126,7 @@ class GapCovariance:
 
     Built once: the readings' part in closed form, the markers' from the perturbed preparations (per non-rigid
     smoothing basis function, the loaded steps moved, all functions prepared together, and the reference moved, one
-    ``prepare`` each; ``perturbed_sets``, ``gap_jacobian``, computed by ``settings.map_sets``);
+    ``prepare`` each; ``perturbed_sets``, ``gap_jacobian``, computed in this process);
     ``at(params)`` then evaluates the covariance at any parameters with a few virtual-work evaluations.
     """
 
@@ -174,7 +169,7 @@ class GapCovariance:
             moves += [settings.step * B[:, i, None] * e[j, 1:] for i in np.flatnonzero(keep)]
             self.modes.append((cov[:, keep][:, :, keep] * loaded[:, None, None], True, int(keep.sum())))
         if settings.reference_replicates:  # the reference configuration: its error is shared by all steps
-            self.loaded = perturbed_works(prep, aligned, moves, [], settings.map_sets or map)[0]
+            self.loaded = perturbed_works(prep, aligned, moves, [])[0]
             rng = np.random.default_rng(settings.seed)
             for _ in range(int(settings.reference_replicates)):
                 ref = aligned.copy()
@@ -187,7 +182,7 @@ class GapCovariance:
             cov, B, keep = _coefficient_covariance(data.mesh, degree, ok, sigma[:1], j)
             columns += [settings.step * B[:, i, None] * e[j, 0] for i in np.flatnonzero(keep)]
             self.modes.append((cov[:, keep][:, :, keep], False, int(keep.sum())))
-        self.loaded, self.reference = perturbed_works(prep, aligned, moves, columns, settings.map_sets or map)
+        self.loaded, self.reference = perturbed_works(prep, aligned, moves, columns)
 
     def _reading_gaps(self, prep: Reprepare, aligned, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The gaps' derivatives with respect to the pressure and force readings times their standard deviations,

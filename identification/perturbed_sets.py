@@ -20,7 +20,6 @@ Units SI; shapes in the docstrings.
 from __future__ import annotations
 
 import dataclasses
-from typing import Callable
 
 import numpy as np
 
@@ -42,7 +41,7 @@ Works = tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
 class PerturbedSets:
-    """A job's computation (picklable by reference in a forked worker): ``("loaded", moves)`` with moves
+    """A job's computation: ``("loaded", moves)`` with moves
     (n_sets, n_steps - 1, n_markers, 3) m added to the loaded steps, or ``("reference", moves)`` with moves
     (n_sets, n_markers, 3) m added to the reference step (on its re-measured mesh) (moves the lean preparation does
     not stack: a tuple of n_sets arrays). Returns the ``Works`` of the moved steps of every set, set-major:
@@ -51,7 +50,7 @@ class PerturbedSets:
     def __init__(self, prep: Reprepare, aligned: np.ndarray):
         self.prep, self.aligned = prep, aligned
 
-    def __call__(self, job: tuple[str, np.ndarray]) -> Works:
+    def __call__(self, job: tuple[str, np.ndarray | tuple[np.ndarray, ...]]) -> Works:
         kind, moves = job
         if kind == "loaded" and self.prep.lean:
             d = self.prep.stacked(self.aligned[1:][None] + moves)
@@ -75,13 +74,13 @@ def _concatenate(sets: list[Works]) -> Works:
     return np.concatenate(c), np.concatenate(wd, axis=1), np.concatenate(evw, axis=1)
 
 
-def perturbed_works(prep: Reprepare, aligned: np.ndarray, loaded: list[np.ndarray], reference: list[np.ndarray],
-                    map_sets: Callable = map) -> tuple[list[VFMData], list[VFMData]]:
+def perturbed_works(prep: Reprepare, aligned: np.ndarray, loaded: list[np.ndarray],
+                    reference: list[np.ndarray]) -> tuple[list[VFMData], list[VFMData]]:
     """The data sets of the loaded steps moved by each of ``loaded`` ((n_steps - 1, n_markers, 3) m each) and of
     the reference moved by each of ``reference`` ((n_markers, 3) m each), one ``prep.data``-like data set per
     job, whose steps are the moved steps of its sets, set-major (n_sets (n_steps - 1) loaded, n_sets n_steps
     reference steps; only ``c``, ``work_density`` and ``evw`` are theirs: what the gaps read), in the order of the
-    moves. ``map_sets(fn, jobs)``: how the jobs are computed (the builtin map, or one over several processes)."""
+    moves."""
     per = max(1, STACKED_STEPS // max(len(aligned) - 1, 1))
     # only the lean preparation takes a job's sets as one array; the others prepare them one by one (not stacked:
     # a dense cloud's copy is ~0.35 s at 50,000 points)
@@ -91,5 +90,5 @@ def perturbed_works(prep: Reprepare, aligned: np.ndarray, loaded: list[np.ndarra
     jobs += [("reference", together(reference[i:i + REFERENCE_SETS]))
              for i in range(0, len(reference), REFERENCE_SETS)]
     works = [dataclasses.replace(prep.data, c=c, work_density=wd, evw=evw)
-             for c, wd, evw in map_sets(PerturbedSets(prep, aligned), jobs)]
+             for c, wd, evw in map(PerturbedSets(prep, aligned), jobs)]
     return works[:n_loaded_jobs], works[n_loaded_jobs:]

@@ -128,21 +128,3 @@ def test_stacked_loaded_steps_are_each_sets_own_preparation(free):
             x, y = getattr(stacked, name), getattr(own, name)
             x, y = np.moveaxis(x, steps_axis, 0)[part], np.moveaxis(y, steps_axis, 0)[1:]
             assert np.max(np.abs(x - y)) <= 1e-10 * np.max(np.abs(y)), name
-
-
-def test_the_gap_covariance_is_the_same_through_an_injected_map(free):
-    from identification.efficient import EfficientSettings, GapCovariance
-    from vfmlab.parallel import fork_map
-
-    data, aligned, _ = free
-    calls = []
-
-    def forked(fn, jobs):
-        calls.append(len(jobs))
-        return fork_map(fn, jobs, workers=2)
-
-    serial = GapCovariance(data, aligned, EfficientSettings())
-    spread = GapCovariance(data, aligned, EfficientSettings(map_sets=forked))
-    assert calls and calls[0] >= 2  # loaded and reference jobs
-    params = PAPER_PARAMETERS["fung"]
-    np.testing.assert_array_equal(spread.at("fung", params), serial.at("fung", params))
