@@ -134,7 +134,8 @@ def identify(
     if first.data is None or optimizer != "lsq":
         return final(walls[0], ends_list[0]) if not cheap else first
     used = used_positions(first, positions)
-    hypotheses = fit_hypotheses(first, used, walls, ends_list, prepare_options=options)
+    hypotheses = fit_hypotheses(first, used, walls, ends_list, prepare_options=options,
+                                efficient=weighting == "efficient")
     chosen = _choose(hypotheses, stated["wall"])
     if cheap and chosen.fit is first:
         result = first

@@ -2,9 +2,10 @@
 
 An identification rests on settings the markers alone do not give: the end conditions (clamped or free), the
 wall form (thick or membrane) and the law. Where the user does not state them, each is fitted and judged by
-the virtual-work gaps *in noise units*: every normalised gap divided by its spread under re-simulated marker
-noise (``noise_weights.gap_noise``: the bootstrap spread of the gaps, floored at ``NOISE_FLOOR`` for the
-discretisation), squared and summed (``chi2``). Two settings whose ``chi2`` differ by more than ``DECIDES``
+the virtual-work gaps *in noise units*: the gaps whitened by their full first-order covariance (marker noise,
+the reference's error shared by every step, the readings; floored at ``NOISE_FLOOR`` for the discretisation:
+``setting_noise``), each setting refitted by generalised least squares, the whitened gaps squared and summed
+(``chi2``). Two settings whose ``chi2`` differ by more than ``DECIDES``
 are told apart by the data; otherwise the data cannot tell, and a parameter whose estimates under them differ
 by more than ``AGREE`` of its 95 % half-width is doubtful, with the option to pass. The same sum over the
 degrees of freedom says whether the model fits within the noise (``POOR_FIT``).
@@ -25,17 +26,17 @@ import numpy as np
 
 from .checks import with_end_force, with_ends
 from .errors import IdentificationError
+from .efficient import EfficientSettings
 from .fit import axial_stretches, identify_prepared
-from .noise_weights import gap_noise
+from .optimize import with_reference_sigma
+from .setting_noise import NOISE_FLOOR, SettingNoise, setting_noise, whitened_fit
 from .vfm import VFMData, prepare
 
 __all__ = ["AGREE", "DECIDES", "LAWS", "NOISE_FLOOR", "POOR_FIT", "Hypothesis", "axial_stretches", "fit_hypotheses",
-           "force_gaps", "gap_spread", "judge", "law_gaps", "noise_units", "with_force"]
+           "force_gaps", "judge", "law_gaps", "with_force"]
 
 log = logging.getLogger(__name__)
 
-#: Smallest gap spread (fraction of the field's external-work scale): the discretisation of the balance.
-NOISE_FLOOR = 1e-3
 #: Difference of the summed squared gaps in noise units above which the data tell two settings apart.
 DECIDES = 9.0
 #: Mean squared gap in noise units (per degree of freedom) above which the model does not fit within the noise.
@@ -49,14 +50,17 @@ LAWS = ("fung", "delfino", "hgo")
 
 @dataclass(frozen=True)
 class Hypothesis:
-    """One setting of the data: ``wall``, ``ends``, the data prepared so, the fit, the gap spread ``sd``
-    (n_fields, n_steps) and ``chi2`` (summed squared gaps in noise units)."""
+    """One setting of the data: ``wall``, ``ends``, the data prepared so, the fit (the paper's, or the generalised
+    least squares' for the efficient weighting), the wall form's gap noise ``noise`` (``SettingNoise``), the
+    whitening ``W`` (n_res, n_res) at the fit and ``chi2`` (the summed squared whitened gaps of the generalised
+    least-squares fit: the smallest this setting reaches)."""
 
     wall: str
     ends: str
     data: VFMData
     fit: Any  # IdentificationResult
-    sd: np.ndarray
+    noise: SettingNoise
+    W: np.ndarray
     chi2: float
 
     @property
@@ -69,24 +73,6 @@ class Hypothesis:
         return float(np.sqrt(self.chi2 / self.dof))
 
 
-def gap_spread(data: VFMData, positions: np.ndarray, parameters: Mapping[str, float], model, *,
-               n_replicates: int = 8, prepare_options: Mapping | None = None) -> np.ndarray:
-    """Spread of the normalised gaps under re-simulated marker noise, shape (n_fields, n_steps), floored at
-    ``NOISE_FLOOR``; the floor alone when the replicates cannot be prepared."""
-    try:
-        sd = gap_noise(data, positions, parameters, model, n_replicates=n_replicates, prepare_options=prepare_options)
-    except (IdentificationError, ValueError, np.linalg.LinAlgError) as exc:
-        log.info("gap spread not measured (%s): the floor %g is used", exc, NOISE_FLOOR)
-        sd = np.zeros(data.evw.shape)
-    return np.maximum(np.where(np.isfinite(sd), sd, 0.0), NOISE_FLOOR)
-
-
-def noise_units(residuals: np.ndarray, sd: np.ndarray) -> float:
-    """Sum over the loaded steps of (gap / spread)^2; residuals and sd of shape (n_fields, n_steps)."""
-    z = np.asarray(residuals)[:, 1:] / sd[:, 1:]
-    return float(np.sum(np.where(np.isfinite(z), z, 1e6) ** 2))
-
-
 def _best_fit(data: VFMData, model, initial):
     fits = [identify_prepared(data, model, initial=initial)]
     try:
@@ -96,16 +82,32 @@ def _best_fit(data: VFMData, model, initial):
     return min(fits, key=lambda f: f.cost if np.isfinite(f.cost) else np.inf)
 
 
-def fit_hypotheses(first, positions: np.ndarray, walls, ends_list, *, prepare_options: Mapping | None = None):
-    """Fit ``first``'s model under every (wall, ends) of ``walls`` x ``ends_list``.
+def _judged(wall: str, ends: str, data: VFMData, paper, model, noise: SettingNoise, efficient: bool) -> Hypothesis:
+    """The hypothesis of ``data`` with its paper's fit ``paper``: refitted by generalised least squares."""
+    try:
+        gls, W, chi2 = whitened_fit(data, model, noise, paper.parameters)
+    except (IdentificationError, ValueError, np.linalg.LinAlgError) as exc:
+        log.info("%s wall, %s ends not refitted with the gaps' covariance (%s)", wall, ends, exc)
+        W = noise.whitening(model, paper.parameters, data.scale)
+        gls, chi2 = paper, float(np.sum(np.nan_to_num((W @ paper.residuals.ravel()), nan=1e6) ** 2))
+    return Hypothesis(wall, ends, data, gls if efficient else paper, noise, W, chi2)
+
+
+def fit_hypotheses(first, positions: np.ndarray, walls, ends_list, *, prepare_options: Mapping | None = None,
+                   efficient: bool = False):
+    """Fit ``first``'s model under every (wall, ends) of ``walls`` x ``ends_list`` and judge each over the gaps'
+    full covariance (``setting_noise``).
 
     ``first`` is an ``IdentificationResult`` of ``identify`` under (walls[0], ends_list[0]) with its data;
-    ``positions`` (n_steps, n_markers, 3) are the steps it used. Returns a list of :class:`Hypothesis`.
+    ``positions`` (n_steps, n_markers, 3) are the steps it used. ``efficient``: each hypothesis's ``fit`` is its
+    generalised least-squares fit (what ``weighting="efficient"`` reports), else the paper's.
+    Returns a list of :class:`Hypothesis`.
     """
     data0, model = first.data, first.model
-    options = {k: v for k, v in (prepare_options or {}).items()
+    given = dict(prepare_options or {})
+    options = {k: v for k, v in given.items()
                if k not in ("mesh", "smoothing", "wall", "ends", "reject_outliers", "marker_weights",
-                            "reference_captures")}
+                            "reference_captures", "efficient")}
     out = []
     for wall in walls:
         if wall == data0.wall:
@@ -117,25 +119,44 @@ def fit_hypotheses(first, positions: np.ndarray, walls, ends_list, *, prepare_op
             except (IdentificationError, ValueError) as exc:
                 log.info("wall form %s not tried: %s", wall, exc)
                 continue
-        sd = None
+        noise = None
         for ends in ends_list:
             d = dw if ends == dw.ends else with_ends(dw, ends)
             fit = first if d is data0 else _best_fit(d, model, first.parameters)
-            if sd is None:  # one spread per wall form (the ends change only the end force)
-                sd = gap_spread(d, positions, fit.parameters, model, prepare_options=options)
-            out.append(Hypothesis(wall, ends, d, fit, sd, noise_units(fit.residuals, sd)))
+            if noise is None:  # one covariance per wall form (the ends change only the end force)
+                noise = setting_noise(d, positions, settings=_settings(given, d, positions),
+                                      prepare_options={k: v for k, v in given.items() if k not in ("wall", "ends")})
+            out.append(_judged(wall, ends, d, fit, model, noise, efficient))
     return out
 
 
+def _settings(given: Mapping, data: VFMData, positions: np.ndarray) -> EfficientSettings:
+    """The efficient weighting's settings as ``identify`` would take them (the reference's captures counted)."""
+    settings = given.get("efficient") or EfficientSettings()
+    captures = given.get("reference_captures")
+    if captures is not None and data.smoothing is not None:
+        settings = with_reference_sigma(settings, data, positions, captures)
+    return settings
+
+
+def _chi2(h: Hypothesis, data: VFMData, model, initial) -> float:
+    """The smallest summed squared whitened gaps of ``model`` on ``data`` (``h``'s noise, rescaled to ``data``'s
+    external-work scale), from ``initial`` or the model's starts."""
+    W = h.noise.whitening(h.fit.model, h.fit.parameters, data.scale)
+    fit = identify_prepared(data, model, initial=initial, whitening=W)
+    return float(np.sum(np.where(np.isfinite(fit.residuals), fit.residuals, 1e6) ** 2))
+
+
 def law_gaps(h: Hypothesis, laws=LAWS) -> dict[str, float]:
-    """``chi2`` of each other law of ``laws`` fitted to the chosen hypothesis's data (one fit each)."""
+    """``chi2`` of each other law of ``laws`` fitted to the chosen hypothesis's data (one generalised
+    least-squares fit each, with the chosen fit's covariance)."""
     out = {}
     for law in laws:
         if law == h.fit.model:
             continue
         try:
-            out[law] = noise_units(_best_fit(h.data, law, None).residuals, h.sd)
-        except (IdentificationError, ValueError) as exc:
+            out[law] = _chi2(h, h.data, law, None)
+        except (IdentificationError, ValueError, np.linalg.LinAlgError) as exc:
             log.debug("law %s not compared: %s", law, exc)
     return out
 
@@ -162,11 +183,8 @@ def force_gaps(h: Hypothesis) -> dict[str, float]:
     for label, sign in (("a total reading (wall force = reading + p pi r_i^2)", 1.0),
                         ("the wall force minus the pressure on the lumen (a wall reading corrected as total)", -1.0)):
         try:
-            d = with_force(data, data.axial_force + sign * lumen)
-            fit = _best_fit(d, h.fit.model, h.fit.parameters)
-            # the gaps against the same external-work scale as the chosen hypothesis's
-            out[label] = noise_units(fit.residuals * (d.scale / data.scale)[:, None], h.sd)
-        except (IdentificationError, ValueError) as exc:
+            out[label] = _chi2(h, with_force(data, data.axial_force + sign * lumen), h.fit.model, h.fit.parameters)
+        except (IdentificationError, ValueError, np.linalg.LinAlgError) as exc:
             log.debug("force reading %s not tried: %s", label, exc)
     return out
 
@@ -252,13 +270,14 @@ def fit_units(result, chosen: Hypothesis) -> tuple[float, str]:
 
     The efficient fit's whitened gaps (``Uncertainty.model_error_factor`` of the "gls" intervals: sqrt of chi2 per
     degree of freedom over the gaps' full covariance, floored at 1) where the result has them; else the chosen
-    setting's gaps over their per-gap spread. The per-gap spread ignores that every step's gaps share the
+    setting's (``Hypothesis.noise_units``: the same covariance, floored for the discretisation). A per-gap spread
+    ignores that every step's gaps share the
     reference's error: on data whose reference was captured several times and averaged it put 10 of 40 correct
     fits beyond 2 noise units (thick tube, one stretch, 0.17 mm), the full covariance none."""
     unc = result.uncertainty
     if unc is not None and getattr(unc, "method", "") == "gls" and np.isfinite(unc.model_error_factor):
         return float(unc.model_error_factor), "generalised least squares over their full covariance"
-    return float(chosen.noise_units), "bootstrap spread of the gaps"
+    return float(chosen.noise_units), "their full covariance, floored for the discretisation"
 
 
 def judge(result, chosen: Hypothesis, others, *, stated: dict, laws: Mapping[str, float] | None = None,
