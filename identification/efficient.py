@@ -24,6 +24,7 @@ Units SI; gaps in the optimiser's normalised units (divided by ``VFMData.scale``
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import logging
 from dataclasses import dataclass
@@ -32,6 +33,7 @@ from typing import Mapping
 import numpy as np
 
 from .dense import DENSE_POINTS
+from .checks import with_ends
 from .errors import IdentificationError
 from .fit import identify_prepared
 from .gap_jacobian import Reprepare, reading_sensitivities, rigid_columns
@@ -188,12 +190,37 @@ class GapCovariance:
         """The gaps' derivatives with respect to the pressure and force readings times their standard deviations,
         (n_fields, n_steps) each, in closed form (``gap_jacobian.reading_sensitivities``)."""
         s = prep.s
-        load_end = (s.fields if s.fields is not None else default_fields(self.data.mesh, self.data.wall)).load_end
+        self.load_end = (s.fields if s.fields is not None else default_fields(self.data.mesh, self.data.wall)).load_end
         zero = p == 0
-        unit = prep(aligned, np.where(zero, 1.0, p)) if zero[1:].any() else None
-        d_pressure, d_force = reading_sensitivities(self.base, load_end, unit)
+        self.unit = prep(aligned, np.where(zero, 1.0, p)) if zero[1:].any() else None
+        return self._scaled_readings()
+
+    def _scaled_readings(self) -> tuple[np.ndarray, np.ndarray]:
+        d_pressure, d_force = reading_sensitivities(self.base, self.load_end, self.unit)
         scale = self.data.scale[:, None]
         return -d_pressure / scale * self.sp, -d_force / scale * self.sf
+
+    def for_ends(self, data: VFMData) -> "GapCovariance":
+        """The covariance of ``data``: this one's data with the other end condition (``checks.with_ends``), from
+        the same moved sets (the end condition changes only the force across the load end, by the clamped ends'
+        strip force, which every moved set carries: no re-preparation)."""
+        if data.ends == self.data.ends:
+            return self
+        out = copy.copy(self)
+        sign = 1.0 if data.ends == "clamped" else -1.0  # clamped: end force = reading + strip force
+
+        def moved(d: VFMData) -> VFMData:
+            strip = np.zeros(d.evw.shape[1]) if d.strip_force is None else d.strip_force
+            return dataclasses.replace(d, evw=d.evw + sign * np.asarray(self.load_end)[:, None] * strip[None],
+                                       ends=data.ends)
+
+        out.data = data
+        out.base = data if self.base is self.data else with_ends(self.base, data.ends)
+        out.unit = None if self.unit is None else with_ends(self.unit, data.ends)
+        out.loaded, out.reference = [moved(d) for d in self.loaded], [moved(d) for d in self.reference]
+        out.reference_sets = [with_ends(d, data.ends) for d in self.reference_sets]
+        out.readings = out._scaled_readings()
+        return out
 
     def _marker_sigma(self, positions) -> np.ndarray:
         """Per-coordinate marker noise (m), shape (n_steps, n_markers)."""
@@ -277,13 +304,15 @@ def whitening_matrix(cov: np.ndarray, floor: float = 1e-10) -> np.ndarray:
 
 
 def identify_efficient(first, positions, model, settings: EfficientSettings | None = None,
-                       prepare_options: Mapping | None = None):
+                       prepare_options: Mapping | None = None, covariance: GapCovariance | None = None):
     """Generalised least squares from the paper's fit ``first`` (an ``IdentificationResult`` of ``identify`` on
     ``positions``, shape (n_steps, n_markers, 3), the steps it used): ``settings.n_iterations`` fits, each with the
-    gaps' covariance at the previous estimate. Returns (result with whitened residuals, the last whitening)."""
+    gaps' covariance at the previous estimate. ``covariance``: the ``GapCovariance`` of these data and settings
+    when already built (the verdict's, ``setting_noise``). Returns (result with whitened residuals, the last
+    whitening)."""
     settings = settings or EfficientSettings()
     data = first.data
-    cov = GapCovariance(data, positions, settings, prepare_options)
+    cov = covariance if covariance is not None else GapCovariance(data, positions, settings, prepare_options)
     params, result, W = dict(first.parameters), None, None
     for _ in range(int(settings.n_iterations)):
         sigma = cov.at(model, params)

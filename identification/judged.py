@@ -18,6 +18,7 @@ from .defaults import DEFAULTS, PREFERRED_WALL, uncertainty_for
 from .models import Model
 from .noise_weights import used_positions
 from .optimize import identify as identify_one
+from .optimize import identify_gls
 from .verdict import Hypothesis, fit_hypotheses, force_gaps, judge, law_gaps
 
 __all__ = ["identify"]
@@ -87,8 +88,8 @@ def identify(
         ``load_noise_fraction`` unless ``uncertainty_options`` says otherwise. The defaults: the efficient
         weighting (generalised least squares) with its own covariance's 95 % intervals ("auto" -> "gls");
         ``optimizer="nelder-mead"`` is the paper's method and takes the paper's cost (and "auto" the bootstrap).
-        The settings not stated are decided on the paper's (cheap) fits; the efficient fit is made once, under
-        the setting chosen.
+        The settings not stated are decided over the gaps' full covariance (``setting_noise``); the efficient
+        fit under the setting chosen reuses its covariance.
     smoothing : "auto" (default), None or (axial degree, harmonics)
     judged : bool
         False: only the fit under the stated setting (``ends`` and ``wall`` must be given), no verdict.
@@ -120,7 +121,12 @@ def identify(
                    else uncertainty_options)  # "gls" takes the bootstrap's where the data are unsmoothed
     common = dict(thickness=thickness, model=model, optimizer=optimizer, smoothing=smoothing, **options)
 
-    def final(w: str, e: str):
+    def final(w: str, e: str, covariance=None):
+        if covariance is not None and weighting == "efficient" and optimizer == "lsq":  # the verdict's covariance
+            given = {k: v for k, v in common.items() if k not in ("optimizer", "efficient")}
+            return identify_gls(positions, pressure, axial_force, wall=w, ends=e, uncertainty=uncertainty,
+                                uncertainty_options=unc_options, covariance=covariance,
+                                settings=common.get("efficient"), **given)
         return identify_one(positions, pressure, axial_force, wall=w, ends=e, uncertainty=uncertainty,
                             uncertainty_options=unc_options, weighting=weighting, **common)
 
@@ -140,7 +146,7 @@ def identify(
     if cheap and chosen.fit is first:
         result = first
     else:
-        result = final(chosen.wall, chosen.ends)
+        result = final(chosen.wall, chosen.ends, chosen.noise.covariance)
     others = [h for h in hypotheses if h is not chosen]
     laws = law_gaps(chosen)
     paper = chosen.fit if weighting == "noise" else None

@@ -247,7 +247,7 @@ def with_reference_sigma(settings: EfficientSettings, data, positions, reference
 def identify_gls(positions, pressure, axial_force, *, thickness: float, model="fung",
                  uncertainty: str = "gauss-newton", uncertainty_options: Mapping | None = None,
                  settings: EfficientSettings | None = None, reference_captures: np.ndarray | None = None,
-                 **prepare_options):
+                 covariance=None, **prepare_options):
     """``identify`` with ``weighting="efficient"``: the paper's fit, then generalised least squares over the full
     covariance of the gaps (``efficient.identify_efficient``). Returns an ``IdentificationResult`` whose ``data``,
     ``ivw``, ``evw`` and ``residuals`` are the paper's (unweighted), like ``identify_noise_weighted``.
@@ -255,7 +255,8 @@ def identify_gls(positions, pressure, axial_force, *, thickness: float, model="f
     ``uncertainty``: "gauss-newton" (the generalised least squares' ``stderr``, no interval), "gls" (``stderr``
     and 95 % intervals from its covariance, ``efficient_uncertainty``) or "bootstrap" (re-simulated
     measurements, each fitted with the same whitening). Exact-looking data (no smoothing: the paper's fit is
-    kept) get the bootstrap for "gls"."""
+    kept) get the bootstrap for "gls". ``covariance``: the gaps' ``efficient.GapCovariance`` of these data and
+    settings when already built (the verdict's); not used with ``settings.refine_reference``."""
     settings = settings or EfficientSettings()
     first = identify(positions, pressure, axial_force, thickness=thickness, model=model, **prepare_options)
     options = {k: v for k, v in prepare_options.items() if k not in ("n_starts",)}
@@ -268,7 +269,8 @@ def identify_gls(positions, pressure, axial_force, *, thickness: float, model="f
                                  **given), steps=first.steps, flags=first.flags)
     if reference_captures is not None and first.data.smoothing is not None:
         settings = with_reference_sigma(settings, first.data, x, reference_captures)
-    result, W = identify_efficient(first, x, model, settings, options)
+    result, W = identify_efficient(first, x, model, settings, options,
+                                   covariance=None if settings.refine_reference else covariance)
     result = dataclasses.replace(result, flags=_identifiability_of(first, weighted_flags(result, first, first.data,
                                                                                           model)))
     boot = {k: v for k, v in options.items() if k not in ("mesh", "smoothing", "reject_outliers", "marker_weights",

@@ -36,8 +36,9 @@ STACKED_STEPS = 96
 #: Moved references prepared by one job.
 REFERENCE_SETS = 8
 
-#: What a job returns: c (n, n_points, 3), work_density (n_fields, n, n_points, 3), evw (n_fields, n), n steps.
-Works = tuple[np.ndarray, np.ndarray, np.ndarray]
+#: What a job returns: c (n, n_points, 3), work_density (n_fields, n, n_points, 3), evw (n_fields, n) and the
+#: clamped ends' strip force (n,) N (``VFMData.strip_force``: the other end condition's external work), n steps.
+Works = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 
 class PerturbedSets:
@@ -54,24 +55,28 @@ class PerturbedSets:
         kind, moves = job
         if kind == "loaded" and self.prep.lean:
             d = self.prep.stacked(self.aligned[1:][None] + moves)
-            return d.c[1:], d.work_density[:, 1:], d.evw[:, 1:]
+            return d.c[1:], d.work_density[:, 1:], d.evw[:, 1:], _strip(d)[1:]
         sets = []
         for move in moves:
             pos = self.aligned.copy()
             if kind == "loaded":
                 pos[1:] += move
                 d = self.prep(pos)
-                sets.append((d.c[1:], d.work_density[:, 1:], d.evw[:, 1:]))
+                sets.append((d.c[1:], d.work_density[:, 1:], d.evw[:, 1:], _strip(d)[1:]))
             else:
                 pos[0] += move
                 d = self.prep(pos, m=remeasured_mesh(self.prep.data.mesh, pos[0]))
-                sets.append((d.c, d.work_density, d.evw))
+                sets.append((d.c, d.work_density, d.evw, _strip(d)))
         return _concatenate(sets)
 
 
+def _strip(d: VFMData) -> np.ndarray:
+    return np.zeros(d.evw.shape[1]) if d.strip_force is None else d.strip_force
+
+
 def _concatenate(sets: list[Works]) -> Works:
-    c, wd, evw = zip(*sets)
-    return np.concatenate(c), np.concatenate(wd, axis=1), np.concatenate(evw, axis=1)
+    c, wd, evw, strip = zip(*sets)
+    return np.concatenate(c), np.concatenate(wd, axis=1), np.concatenate(evw, axis=1), np.concatenate(strip)
 
 
 def perturbed_works(prep: Reprepare, aligned: np.ndarray, loaded: list[np.ndarray],
@@ -79,8 +84,8 @@ def perturbed_works(prep: Reprepare, aligned: np.ndarray, loaded: list[np.ndarra
     """The data sets of the loaded steps moved by each of ``loaded`` ((n_steps - 1, n_markers, 3) m each) and of
     the reference moved by each of ``reference`` ((n_markers, 3) m each), one ``prep.data``-like data set per
     job, whose steps are the moved steps of its sets, set-major (n_sets (n_steps - 1) loaded, n_sets n_steps
-    reference steps; only ``c``, ``work_density`` and ``evw`` are theirs: what the gaps read), in the order of the
-    moves."""
+    reference steps; only ``c``, ``work_density``, ``evw`` and ``strip_force`` are theirs: what the gaps read), in
+    the order of the moves."""
     per = max(1, STACKED_STEPS // max(len(aligned) - 1, 1))
     # only the lean preparation takes a job's sets as one array; the others prepare them one by one (not stacked:
     # a dense cloud's copy is ~0.35 s at 50,000 points)
@@ -89,6 +94,6 @@ def perturbed_works(prep: Reprepare, aligned: np.ndarray, loaded: list[np.ndarra
     n_loaded_jobs = len(jobs)
     jobs += [("reference", together(reference[i:i + REFERENCE_SETS]))
              for i in range(0, len(reference), REFERENCE_SETS)]
-    works = [dataclasses.replace(prep.data, c=c, work_density=wd, evw=evw)
-             for c, wd, evw in map(PerturbedSets(prep, aligned), jobs)]
+    works = [dataclasses.replace(prep.data, c=c, work_density=wd, evw=evw, strip_force=strip)
+             for c, wd, evw, strip in map(PerturbedSets(prep, aligned), jobs)]
     return works[:n_loaded_jobs], works[n_loaded_jobs:]

@@ -8,7 +8,8 @@ small differences between settings decisive: on a membrane-law tube, one axial s
 were judged "thick wall" with confidence and had a trusted alpha11 ~27 % off (docs/validation/trust.md).
 
 Here the gaps are judged over their full first-order covariance (``efficient.GapCovariance``, built once per
-wall form: the ends change only the end force), floored at ``NOISE_FLOOR`` of the external-work scale per gap
+wall form; the other end condition's from the same moved sets, ``GapCovariance.for_ends``: the end condition
+changes the covariance a lot, through the clamped ends' strip force, measured from the end markers), floored at ``NOISE_FLOOR`` of the external-work scale per gap
 (the discretisation of the balance), and each setting is refitted by generalised least squares with that
 covariance's whitening before its chi-square is read: the smallest whitened sum each setting can reach.
 Pure functions over arrays.
@@ -61,10 +62,14 @@ class SettingNoise:
 
 
 def setting_noise(data: VFMData, positions: np.ndarray, *, settings: EfficientSettings | None = None,
-                  prepare_options: Mapping | None = None) -> SettingNoise:
-    """The gaps' covariance of ``data``'s wall form (``GapCovariance`` with ``settings``, default
+                  prepare_options: Mapping | None = None, like: SettingNoise | None = None) -> SettingNoise:
+    """The gaps' covariance of ``data``'s setting (``GapCovariance`` with ``settings``, default
     ``EfficientSettings()``) from the measured ``positions`` (n_steps, n_markers, 3) m; the floor alone when it
-    cannot be built."""
+    cannot be built. ``like``: the noise of the same wall form under the other end condition, whose moved sets
+    give this one without a re-preparation (``GapCovariance.for_ends``)."""
+    if like is not None:
+        cov = None if like.covariance is None else like.covariance.for_ends(data)
+        return SettingNoise(cov, np.asarray(data.scale, dtype=float), int(data.evw.shape[1]))
     options = {k: v for k, v in (prepare_options or {}).items() if k not in _NOT_PREPARE}
     try:
         with np.errstate(all="ignore"):

@@ -123,9 +123,10 @@ def fit_hypotheses(first, positions: np.ndarray, walls, ends_list, *, prepare_op
         for ends in ends_list:
             d = dw if ends == dw.ends else with_ends(dw, ends)
             fit = first if d is data0 else _best_fit(d, model, first.parameters)
-            if noise is None:  # one covariance per wall form (the ends change only the end force)
-                noise = setting_noise(d, positions, settings=_settings(given, d, positions),
-                                      prepare_options={k: v for k, v in given.items() if k not in ("wall", "ends")})
+            # one covariance per wall form, built once: the other ends' from the same moved sets (``for_ends``)
+            noise = setting_noise(d, positions, settings=_settings(given, d, positions),
+                                  prepare_options={k: v for k, v in given.items() if k not in ("wall", "ends")},
+                                  like=noise)
             out.append(_judged(wall, ends, d, fit, model, noise, efficient))
     return out
 
