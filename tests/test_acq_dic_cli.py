@@ -102,3 +102,18 @@ def test_calibrate_import_bad_mat_is_exit_2(tmp_path, capsys):
     assert main(["calibrate", "--import", str(bad), "-o", str(tmp_path / "c.toml")]) == 2
     err = capsys.readouterr().err
     assert str(bad) in err and "Traceback" not in err
+
+
+def test_a_dense_cloud_is_checked_on_a_subsample_to_full_precision():
+    """The import's cylinder (plausibility, recorded radius and length) is fitted to ``FIT_POINTS`` of a dense
+    cloud's points, the radius and length then from all of them: 50,000 points took 20 s an import before; the
+    radius is still the cloud's to a few micrometres at 0.17 mm noise, and the length its full extent."""
+    from vfmlab.stages.imports import FIT_POINTS, estimate_geometry
+
+    rng = np.random.default_rng(7)
+    n = 20 * FIT_POINTS
+    theta, z = rng.uniform(-np.pi, np.pi, n), rng.uniform(0.0, 35e-3, n)
+    cloud = np.stack([10e-3 * np.cos(theta), 10e-3 * np.sin(theta), z], -1) + rng.normal(0.0, 0.17e-3, (n, 3))
+    radius, length = estimate_geometry(cloud)
+    assert abs(radius - np.mean(np.hypot(cloud[:, 0], cloud[:, 1]))) < 5e-6
+    assert abs(length - np.ptp(cloud[:, 2])) < 1e-3  # the axis is tilted by at most ~1e-3 rad over 35 mm
