@@ -2,7 +2,7 @@
 
     OMP_NUM_THREADS=1 python -m benchmarks.bench_dense [--points 300 1000 3000 10000 30000 50000] [--noise 0.17]
     OMP_NUM_THREADS=1 python -m benchmarks.bench_dense --compare 10000   # quadrature path against the full mesh
-    OMP_NUM_THREADS=1 python -m benchmarks.bench_dense --defaults [--points 10000 50000] [--compare 10000]
+    OMP_NUM_THREADS=1 python -m benchmarks.bench_dense --defaults [--mode defaults|stated|unjudged] [--points 10000 50000] [--compare 10000]
     OMP_NUM_THREADS=1 python -m benchmarks.bench_dense --commands --points 10000 50000   # import-dic + identify
 
 Data: the closed-form homogeneous Fung tube (``rig_sim.homogeneous_tube``, paper parameters), 24 loaded steps
@@ -141,28 +141,35 @@ def measure(n_points: int, noise_mm: float) -> dict:
             if getattr(full, "uncertainty", None) is not None else None}
 
 
-def measure_defaults(n_points: int, noise_mm: float) -> dict:
-    """One row of ``--defaults`` (``--one N --defaults``): ``identification.identify`` with its defaults."""
+#: ``--mode``: what ``identification.identify`` is told besides the data, thickness and model.
+MODES = {"defaults": {}, "stated": {"wall": "membrane", "ends": "free"},
+         "unjudged": {"wall": "membrane", "ends": "free", "judged": False}}
+
+
+def measure_defaults(n_points: int, noise_mm: float, mode: str = "defaults") -> dict:
+    """One row of ``--defaults`` (``--one N --defaults``): ``identification.identify`` with its defaults (and
+    ``MODES[mode]``: the wall and ends stated, or the fit alone without the verdict)."""
     from identification import identify
 
     pos, p, f, e0 = tube(n_points, noise_mm)
+    kw = dict(thickness=e0, model="fung", **MODES[mode])
     rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     _clear_caches()
     t, c = time.perf_counter(), time.process_time()
-    res = identify(pos, p, f, thickness=e0, model="fung")
+    res = identify(pos, p, f, **kw)
     total, cpu = time.perf_counter() - t, time.process_time() - c
     rss1 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     _clear_caches()
     prof = cProfile.Profile()
     prof.enable()
-    identify(pos, p, f, thickness=e0, model="fung")
+    identify(pos, p, f, **kw)
     prof.disable()
     return {"n": n_points, "steps": int(pos.shape[0] - 1), "total": total, "cpu": cpu, "main": total,
             "bootstrap": 0.0, "phases": _phases(pstats.Stats(prof)), "rss_mb": rss1 / 1024,
             "rss_growth_mb": (rss1 - rss0) / 1024, "triangles": int(res.data.mesh.n_triangles),
             "beta": float(res.parameters["beta"]), "defaults": True,
             "nodes": 0 if res.data.quadrature is None else int(res.data.quadrature.grid.n_markers),
-            "setting": f"{res.data.wall} wall, {res.data.ends} ends, {res.verdict}"}
+            "setting": f"{mode}: {res.data.wall} wall, {res.data.ends} ends, {res.verdict or 'not judged'}"}
 
 
 def slope(rows: list[dict], key) -> float:
@@ -276,6 +283,8 @@ def main(argv=None) -> int:
     ap.add_argument("--compare", type=int, metavar="N", help="quadrature path against the full mesh at N points")
     ap.add_argument("--defaults", action="store_true", help="identification.identify with its defaults (module doc)")
     ap.add_argument("--commands", action="store_true", help="import-dic and identify as a user runs them")
+    ap.add_argument("--mode", choices=list(MODES), default="defaults",
+                    help="with --defaults: wall and ends judged (defaults), stated, or the fit alone (unjudged)")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)
     if args.commands:
@@ -285,13 +294,14 @@ def main(argv=None) -> int:
         sys.stdout.write(compare(args.compare, args.noise, args.defaults) + "\n")
         return 0
     if args.one:
-        row = (measure_defaults if args.defaults else measure)(args.one, args.noise)
+        row = measure_defaults(args.one, args.noise, args.mode) if args.defaults else measure(args.one, args.noise)
         sys.stdout.write(json.dumps(row) + "\n")
         return 0
     rows = []
     for n in args.points:
         out = subprocess.run([sys.executable, "-m", "benchmarks.bench_dense", "--one", str(n), "--noise",
-                              str(args.noise)] + (["--defaults"] if args.defaults else []), capture_output=True,
+                              str(args.noise)] + (["--defaults", "--mode", args.mode] if args.defaults else []),
+                             capture_output=True,
                              text=True, check=True)
         rows.append(json.loads(out.stdout.strip().splitlines()[-1]))
         sys.stderr.write(f"N={n}: {rows[-1]['total']:.2f} s\n")
