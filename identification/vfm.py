@@ -392,8 +392,10 @@ def dense_parts(x: np.ndarray, mesh: SurfaceMesh, s: PrepareSettings) -> DensePa
             if len(_STATE_CACHE) >= _STATE_CACHE_SIZE:
                 _STATE_CACHE.pop(next(iter(_STATE_CACHE)))
             _STATE_CACHE[key] = (mesh, survey)
+    reuse = s.dense_reuse  # a moved set of the efficient weighting keeps the data's reference radius basis
     dense = cached_state(mesh, aligned, s.quadrature, s.smoothing, s.reject_outliers, s.marker_weights, survey,
-                         once=s.dense_reuse is not None and not s.estimate_noise)
+                         once=reuse is not None and not s.estimate_noise,
+                         reference_degree=reuse.reference_degree if reuse is not None and reuse.keep_reference else None)
     if dense is None:
         return None
     st, quadrature = dense
