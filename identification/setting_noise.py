@@ -9,7 +9,8 @@ were judged "thick wall" with confidence and had a trusted alpha11 ~27 % off (do
 
 Here the gaps are judged over their full first-order covariance (``efficient.GapCovariance``, built once per
 wall form; the other end condition's from the same moved sets, ``GapCovariance.for_ends``: the end condition
-changes the covariance a lot, through the clamped ends' strip force, measured from the end markers), floored at ``NOISE_FLOOR`` of the external-work scale per gap
+changes the covariance a lot, through the clamped ends' strip force, measured from the end markers; of a dense
+cloud the other wall form's too, ``GapCovariance.for_wall``: the moved sets' smoothed states balanced again), floored at ``NOISE_FLOOR`` of the external-work scale per gap
 (the discretisation of the balance), and each setting is refitted by generalised least squares with that
 covariance's whitening before its chi-square is read: the smallest whitened sum each setting can reach.
 Pure functions over arrays.
