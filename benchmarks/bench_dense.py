@@ -67,7 +67,9 @@ PHASES = {
                   ("dense.py", "_reference_radius")],
     # minus axes, outliers, smoothing
     "kinematics": [("kinematics.py", "surface_state"), ("dense.py", "dense_state"), ("dense.py", "marker_survey")],
-    "prepare": [("vfm.py", "prepare")],  # minus mesh and kinematics: the virtual work
+    # minus mesh and kinematics: the virtual work (a dense cloud's moved sets skip ``prepare``: ``Reprepare.prepared``,
+    # the other wall form's balance of them: ``GapCovariance.for_wall``)
+    "prepare": [("vfm.py", "prepare"), ("gap_jacobian.py", "prepared"), ("efficient.py", "for_wall")],
     "fit": [("fit.py", "identify_prepared")],
 }
 

@@ -12,7 +12,8 @@ the end force acts across the grid's top row, so the balance is the same. A boot
 data's alignment and step axes (``DenseQuadrature``: rigid motions, measured to leave the replicates' spread
 unchanged) and re-smooths its re-noised points, re-choosing the reference radius's basis (that choice does
 widen the spread of alpha12 ~4x: docs/validation/dense.md). So do the efficient weighting's moved sets
-(``perturbation_settings``). What the verdict, the efficient weighting and its intervals compute again on the
+(``perturbation_settings``), but on the data's reference radius basis: their finite differences are derivatives,
+which a discrete re-choice would break (and it cost ~50 ms a moved reference at 50,000 points). What the verdict, the efficient weighting and its intervals compute again on the
 same markers is reused: the smooth reference radius per mesh, the quadrature state per markers and options
 (``cached_state``), the fitted positions (``cached_fit``).
 
@@ -65,12 +66,19 @@ class DenseQuadrature:
         Every step's axis.
     outliers : ndarray, shape (n_steps, n_markers) bool
         Markers set unobserved as mis-tracked.
+    reference_degree : (int, int), optional
+        The basis (axial degree, harmonics) of the smooth reference radius, chosen by GCV.
+    keep_reference : bool
+        A re-preparation reusing this evaluation (``dense_reuse``) fits its reference radius on
+        ``reference_degree`` instead of choosing the basis again (``perturbation_settings``).
     """
 
     grid: SurfaceMesh
     n_points: int
     axes: tuple
     outliers: np.ndarray
+    reference_degree: tuple[int, int] | None = None
+    keep_reference: bool = False
 
     def describe(self) -> str:
         return (f"dense cloud: {self.n_points} points evaluated on a quadrature mesh of {self.grid.n_markers} nodes "
@@ -90,8 +98,9 @@ def perturbation_settings(settings, quadrature: DenseQuadrature):
     efficient weighting): on the data's step axes, neither re-aligned nor refitted, as a bootstrap replicate
     (``dense_reuse``). A smooth move changes the alignment and the axes only by rigid motions, which leave the
     gaps unchanged; the fits of 25 axes to every point were most of each re-preparation's time
-    (docs/validation/dense.md)."""
-    return replace(settings, dense_reuse=quadrature, axes_start=None)
+    (docs/validation/dense.md). A moved reference's radius is fitted on the data's basis (``keep_reference``): the
+    finite difference of a smooth move, not of a discrete choice of basis."""
+    return replace(settings, dense_reuse=replace(quadrature, keep_reference=True), axes_start=None)
 
 
 def step_coordinates(aligned: np.ndarray, axes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -256,25 +265,25 @@ def _digest(a) -> str:
 
 
 def cached_state(mesh: SurfaceMesh, aligned: np.ndarray, quadrature: int, smoothing, reject_outliers: bool,
-                 weights, survey: tuple, once: bool = False):
+                 weights, survey: tuple, once: bool = False, reference_degree: tuple[int, int] | None = None):
     """``dense_state(mesh, aligned, quadrature, smoothing, reject_outliers, weights, survey)``, reused when the same
     markers, mesh coordinates, survey and options come again (a content key: a replicate's mesh is a new object).
     The state returned is shared: not to be modified. ``once``: markers never seen again (a bootstrap replicate, a
     moved set of the efficient weighting: ``estimate_noise=False``): neither looked up nor kept (the key's digests
-    of the markers cost ~20 ms at 50,000 points x 25 steps)."""
+    of the markers cost ~20 ms at 50,000 points x 25 steps). ``reference_degree``: as ``dense_state``'s."""
     if once:
-        return dense_state(mesh, aligned, quadrature, smoothing, reject_outliers, weights, survey)
+        return dense_state(mesh, aligned, quadrature, smoothing, reject_outliers, weights, survey, reference_degree)
     axes, outliers, noise = survey
     frame = [mesh.axis.origin, mesh.axis.basis, np.array([mesh.z_bottom, mesh.z_top])]
     arrays = [aligned, mesh.r, mesh.theta, mesh.z, mesh.used, np.stack([a.origin for a in axes]),
               np.stack([a.basis for a in axes]), outliers, noise] + frame
-    key = ("dense state", quadrature, repr(smoothing), bool(reject_outliers), mesh.n_markers,
+    key = ("dense state", quadrature, repr(smoothing), bool(reject_outliers), mesh.n_markers, repr(reference_degree),
            None if weights is None else _digest(np.asarray(weights, dtype=float))) + tuple(_digest(a) for a in arrays)
     hit = _STATE_CACHE.get(key)
     if hit is not None:
         log.info("%s", hit[1].describe())
         return hit
-    out = dense_state(mesh, aligned, quadrature, smoothing, reject_outliers, weights, survey)
+    out = dense_state(mesh, aligned, quadrature, smoothing, reject_outliers, weights, survey, reference_degree)
     if out is not None:
         if len(_STATE_CACHE) >= _STATE_CACHE_SIZE:
             _STATE_CACHE.pop(next(iter(_STATE_CACHE)))
@@ -299,12 +308,16 @@ def cached_fit(label: tuple, mesh: SurfaceMesh, arrays: tuple, compute):
     return out
 
 
-def _reference_radius(mesh: SurfaceMesh):
+def _reference_radius(mesh: SurfaceMesh, degree: tuple[int, int] | None = None):
     """(degree, coefficients (n_basis,)) of the smooth reference radius (``smoothing.smooth_reference_radius``'s
-    fit, its basis chosen by GCV); reused for the same mesh object (the entry holds it: its ``id`` stays its own)."""
+    fit, its basis chosen by GCV, or ``degree`` if given); reused for the same mesh object (the entry holds it: its
+    ``id`` stays its own)."""
     hit = _REFERENCE_CACHE.get(id(mesh))
-    if hit is not None and hit[0] is mesh:
+    if hit is not None and hit[0] is mesh and (degree is None or hit[1][0] == tuple(degree)):
         return hit[1]
+    if degree is not None:  # a moved reference on the data's basis: its mesh is seen once, not kept
+        given = (int(degree[0]), int(degree[1]))
+        return given, _coefficients(mesh, given, np.where(mesh.used, mesh.r, np.nan)[None], None)[0]
     degree = _reference_degree(mesh)
     coef = _coefficients(mesh, degree, np.where(mesh.used, mesh.r, np.nan)[None], None)[0]
     out = tuple(int(v) for v in degree), coef
@@ -343,11 +356,12 @@ def _marker_fields(mesh, aligned, smoothing, reject_outliers, weights, survey):
 
 
 def dense_state(mesh: SurfaceMesh, aligned: np.ndarray, quadrature: int, smoothing, reject_outliers: bool,
-                weights, survey: tuple):
+                weights, survey: tuple, reference_degree: tuple[int, int] | None = None):
     """``kinematics.surface_state`` of a dense cloud, on the quadrature grid (module docstring).
 
     Parameters as ``surface_state`` (aligned (n_steps, n_markers, 3) m); ``survey``: ``marker_survey``'s axes,
-    outliers and noise of these markers. Returns ``(state, DenseQuadrature)`` with the state's
+    outliers and noise of these markers; ``reference_degree``: the smooth reference radius's basis (default: chosen
+    by GCV, ``_reference_degree``). Returns ``(state, DenseQuadrature)`` with the state's
     triangles those of the grid, or None when the markers look exact (``smoothing="auto"`` keeps them unsmoothed).
     """
     bary, qw = QUADRATURE[quadrature]
@@ -356,7 +370,7 @@ def dense_state(mesh: SurfaceMesh, aligned: np.ndarray, quadrature: int, smoothi
     if degrees is None:
         return None
     degrees = per_component_degrees(degrees)
-    ref_degree, ref_coef = _reference_radius(mesh)
+    ref_degree, ref_coef = _reference_radius(mesh, reference_degree)
     coefs = [_coefficients(mesh, deg, d, weights) for deg, d in zip(degrees, _displacements(mesh, r, th, z))]
     grid = quadrature_grid(mesh)
     geo = triangle_geometry(grid)
@@ -386,7 +400,8 @@ def dense_state(mesh: SurfaceMesh, aligned: np.ndarray, quadrature: int, smoothi
     valid = np.isfinite(jac) & (jac > 0.05)
     if not valid.all():
         log.warning("excluded inverted/collapsed quadrature cells per step: %s", (~valid).sum(axis=1).tolist())
-    quad = DenseQuadrature(grid=grid, n_points=int(np.count_nonzero(mesh.used)), axes=axes, outliers=outliers)
+    quad = DenseQuadrature(grid=grid, n_points=int(np.count_nonzero(mesh.used)), axes=axes, outliers=outliers,
+                           reference_degree=ref_degree)
     st = SurfaceState(R=Rq, R_xi=R_xi, r=Rq[None] + dq[0], r_xi=r_xi, theta=(qt.reshape(n_t, n_q))[None] + dq[1],
                       theta_xi=theta_xi, z_xi=z_xi, valid=valid, outliers=outliers, noise=noise,
                       r_markers=R_nodes[None] + dn[0], theta_markers=wrap_angle(grid.theta[None] + dn[1]),

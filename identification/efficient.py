@@ -37,11 +37,11 @@ from .checks import with_ends
 from .errors import IdentificationError
 from .fit import identify_prepared
 from .gap_jacobian import Reprepare, reading_sensitivities, rigid_columns
-from .perturbed_sets import perturbed_works
+from .perturbed_sets import concatenate_works, perturbed_works, set_works
 from .kinematics import align_steps
 from .resimulation import basis_size, fitted_positions, marker_noise_level, remeasured_mesh
 from .smoothing import smoothing_basis
-from .vfm import PrepareSettings, VFMData, default_fields, internal_virtual_work
+from .vfm import DenseParts, PrepareSettings, VFMData, default_fields, internal_virtual_work
 
 __all__ = ["EfficientSettings", "GapCovariance", "whitening_matrix"]
 
@@ -149,7 +149,12 @@ class GapCovariance:
         given = PrepareSettings.from_options(**{k: v for k, v in dict(prepare_options or {}).items()
                                                 if k in ("settings", "marker_weights", "reference_noise_correction")})
         alike = not np.any(data.n_outliers) and given.marker_weights is None and not given.reference_noise_correction
-        self.base = data if alike else prep(aligned)
+        # a dense cloud: every moved set's smoothed state kept, the other wall form's covariance from them (``for_wall``)
+        self.kept: list | None = [] if data.quadrature is not None else None
+        self.base: VFMData = data
+        self.base_parts: DenseParts | None = None
+        if not alike:
+            self.base, self.base_parts = self._prepared(prep, aligned, p)
         loaded = np.arange(p.size) > 0
         self.sp = np.hypot(settings.pressure_relative * p, settings.pressure_floor) * loaded
         self.sf = np.hypot(settings.force_relative * f, settings.force_floor) * loaded
@@ -161,6 +166,7 @@ class GapCovariance:
         self.reference_sets: list[VFMData] = []  # re-measured references (``reference_replicates``)
         if data.smoothing is None:
             log.info("efficient weighting of unsmoothed data: the readings' noise only")
+            self.kept = None
             return
         sigma = self._marker_sigma(positions)
         e = _directions(data.mesh, aligned)
@@ -177,6 +183,7 @@ class GapCovariance:
                 ref = aligned.copy()
                 ref[0] += sigma[0][:, None] * rng.standard_normal(ref[0].shape)
                 self.reference_sets.append(prep(ref, m=remeasured_mesh(data.mesh, ref[0])))
+            self.kept = None
             return
         columns = []  # linearised on a basis of at least ``reference_degree``
         for j, degree in enumerate(data.smoothing):
@@ -184,7 +191,15 @@ class GapCovariance:
             cov, B, keep = _coefficient_covariance(data.mesh, degree, ok, sigma[:1], j)
             columns += [settings.step * B[:, i, None] * e[j, 0] for i in np.flatnonzero(keep)]
             self.modes.append((cov[:, keep][:, :, keep], False, int(keep.sum())))
-        self.loaded, self.reference = perturbed_works(prep, aligned, moves, columns)
+        self.loaded, self.reference = perturbed_works(prep, aligned, moves, columns, self.kept)
+        if self.kept is not None:
+            self.kept = [(prep.settings, self.base_parts, self.unit_parts)] + self.kept
+
+    def _prepared(self, prep: Reprepare, aligned: np.ndarray, p: np.ndarray) -> tuple[VFMData, DenseParts | None]:
+        """``prep(aligned, p)`` and, of a dense cloud, its smoothed state (``Reprepare.prepared``), else None."""
+        if self.kept is None:
+            return prep(aligned, p), None
+        return prep.prepared(aligned, p, self.data.axial_force, self.data.mesh)
 
     def _reading_gaps(self, prep: Reprepare, aligned, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The gaps' derivatives with respect to the pressure and force readings times their standard deviations,
@@ -192,7 +207,10 @@ class GapCovariance:
         s = prep.s
         self.load_end = (s.fields if s.fields is not None else default_fields(self.data.mesh, self.data.wall)).load_end
         zero = p == 0
-        self.unit = prep(aligned, np.where(zero, 1.0, p)) if zero[1:].any() else None
+        self.unit: VFMData | None = None
+        self.unit_parts: DenseParts | None = None
+        if zero[1:].any():
+            self.unit, self.unit_parts = self._prepared(prep, aligned, np.where(zero, 1.0, p))
         return self._scaled_readings()
 
     def _scaled_readings(self) -> tuple[np.ndarray, np.ndarray]:
@@ -219,6 +237,42 @@ class GapCovariance:
         out.unit = None if self.unit is None else with_ends(self.unit, data.ends)
         out.loaded, out.reference = [moved(d) for d in self.loaded], [moved(d) for d in self.reference]
         out.reference_sets = [with_ends(d, data.ends) for d in self.reference_sets]
+        out.readings = out._scaled_readings()
+        return out
+
+    def for_wall(self, data: VFMData) -> "GapCovariance | None":
+        """The covariance of ``data``: these markers prepared with the other wall form (any ends), from the moved
+        sets' smoothed states (a dense cloud's ``vfm.DenseParts``: only the balance again, with that wall's
+        settings and fields), equal to one built afresh; None where it cannot be derived (no dense cloud, the
+        reference re-measured, a set on the full path, other readings or mesh): build it."""
+        if data.wall == self.data.wall:
+            return self.for_ends(data)
+        kept, d0 = self.kept, self.data
+        if (kept is None or any(parts is None for _, sets in kept[1:] for parts in sets) or data.mesh is not d0.mesh
+                or data.smoothing != d0.smoothing or data.thickness != d0.thickness
+                or not (np.array_equal(data.pressure, d0.pressure) and np.array_equal(data.axial_force,
+                                                                                        d0.axial_force))):
+            return None
+        (settings, base, unit), jobs = kept[0], kept[1:]
+        if (base is None and self.base is not d0) or (unit is None and self.unit is not None):
+            return None
+        s = dataclasses.replace(settings, wall=data.wall, ends=data.ends)
+
+        def balanced(parts, p=data.pressure) -> VFMData:
+            return parts.balanced(p, data.axial_force, float(data.thickness), s)
+
+        def works(kind: str, sets: list) -> VFMData:
+            c, wd, evw, strip = concatenate_works([set_works(balanced(parts), kind) for parts in sets])
+            return dataclasses.replace(data, c=c, work_density=wd, evw=evw, strip_force=strip)
+
+        out = copy.copy(self)
+        out.data = data
+        with np.errstate(all="ignore"):
+            out.base = data if base is None else balanced(base)
+            out.unit = None if unit is None else balanced(unit, np.where(data.pressure == 0, 1.0, data.pressure))
+            out.loaded = [works(kind, sets) for kind, sets in jobs if kind == "loaded"]
+            out.reference = [works(kind, sets) for kind, sets in jobs if kind == "reference"]
+        out.load_end = (s.fields if s.fields is not None else default_fields(data.mesh, data.wall)).load_end
         out.readings = out._scaled_readings()
         return out
 

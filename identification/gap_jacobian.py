@@ -27,12 +27,12 @@ from __future__ import annotations
 import numpy as np
 
 from .axis import Axis
-from .dense import perturbation_settings
+from .dense import perturbation_settings, wants_dense
 from .kinematics import align_steps, cylindrical_about, interpolated_state, step_cylindrical
 from .mesh import SurfaceMesh
 from .smoothing import smooth_cylindrical, smooth_reference_radius
 from .step_axes import refit_axes
-from .vfm import PrepareSettings, VFMData, balance, default_fields, prepare
+from .vfm import DenseParts, PrepareSettings, VFMData, balance, default_fields, dense_parts, prepare
 
 __all__ = ["Reprepare", "reading_sensitivities", "rigid_columns"]
 
@@ -103,16 +103,34 @@ class Reprepare:
                  m: SurfaceMesh | None = None) -> VFMData:
         """The data set of ``positions`` (n_steps, n_markers, 3) m, readings (n_steps,) Pa and N (default the data's)
         on the mesh ``m`` (default the data's: a re-measured reference brings its own)."""
-        d, s = self.data, self.s
+        d = self.data
         p = d.pressure if pressure is None else np.asarray(pressure, dtype=float)
         f = d.axial_force if force is None else np.asarray(force, dtype=float)
         mesh = d.mesh if m is None else m
         with np.errstate(all="ignore"):
             if not self.lean:
-                if d.quadrature is not None:  # a dense cloud: on the data's alignment and axes (``dense``)
-                    s = perturbation_settings(s, d.quadrature)
-                return prepare(positions, p, f, thickness=d.thickness, mesh=mesh, settings=s)
+                return self.prepared(positions, p, f, mesh)[0]
             return self._lean(np.asarray(positions, dtype=float), p, f, mesh)
+
+    def prepared(self, positions: np.ndarray, p: np.ndarray, f: np.ndarray,
+                 mesh: SurfaceMesh) -> tuple[VFMData, DenseParts | None]:
+        """``prepare`` itself (not ``lean``), and for a dense cloud the smoothed state it balanced
+        (``vfm.DenseParts``: the balance of the other wall form from it, ``efficient.GapCovariance.for_wall``;
+        None on the full path)."""
+        d, s = self.data, self.settings
+        with np.errstate(all="ignore"):
+            if d.quadrature is not None and wants_dense(mesh, s.smoothing, s.smooth_reference,
+                                                         s.reference_noise_correction):
+                parts = dense_parts(np.asarray(positions, dtype=float), mesh, s)
+                if parts is not None:
+                    return parts.balanced(p, f, float(d.thickness), s), parts
+            return prepare(positions, p, f, thickness=d.thickness, mesh=mesh, settings=s), None
+
+    @property
+    def settings(self) -> PrepareSettings:
+        """The settings of ``prepare``: a dense cloud's on the data's alignment and axes (``dense``)."""
+        q = self.data.quadrature
+        return self.s if self.lean or q is None else perturbation_settings(self.s, q)
 
     def stacked(self, loaded: np.ndarray) -> VFMData:
         """One data set of the unmoved reference step and the loaded steps of several moved sets, set-major:

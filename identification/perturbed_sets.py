@@ -27,7 +27,7 @@ from .gap_jacobian import Reprepare
 from .resimulation import remeasured_mesh
 from .vfm import VFMData
 
-__all__ = ["PerturbedSets", "perturbed_works"]
+__all__ = ["PerturbedSets", "concatenate_works", "perturbed_works", "set_works"]
 
 #: Moved loaded steps prepared in one vectorised pass (a job): at most this many (bounds the memory: a thick wall
 #: of 500 triangles takes ~0.4 MB a step; 96 add ~30 MB to the peak of 300 MB, 400 added 150 MB).
@@ -48,44 +48,55 @@ class PerturbedSets:
     not stack: a tuple of n_sets arrays). Returns the ``Works`` of the moved steps of every set, set-major:
     n_sets (n_steps - 1) loaded steps, or n_sets n_steps steps."""
 
-    def __init__(self, prep: Reprepare, aligned: np.ndarray):
-        self.prep, self.aligned = prep, aligned
+    def __init__(self, prep: Reprepare, aligned: np.ndarray, kept: list | None = None):
+        self.prep, self.aligned, self.kept = prep, aligned, kept
 
     def __call__(self, job: tuple[str, np.ndarray | tuple[np.ndarray, ...]]) -> Works:
         kind, moves = job
         if kind == "loaded" and self.prep.lean:
             d = self.prep.stacked(self.aligned[1:][None] + moves)
             return d.c[1:], d.work_density[:, 1:], d.evw[:, 1:], _strip(d)[1:]
-        sets = []
+        sets, parts = [], []
         for move in moves:
             pos = self.aligned.copy()
             if kind == "loaded":
                 pos[1:] += move
-                d = self.prep(pos)
-                sets.append((d.c[1:], d.work_density[:, 1:], d.evw[:, 1:], _strip(d)[1:]))
+                mesh = self.prep.data.mesh
             else:
                 pos[0] += move
-                d = self.prep(pos, m=remeasured_mesh(self.prep.data.mesh, pos[0]))
-                sets.append((d.c, d.work_density, d.evw, _strip(d)))
-        return _concatenate(sets)
+                mesh = remeasured_mesh(self.prep.data.mesh, pos[0])
+            d, kept = (self.prep(pos, m=mesh), None) if self.prep.lean else self.prep.prepared(
+                pos, self.prep.data.pressure, self.prep.data.axial_force, mesh)
+            sets.append(set_works(d, kind))
+            parts.append(kept)
+        if self.kept is not None:
+            self.kept.append((kind, parts))
+        return concatenate_works(sets)
+
+
+def set_works(d: VFMData, kind: str) -> Works:
+    """What the gaps read of a moved set ``d`` (``Works``): its loaded steps (``kind`` "loaded") or every step."""
+    first = 1 if kind == "loaded" else 0
+    return d.c[first:], d.work_density[:, first:], d.evw[:, first:], _strip(d)[first:]
 
 
 def _strip(d: VFMData) -> np.ndarray:
     return np.zeros(d.evw.shape[1]) if d.strip_force is None else d.strip_force
 
 
-def _concatenate(sets: list[Works]) -> Works:
+def concatenate_works(sets: list[Works]) -> Works:
     c, wd, evw, strip = zip(*sets)
     return np.concatenate(c), np.concatenate(wd, axis=1), np.concatenate(evw, axis=1), np.concatenate(strip)
 
 
 def perturbed_works(prep: Reprepare, aligned: np.ndarray, loaded: list[np.ndarray],
-                    reference: list[np.ndarray]) -> tuple[list[VFMData], list[VFMData]]:
+                    reference: list[np.ndarray], kept: list | None = None) -> tuple[list[VFMData], list[VFMData]]:
     """The data sets of the loaded steps moved by each of ``loaded`` ((n_steps - 1, n_markers, 3) m each) and of
     the reference moved by each of ``reference`` ((n_markers, 3) m each), one ``prep.data``-like data set per
     job, whose steps are the moved steps of its sets, set-major (n_sets (n_steps - 1) loaded, n_sets n_steps
     reference steps; only ``c``, ``work_density``, ``evw`` and ``strip_force`` are theirs: what the gaps read), in
-    the order of the moves."""
+    the order of the moves. ``kept``: a list to which every job appends (its kind, its sets' ``vfm.DenseParts``:
+    a dense cloud's smoothed states, None on the lean or full path), in the order of the jobs."""
     per = max(1, STACKED_STEPS // max(len(aligned) - 1, 1))
     # only the lean preparation takes a job's sets as one array; the others prepare them one by one (not stacked:
     # a dense cloud's copy is ~0.35 s at 50,000 points)
@@ -95,5 +106,5 @@ def perturbed_works(prep: Reprepare, aligned: np.ndarray, loaded: list[np.ndarra
     jobs += [("reference", together(reference[i:i + REFERENCE_SETS]))
              for i in range(0, len(reference), REFERENCE_SETS)]
     works = [dataclasses.replace(prep.data, c=c, work_density=wd, evw=evw, strip_force=strip)
-             for c, wd, evw, strip in map(PerturbedSets(prep, aligned), jobs)]
+             for c, wd, evw, strip in map(PerturbedSets(prep, aligned, kept), jobs)]
     return works[:n_loaded_jobs], works[n_loaded_jobs:]

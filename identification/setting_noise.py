@@ -9,7 +9,8 @@ were judged "thick wall" with confidence and had a trusted alpha11 ~27 % off (do
 
 Here the gaps are judged over their full first-order covariance (``efficient.GapCovariance``, built once per
 wall form; the other end condition's from the same moved sets, ``GapCovariance.for_ends``: the end condition
-changes the covariance a lot, through the clamped ends' strip force, measured from the end markers), floored at ``NOISE_FLOOR`` of the external-work scale per gap
+changes the covariance a lot, through the clamped ends' strip force, measured from the end markers; of a dense
+cloud the other wall form's too, ``GapCovariance.for_wall``: the moved sets' smoothed states balanced again), floored at ``NOISE_FLOOR`` of the external-work scale per gap
 (the discretisation of the balance), and each setting is refitted by generalised least squares with that
 covariance's whitening before its chi-square is read: the smallest whitened sum each setting can reach.
 Pure functions over arrays.
@@ -43,11 +44,13 @@ _NOT_PREPARE = ("efficient", "reference_captures", "n_starts", "initial", "optim
 @dataclass(frozen=True)
 class SettingNoise:
     """The gaps' covariance of one wall form (``covariance``: a ``GapCovariance``, None where it could not be
-    built: the floor alone), the scales (n_fields,) of the data it was built on and their number of steps."""
+    built: the floor alone), the scales (n_fields,) of the data it was built on, their number of steps and wall
+    form."""
 
     covariance: GapCovariance | None
     scale: np.ndarray
     n_steps: int
+    wall: str | None = None
 
     def whitening(self, model, parameters: Mapping[str, float], scale: np.ndarray) -> np.ndarray:
         """W (n_res, n_res) for gaps normalised by ``scale`` (n_fields,): the covariance at ``parameters``
@@ -65,11 +68,18 @@ def setting_noise(data: VFMData, positions: np.ndarray, *, settings: EfficientSe
                   prepare_options: Mapping | None = None, like: SettingNoise | None = None) -> SettingNoise:
     """The gaps' covariance of ``data``'s setting (``GapCovariance`` with ``settings``, default
     ``EfficientSettings()``) from the measured ``positions`` (n_steps, n_markers, 3) m; the floor alone when it
-    cannot be built. ``like``: the noise of the same wall form under the other end condition, whose moved sets
-    give this one without a re-preparation (``GapCovariance.for_ends``)."""
+    cannot be built. ``like``: the noise of another setting of the same markers, whose moved sets give this one
+    without a re-preparation: the same wall form's under the other end condition (``GapCovariance.for_ends``), a
+    dense cloud's under the other wall form (``GapCovariance.for_wall``: only the balance again); built afresh
+    where they cannot."""
+    scale, n_steps = np.asarray(data.scale, dtype=float), int(data.evw.shape[1])
     if like is not None:
-        cov = None if like.covariance is None else like.covariance.for_ends(data)
-        return SettingNoise(cov, np.asarray(data.scale, dtype=float), int(data.evw.shape[1]))
+        cov = like.covariance
+        if like.wall == data.wall:
+            return SettingNoise(None if cov is None else cov.for_ends(data), scale, n_steps, data.wall)
+        derived = None if cov is None else cov.for_wall(data)
+        if derived is not None:
+            return SettingNoise(derived, scale, n_steps, data.wall)
     options = {k: v for k, v in (prepare_options or {}).items() if k not in _NOT_PREPARE}
     try:
         with np.errstate(all="ignore"):
@@ -77,7 +87,7 @@ def setting_noise(data: VFMData, positions: np.ndarray, *, settings: EfficientSe
     except (IdentificationError, ValueError, np.linalg.LinAlgError) as exc:
         log.info("the gaps' covariance not built (%s): the floor %g alone judges the settings", exc, NOISE_FLOOR)
         cov = None
-    return SettingNoise(cov, np.asarray(data.scale, dtype=float), int(data.evw.shape[1]))
+    return SettingNoise(cov, scale, n_steps, data.wall)
 
 
 def whitened_fit(data: VFMData, model, noise: SettingNoise, initial: Mapping[str, float]):

@@ -108,7 +108,7 @@ def fit_hypotheses(first, positions: np.ndarray, walls, ends_list, *, prepare_op
     options = {k: v for k, v in given.items()
                if k not in ("mesh", "smoothing", "wall", "ends", "reject_outliers", "marker_weights",
                             "reference_captures", "efficient")}
-    out = []
+    out, noise = [], None
     for wall in walls:
         if wall == data0.wall:
             dw = data0
@@ -119,11 +119,11 @@ def fit_hypotheses(first, positions: np.ndarray, walls, ends_list, *, prepare_op
             except (IdentificationError, ValueError) as exc:
                 log.info("wall form %s not tried: %s", wall, exc)
                 continue
-        noise = None
         for ends in ends_list:
             d = dw if ends == dw.ends else with_ends(dw, ends)
             fit = first if d is data0 else _best_fit(d, model, first.parameters)
-            # one covariance per wall form, built once: the other ends' from the same moved sets (``for_ends``)
+            # one covariance built: the other ends' from the same moved sets (``for_ends``), of a dense cloud the
+            # other wall form's too (``for_wall``); elsewhere one per wall form
             noise = setting_noise(d, positions, settings=_settings(given, d, positions),
                                   prepare_options={k: v for k, v in given.items() if k not in ("wall", "ends")},
                                   like=noise)

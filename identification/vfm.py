@@ -38,14 +38,14 @@ import numpy as np
 from .errors import DegenerateDataError
 from .dense import DenseQuadrature, cached_state, grid_fields, marker_survey, quadrature_grid, wants_dense
 from ._wall import _external_work, _internal_work_terms, _wall_geometry, end_force
-from .kinematics import align_steps, surface_state
+from .kinematics import SurfaceState, align_steps, surface_state
 from .mesh import SurfaceMesh, build_mesh
 from .models import get_model
 from .models._base import Model, pk2_components, seed_virtual_strains, virtual_work_sensitivities
 from .virtual_fields import VirtualFields, check_fields, paper_fields
 from .thick_fields import flat_end_fields
 
-__all__ = ["PrepareSettings", "VFMData", "prepare", "internal_virtual_work", "virtual_work_basis", "end_force"]
+__all__ = ["DenseParts", "PrepareSettings", "VFMData", "dense_parts", "prepare", "internal_virtual_work", "virtual_work_basis", "end_force"]
 
 log = logging.getLogger(__name__)
 
@@ -336,6 +336,39 @@ def balance(st, mesh: SurfaceMesh, fields: VirtualFields, p: np.ndarray, f: np.n
 def _prepare_dense(x, p, f, e0: float, mesh: SurfaceMesh, s: PrepareSettings) -> VFMData | None:
     """``prepare`` of a dense cloud on its quadrature grid (``dense``); None where the full path is needed
     (given fields that depend on more than Z, exact-looking markers)."""
+    parts = dense_parts(x, mesh, s)
+    return None if parts is None else parts.balanced(p, f, e0, s)
+
+
+@dataclass(frozen=True)
+class DenseParts:
+    """A dense cloud as ``prepare`` smoothed it, before the balance (``dense_parts``): the surface state on the
+    quadrature grid (``dense.dense_state``: arrays of the grid's 576 triangles, the outliers (n_steps, n_markers)
+    bool), how it was evaluated, the mesh, and the virtual fields on the grid of the wall form it was made for.
+    ``balanced`` gives the balance of any wall form and ends from it (the efficient weighting's moved sets
+    judged under the other wall form, ``efficient.GapCovariance.for_wall``, without their kinematics again)."""
+
+    state: SurfaceState
+    quadrature: DenseQuadrature
+    mesh: SurfaceMesh
+    wall: str
+    fields: VirtualFields
+
+    def balanced(self, p: np.ndarray, f: np.ndarray, e0: float, s: PrepareSettings) -> VFMData:
+        """``balance`` of the state: readings ``p`` (Pa), ``f`` (N) (n_steps,), thickness ``e0`` (m), settings ``s``
+        (its wall, ends, fields, n_layers, clamp_radius); the fields of another wall form built on the grid as
+        ``prepare`` builds them."""
+        fields = self.fields if s.wall == self.wall else grid_fields(s.fields, self.mesh, quadrature_grid(self.mesh),
+                                                                     s.wall)
+        if fields is None:
+            raise ValueError("the given virtual fields depend on more than Z: no balance on the quadrature grid")
+        return balance(self.state, self.mesh, fields, p, f, e0, s, work_mesh=self.quadrature.grid,
+                       quadrature=self.quadrature)
+
+
+def dense_parts(x: np.ndarray, mesh: SurfaceMesh, s: PrepareSettings) -> DenseParts | None:
+    """``prepare``'s dense path up to the balance: the smoothed state of the markers ``x`` (n_steps, n_markers, 3)
+    m on ``mesh`` with the settings ``s`` (``dense.wants_dense`` holds); None where the full path is needed."""
     if s.fields is not None:
         check_fields(s.fields, mesh)
     fields = grid_fields(s.fields, mesh, quadrature_grid(mesh), s.wall)
@@ -359,15 +392,17 @@ def _prepare_dense(x, p, f, e0: float, mesh: SurfaceMesh, s: PrepareSettings) ->
             if len(_STATE_CACHE) >= _STATE_CACHE_SIZE:
                 _STATE_CACHE.pop(next(iter(_STATE_CACHE)))
             _STATE_CACHE[key] = (mesh, survey)
+    reuse = s.dense_reuse  # a moved set of the efficient weighting keeps the data's reference radius basis
     dense = cached_state(mesh, aligned, s.quadrature, s.smoothing, s.reject_outliers, s.marker_weights, survey,
-                         once=s.dense_reuse is not None and not s.estimate_noise)
+                         once=reuse is not None and not s.estimate_noise,
+                         reference_degree=reuse.reference_degree if reuse is not None and reuse.keep_reference else None)
     if dense is None:
         return None
     st, quadrature = dense
     if not st.valid.any(axis=1).all():
         bad = np.flatnonzero(~st.valid.any(axis=1)).tolist()
         raise DegenerateDataError(f"steps {bad} have no valid quadrature cell")
-    return balance(st, mesh, fields, p, f, e0, s, work_mesh=quadrature.grid, quadrature=quadrature)
+    return DenseParts(st, quadrature, mesh, s.wall, fields)
 
 
 #: Meshes of recently seen reference configurations (a reprocessing run meshes the same markers again).

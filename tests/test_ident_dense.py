@@ -140,3 +140,23 @@ def test_seam_strip_mesh_is_the_full_replication_mesh(monkeypatch):
     assert np.array_equal(strip.used, full.used)
     assert (strip.z_bottom, strip.z_top) == (full.z_bottom, full.z_top)
     assert strip.dropped == full.dropped
+
+
+def test_the_other_wall_forms_covariance_comes_from_the_same_moved_sets():
+    """``GapCovariance.for_wall`` on a dense cloud equals a covariance built afresh on the other wall form's data
+    (the wall form changes it by several times its size here): only the balance of the kept smoothed states again."""
+    from identification.checks import with_ends
+    from identification.efficient import EfficientSettings, GapCovariance
+    from identification.optimize import identify as fit_stated
+
+    pos, p, f = _tube(5000, noise=0.17e-3)
+    fits = {w: fit_stated(pos, p, f, thickness=E0, wall=w, ends="clamped", smoothing="auto")
+            for w in ("thick", "membrane")}
+    params = fits["membrane"].parameters
+    thick = GapCovariance(fits["thick"].data, pos, EfficientSettings())
+    for data in (fits["membrane"].data, with_ends(fits["membrane"].data, "free")):
+        fresh = GapCovariance(data, pos, EfficientSettings()).at("fung", params)
+        derived = thick.for_ends(with_ends(fits["thick"].data, data.ends)).for_wall(data)
+        assert derived is not None and derived.data is data
+        assert np.abs(thick.at("fung", params) - fresh).max() > 0.1 * np.abs(fresh).max()  # the wall form matters
+        assert np.abs(derived.at("fung", params) - fresh).max() <= 1e-9 * np.abs(fresh).max()
