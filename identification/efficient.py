@@ -43,7 +43,7 @@ from .resimulation import basis_size, fitted_positions, marker_noise_level, reme
 from .smoothing import smoothing_basis
 from .vfm import DenseParts, PrepareSettings, VFMData, default_fields, internal_virtual_work
 
-__all__ = ["EfficientSettings", "GapCovariance", "whitening_matrix"]
+__all__ = ["NOISE_FLOOR", "EfficientSettings", "GapCovariance", "floored", "whitening_matrix"]
 
 log = logging.getLogger(__name__)
 
@@ -341,6 +341,21 @@ def _coefficient_covariance(mesh, degree, ok: np.ndarray, sigma: np.ndarray, com
     return cov, B, ~rigid_columns(B, use) if component > 0 else np.ones(B.shape[1], bool)
 
 
+#: Smallest standard deviation of a loaded step's gap (fraction of the field's external-work scale): the
+#: discretisation of the balance, added in quadrature where the gaps are judged (the verdict, ``setting_noise``)
+#: and where the intervals are read (``optimize.identify_gls``); not in the fit's own weighting.
+NOISE_FLOOR = 1e-3
+
+
+def floored(cov: np.ndarray, n_steps: int) -> np.ndarray:
+    """``cov`` (n_res, n_res) of the normalised gaps (field-major, ``n_steps`` per field) with ``NOISE_FLOOR``
+    squared added to the variance of every loaded step's gap (a copy)."""
+    out = np.array(cov, dtype=float)
+    loaded = np.flatnonzero(np.tile(np.arange(n_steps) > 0, out.shape[0] // n_steps))
+    out[loaded, loaded] += NOISE_FLOOR**2
+    return out
+
+
 def whitening_matrix(cov: np.ndarray, floor: float = 1e-10) -> np.ndarray:
     """W (n, n) with ``W cov W^T = I`` on the gaps that carry noise; zero rows for those that carry none (the
     reference step's gaps vanish identically)."""
@@ -363,7 +378,7 @@ def identify_efficient(first, positions, model, settings: EfficientSettings | No
     ``positions``, shape (n_steps, n_markers, 3), the steps it used): ``settings.n_iterations`` fits, each with the
     gaps' covariance at the previous estimate. ``covariance``: the ``GapCovariance`` of these data and settings
     when already built (the verdict's, ``setting_noise``). Returns (result with whitened residuals, the last
-    whitening)."""
+    whitening, the last covariance (n_res, n_res)); the whitening and covariance are None for exact data."""
     settings = settings or EfficientSettings()
     data = first.data
     cov = covariance if covariance is not None else GapCovariance(data, positions, settings, prepare_options)
@@ -372,10 +387,10 @@ def identify_efficient(first, positions, model, settings: EfficientSettings | No
         sigma = cov.at(model, params)
         if not np.any(np.diag(sigma) > 0):  # exact markers and readings: nothing to weight, the paper's fit stands
             log.info("efficient weighting: the gaps carry no noise (exact data); the paper's fit is kept")
-            return first, None
+            return first, None, None
         W = whitening_matrix(sigma)
         result = identify_prepared(data, model, initial=params, n_starts=1, whitening=W)
         params = result.parameters
     if result is None:
         raise IdentificationError(f"n_iterations must be >= 1; got {settings.n_iterations!r}")
-    return dataclasses.replace(result, smoothing=data.smoothing, data=data, steps=first.steps), W
+    return dataclasses.replace(result, smoothing=data.smoothing, data=data, steps=first.steps), W, sigma

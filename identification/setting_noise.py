@@ -24,7 +24,7 @@ from typing import Mapping
 
 import numpy as np
 
-from .efficient import EfficientSettings, GapCovariance, whitening_matrix
+from .efficient import NOISE_FLOOR, EfficientSettings, GapCovariance, floored, whitening_matrix
 from .errors import IdentificationError
 from .fit import identify_prepared
 from .vfm import VFMData
@@ -32,10 +32,6 @@ from .vfm import VFMData
 __all__ = ["NOISE_FLOOR", "SettingNoise", "setting_noise"]
 
 log = logging.getLogger(__name__)
-
-#: Smallest gap standard deviation (fraction of the field's external-work scale): the discretisation of the
-#: balance, added in quadrature to every loaded gap's variance.
-NOISE_FLOOR = 1e-3
 
 #: ``identify`` options that are not ``prepare``'s (the covariance re-prepares the data with the rest).
 _NOT_PREPARE = ("efficient", "reference_captures", "n_starts", "initial", "optimizer")
@@ -59,9 +55,7 @@ class SettingNoise:
         n = to_here.size
         c = np.zeros((n, n)) if self.covariance is None else (
             np.asarray(self.covariance.at(model, parameters), dtype=float) * np.outer(to_here, to_here))
-        loaded = np.tile(np.arange(self.n_steps) > 0, self.scale.size)
-        c[loaded, loaded] += NOISE_FLOOR**2
-        return whitening_matrix(c)
+        return whitening_matrix(floored(c, self.n_steps))
 
 
 def setting_noise(data: VFMData, positions: np.ndarray, *, settings: EfficientSettings | None = None,
