@@ -3,7 +3,7 @@ truth (issue 10 part A). Prints markdown tables.
 
     OMP_NUM_THREADS=1 python -m benchmarks.bench_trust --part PART [--seeds N] [--fine]
 
-PART is table, hygiene, checks, fe, fe-convergence or all:
+PART is table, intervals, hygiene, checks, fe, fe-convergence or all:
 
 table   : the verdict on independent data imported WITHOUT the ends or the wall (``identification.identify`` with
           its defaults, the command's): closed-form tubes (rig_sim.simulate: clamped membrane, free membrane, free
@@ -13,6 +13,8 @@ table   : the verdict on independent data imported WITHOUT the ends or the wall 
           intervals cover the truth in >= 90 %. Also the power of the settings test: how often the data decided
           the ends and the wall (right / could not tell / wrong).
 
+intervals : the default intervals' calibration on the table's closed-form tubes with the setting stated (cells
+          ``INTERVAL_CELLS``): per parameter, the fraction of seeds outside the 95 % interval and w95.
 hygiene : unsmoothed fits on independent closed-form tubes (rig_sim/homogeneous_tube.py, 300 uniformly random
           markers, 0.01 mm noise on every marker of every step incl. the reference) for a grid of
           (near-duplicate fraction of the median spacing, sliver quality) thresholds; worst and median errors.
@@ -347,9 +349,41 @@ def bench_table(n_seeds: int, sources=("cf", "fe"), noises=TABLE_NOISES, fine=Fa
     return totals
 
 
+#: ``--part intervals``: (law, noise m, wall, ends, stretches) of the cells whose interval calibration was checked.
+INTERVAL_CELLS = [("hgo", 0.05e-3, "membrane", "free", (1.05, 1.1, 1.15)), ("hgo", 0.17e-3, "membrane", "free", (1.1,)),
+                  ("fung", 0.17e-3, "membrane", "free", (1.05, 1.1, 1.15)),
+                  ("hgo", 0.17e-3, "membrane", "clamped", (1.1,)), ("hgo", 0.17e-3, "thick", "free", (1.05, 1.1, 1.15)),
+                  ("fung", 0.17e-3, "thick", "free", (1.05, 1.1, 1.15)), ("delfino", 0.01e-3, "membrane", "clamped", (1.1,))]
+
+
+def bench_intervals(n_seeds: int) -> None:
+    """Calibration of the default 95 % intervals on the must-hold table's closed-form tubes (``_table_data``:
+    markers 4 mm clear of the ends, a new layout per seed, loads with 0.1 % noise), the setting stated (the
+    intervals alone): per parameter the fraction of seeds outside the interval and w95, the factor on the
+    half-width that 95 % of them needed (the 95th percentile of |estimate - truth| / (1.96 standard error))."""
+    from identification import identify
+
+    print(f"\n### Default intervals on the must-hold table's tubes ({n_seeds} seeds per cell, setting stated)\n")
+    print("| cell | per parameter: outside the 95 % interval / w95 |")
+    print("|---|---|")
+    for law, noise, wall, ends, stretches in INTERVAL_CELLS:
+        truth = PAPER_PARAMETERS[law]
+        z = []
+        for seed in range(n_seeds):
+            pos, p, f, thickness = _table_data("closed form", ends, wall, law, stretches, noise, seed)
+            r = identify(pos, p, f, thickness=thickness, model=law, wall=wall, ends=ends)
+            z.append([abs(r.parameters[k] - truth[k]) / r.stderr[k] for k in truth])
+        a = np.array(z)
+        cells = "; ".join(f"{k} {np.mean(a[:, i] > 1.96):.0%} / {np.quantile(a[:, i], 0.95) / 1.96:.2f}"
+                          for i, k in enumerate(truth))
+        print(f"| {law} {noise * 1e3:g} mm {wall} {ends} {'/'.join(f'{v:g}' for v in stretches)} | {cells} |",
+              flush=True)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--part", choices=["table", "hygiene", "checks", "fe", "fe-convergence", "all"], default="all")
+    ap.add_argument("--part", choices=["table", "intervals", "hygiene", "checks", "fe", "fe-convergence", "all"],
+                    default="all")
     ap.add_argument("--seeds", type=int, default=10, help="noise seeds per row (table, hygiene, checks)")
     ap.add_argument("--sources", default="cf,fe", help="table: closed form (cf) and/or felupe FE (fe)")
     ap.add_argument("--noises", default="0.01,0.05,0.17", help="table: marker noise levels, mm")
@@ -360,6 +394,8 @@ def main(argv=None):
     if args.part in ("table", "all"):
         bench_table(args.seeds, tuple(args.sources.split(",")),
                     tuple(float(v) * 1e-3 for v in args.noises.split(",")), args.fine, args.first_seed)
+    if args.part == "intervals":
+        bench_intervals(args.seeds)
     if args.part in ("hygiene", "all"):
         bench_hygiene(args.seeds)
     if args.part in ("checks", "all"):
