@@ -253,3 +253,15 @@ def test_the_intervals_hold_where_the_first_order_claimed_too_much(law, ends, st
     assert (r.data.ends, r.data.wall) == (ends, "membrane")
     _honest(r.parameters, r.parameter_verdicts, r.parameter_reasons, r.uncertainty.interval, PAPER_PARAMETERS[law])
     assert sum(v == "trusted" for v in r.parameter_verdicts.values()) >= 2
+
+
+def test_without_a_covariance_the_floor_alone_judges_the_gaps():
+    """Where the gaps' covariance cannot be built, the settings are judged on the discretisation floor alone (0.1 %
+    of the external work per loaded gap, gaps rescaled to the data's own scale); the reference step carries none."""
+    from identification.efficient import NOISE_FLOOR
+    from identification.setting_noise import SettingNoise
+
+    W = SettingNoise(None, np.array([2.0, 4.0]), 3).whitening("fung", {}, np.array([2.0, 4.0]))
+    loaded = np.array([False, True, True, False, True, True])
+    assert np.allclose(np.diag(W)[loaded], 1.0 / NOISE_FLOOR) and not np.diag(W)[~loaded].any()
+    assert np.count_nonzero(W - np.diag(np.diag(W))) == 0
