@@ -342,8 +342,9 @@ def _coefficient_covariance(mesh, degree, ok: np.ndarray, sigma: np.ndarray, com
 
 
 #: Smallest standard deviation of a loaded step's gap (fraction of the field's external-work scale): the
-#: discretisation of the balance, added in quadrature where the gaps are judged (the verdict, ``setting_noise``)
-#: and where the intervals are read (``optimize.identify_gls``); not in the fit's own weighting.
+#: discretisation of the balance, added in quadrature where the gaps are judged (the verdict, ``setting_noise``);
+#: not in the fit's own weighting nor its intervals (there it widened Delfino's at 0.17 mm by half:
+#: docs/validation/trust.md, last section).
 NOISE_FLOOR = 1e-3
 
 
@@ -378,7 +379,7 @@ def identify_efficient(first, positions, model, settings: EfficientSettings | No
     ``positions``, shape (n_steps, n_markers, 3), the steps it used): ``settings.n_iterations`` fits, each with the
     gaps' covariance at the previous estimate. ``covariance``: the ``GapCovariance`` of these data and settings
     when already built (the verdict's, ``setting_noise``). Returns (result with whitened residuals, the last
-    whitening, the last covariance (n_res, n_res)); the whitening and covariance are None for exact data."""
+    whitening); the whitening is None for exact data."""
     settings = settings or EfficientSettings()
     data = first.data
     cov = covariance if covariance is not None else GapCovariance(data, positions, settings, prepare_options)
@@ -387,10 +388,10 @@ def identify_efficient(first, positions, model, settings: EfficientSettings | No
         sigma = cov.at(model, params)
         if not np.any(np.diag(sigma) > 0):  # exact markers and readings: nothing to weight, the paper's fit stands
             log.info("efficient weighting: the gaps carry no noise (exact data); the paper's fit is kept")
-            return first, None, None
+            return first, None
         W = whitening_matrix(sigma)
         result = identify_prepared(data, model, initial=params, n_starts=1, whitening=W)
         params = result.parameters
     if result is None:
         raise IdentificationError(f"n_iterations must be >= 1; got {settings.n_iterations!r}")
-    return dataclasses.replace(result, smoothing=data.smoothing, data=data, steps=first.steps), W, sigma
+    return dataclasses.replace(result, smoothing=data.smoothing, data=data, steps=first.steps), W

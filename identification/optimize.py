@@ -15,7 +15,7 @@ from typing import Mapping
 import numpy as np
 
 from .defaults import uncertainty_for
-from .efficient import EfficientSettings, floored, identify_efficient, whitening_matrix
+from .efficient import EfficientSettings, identify_efficient
 from .efficient_uncertainty import gls_uncertainty
 from .reference import refine_reference
 from .reference_repeats import reference_marker_sigma
@@ -269,8 +269,8 @@ def identify_gls(positions, pressure, axial_force, *, thickness: float, model="f
                                  **given), steps=first.steps, flags=first.flags)
     if reference_captures is not None and first.data.smoothing is not None:
         settings = with_reference_sigma(settings, first.data, x, reference_captures)
-    result, W, sigma = identify_efficient(first, x, model, settings, options,
-                                          covariance=None if settings.refine_reference else covariance)
+    result, W = identify_efficient(first, x, model, settings, options,
+                                   covariance=None if settings.refine_reference else covariance)
     result = dataclasses.replace(result, flags=_identifiability_of(first, weighted_flags(result, first, first.data,
                                                                                           model)))
     boot = {k: v for k, v in options.items() if k not in ("mesh", "smoothing", "reject_outliers", "marker_weights",
@@ -285,8 +285,8 @@ def identify_gls(positions, pressure, axial_force, *, thickness: float, model="f
     if uncertainty == "bootstrap":  # the whitened result: the replicates' gaps are whitened alike
         result = with_uncertainty(result, first.data, x, prepare_options=boot, whitening=W, **unc)
     result = in_physical_units(result, first.data, model)
-    if uncertainty == "gls":  # read over the covariance floored for the balance's discretisation, as the verdict
-        result = _with_gls(result, first.data, whitening_matrix(floored(sigma, first.data.evw.shape[1])), x, settings)
+    if uncertainty == "gls":
+        result = _with_gls(result, first.data, W, x, settings)
     return result
 
 
