@@ -7,13 +7,14 @@ kinematics. A sum of squared gaps over their separate spreads counts that shared
 small differences between settings decisive: on a membrane-law tube, one axial stretch, 0.17 mm, 2 of 30 tests
 were judged "thick wall" with confidence and had a trusted alpha11 ~27 % off (docs/validation/trust.md).
 
-Here the gaps are judged over their full first-order covariance (``efficient.GapCovariance``, built once per
-wall form; the other end condition's from the same moved sets, ``GapCovariance.for_ends``: the end condition
-changes the covariance a lot, through the clamped ends' strip force, measured from the end markers; of a dense
-cloud the other wall form's too, ``GapCovariance.for_wall``: the moved sets' smoothed states balanced again), floored at ``NOISE_FLOOR`` of the external-work scale per gap
-(the discretisation of the balance), and each setting is refitted by generalised least squares with that
-covariance's whitening before its chi-square is read: the smallest whitened sum each setting can reach.
-Pure functions over arrays.
+Here the gaps are judged over their full first-order covariance (``efficient.GapCovariance``), floored at
+``NOISE_FLOOR`` of the external-work scale per gap (the discretisation of the balance), and each setting is
+refitted by generalised least squares with that covariance's whitening before its chi-square is read: the
+smallest whitened sum each setting can reach. The covariance is built once per wall form; the other end
+condition's comes from the same moved sets (``GapCovariance.for_ends``: the end condition changes the covariance a
+lot, through the clamped ends' strip force, measured from the end markers), and on a dense cloud the other wall
+form's too (``GapCovariance.for_wall``: the moved sets' smoothed states balanced again). Pure functions over
+arrays.
 """
 
 from __future__ import annotations
