@@ -51,16 +51,14 @@ LAWS = ("fung", "delfino", "hgo")
 @dataclass(frozen=True)
 class Hypothesis:
     """One setting of the data: ``wall``, ``ends``, the data prepared so, the fit (the paper's, or the generalised
-    least squares' for the efficient weighting), the wall form's gap noise ``noise`` (``SettingNoise``), the
-    whitening ``W`` (n_res, n_res) at the fit and ``chi2`` (the summed squared whitened gaps of the generalised
-    least-squares fit: the smallest this setting reaches)."""
+    least squares' for the efficient weighting), the setting's gap noise ``noise`` (``SettingNoise``) and ``chi2``
+    (the summed squared whitened gaps of the generalised least-squares fit: the smallest this setting reaches)."""
 
     wall: str
     ends: str
     data: VFMData
     fit: Any  # IdentificationResult
     noise: SettingNoise
-    W: np.ndarray
     chi2: float
 
     @property
@@ -85,12 +83,12 @@ def _best_fit(data: VFMData, model, initial):
 def _judged(wall: str, ends: str, data: VFMData, paper, model, noise: SettingNoise, efficient: bool) -> Hypothesis:
     """The hypothesis of ``data`` with its paper's fit ``paper``: refitted by generalised least squares."""
     try:
-        gls, W, chi2 = whitened_fit(data, model, noise, paper.parameters)
+        gls, _, chi2 = whitened_fit(data, model, noise, paper.parameters)
     except (IdentificationError, ValueError, np.linalg.LinAlgError) as exc:
         log.info("%s wall, %s ends not refitted with the gaps' covariance (%s)", wall, ends, exc)
         W = noise.whitening(model, paper.parameters, data.scale)
         gls, chi2 = paper, float(np.sum(np.nan_to_num((W @ paper.residuals.ravel()), nan=1e6) ** 2))
-    return Hypothesis(wall, ends, data, gls if efficient else paper, noise, W, chi2)
+    return Hypothesis(wall, ends, data, gls if efficient else paper, noise, chi2)
 
 
 def fit_hypotheses(first, positions: np.ndarray, walls, ends_list, *, prepare_options: Mapping | None = None,
