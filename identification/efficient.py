@@ -149,8 +149,10 @@ class GapCovariance:
         given = PrepareSettings.from_options(**{k: v for k, v in dict(prepare_options or {}).items()
                                                 if k in ("settings", "marker_weights", "reference_noise_correction")})
         alike = not np.any(data.n_outliers) and given.marker_weights is None and not given.reference_noise_correction
-        # a dense cloud: every moved set's smoothed state kept, the other wall form's covariance from them (``for_wall``)
-        self.kept: list | None = [] if data.quadrature is not None else None
+        # a dense cloud: every moved set's smoothed state kept per job (its kind, its sets' ``vfm.DenseParts``) with
+        # the settings they were prepared with; the other wall form's covariance comes from them (``for_wall``)
+        self.dense_jobs: list | None = [] if data.quadrature is not None else None
+        self.dense_settings: PrepareSettings = prep.settings
         self.base: VFMData = data
         self.base_parts: DenseParts | None = None
         if not alike:
@@ -166,7 +168,7 @@ class GapCovariance:
         self.reference_sets: list[VFMData] = []  # re-measured references (``reference_replicates``)
         if data.smoothing is None:
             log.info("efficient weighting of unsmoothed data: the readings' noise only")
-            self.kept = None
+            self.dense_jobs = None
             return
         sigma = self._marker_sigma(positions)
         e = _directions(data.mesh, aligned)
@@ -183,7 +185,7 @@ class GapCovariance:
                 ref = aligned.copy()
                 ref[0] += sigma[0][:, None] * rng.standard_normal(ref[0].shape)
                 self.reference_sets.append(prep(ref, m=remeasured_mesh(data.mesh, ref[0])))
-            self.kept = None
+            self.dense_jobs = None
             return
         columns = []  # linearised on a basis of at least ``reference_degree``
         for j, degree in enumerate(data.smoothing):
@@ -191,13 +193,11 @@ class GapCovariance:
             cov, B, keep = _coefficient_covariance(data.mesh, degree, ok, sigma[:1], j)
             columns += [settings.step * B[:, i, None] * e[j, 0] for i in np.flatnonzero(keep)]
             self.modes.append((cov[:, keep][:, :, keep], False, int(keep.sum())))
-        self.loaded, self.reference = perturbed_works(prep, aligned, moves, columns, self.kept)
-        if self.kept is not None:
-            self.kept = [(prep.settings, self.base_parts, self.unit_parts)] + self.kept
+        self.loaded, self.reference = perturbed_works(prep, aligned, moves, columns, self.dense_jobs)
 
     def _prepared(self, prep: Reprepare, aligned: np.ndarray, p: np.ndarray) -> tuple[VFMData, DenseParts | None]:
         """``prep(aligned, p)`` and, of a dense cloud, its smoothed state (``Reprepare.prepared``), else None."""
-        if self.kept is None:
+        if self.dense_jobs is None:
             return prep(aligned, p), None
         return prep.prepared(aligned, p, self.data.axial_force, self.data.mesh)
 
@@ -247,16 +247,15 @@ class GapCovariance:
         reference re-measured, a set on the full path, other readings or mesh): build it."""
         if data.wall == self.data.wall:
             return self.for_ends(data)
-        kept, d0 = self.kept, self.data
-        if (kept is None or any(parts is None for _, sets in kept[1:] for parts in sets) or data.mesh is not d0.mesh
+        jobs, base, unit, d0 = self.dense_jobs, self.base_parts, self.unit_parts, self.data
+        if (jobs is None or any(parts is None for _, sets in jobs for parts in sets) or data.mesh is not d0.mesh
                 or data.smoothing != d0.smoothing or data.thickness != d0.thickness
                 or not (np.array_equal(data.pressure, d0.pressure) and np.array_equal(data.axial_force,
                                                                                         d0.axial_force))):
             return None
-        (settings, base, unit), jobs = kept[0], kept[1:]
         if (base is None and self.base is not d0) or (unit is None and self.unit is not None):
             return None
-        s = dataclasses.replace(settings, wall=data.wall, ends=data.ends)
+        s = dataclasses.replace(self.dense_settings, wall=data.wall, ends=data.ends)
 
         def balanced(parts, p=data.pressure) -> VFMData:
             return parts.balanced(p, data.axial_force, float(data.thickness), s)

@@ -28,6 +28,7 @@ import numpy as np
 from .efficient import NOISE_FLOOR, EfficientSettings, GapCovariance, floored, whitening_matrix
 from .errors import IdentificationError
 from .fit import identify_prepared
+from .optimize import with_reference_sigma
 from .vfm import VFMData
 
 __all__ = ["NOISE_FLOOR", "SettingNoise", "setting_noise"]
@@ -35,7 +36,7 @@ __all__ = ["NOISE_FLOOR", "SettingNoise", "setting_noise"]
 log = logging.getLogger(__name__)
 
 #: ``identify`` options that are not ``prepare``'s (the covariance re-prepares the data with the rest).
-_NOT_PREPARE = ("efficient", "reference_captures", "n_starts", "initial", "optimizer")
+_NOT_PREPARE = ("efficient", "reference_captures", "n_starts", "initial", "optimizer", "wall", "ends")
 
 
 @dataclass(frozen=True)
@@ -59,14 +60,15 @@ class SettingNoise:
         return whitening_matrix(floored(c, self.n_steps))
 
 
-def setting_noise(data: VFMData, positions: np.ndarray, *, settings: EfficientSettings | None = None,
-                  prepare_options: Mapping | None = None, like: SettingNoise | None = None) -> SettingNoise:
-    """The gaps' covariance of ``data``'s setting (``GapCovariance`` with ``settings``, default
-    ``EfficientSettings()``) from the measured ``positions`` (n_steps, n_markers, 3) m; the floor alone when it
-    cannot be built. ``like``: the noise of another setting of the same markers, whose moved sets give this one
-    without a re-preparation: the same wall form's under the other end condition (``GapCovariance.for_ends``), a
-    dense cloud's under the other wall form (``GapCovariance.for_wall``: only the balance again); built afresh
-    where they cannot."""
+def setting_noise(data: VFMData, positions: np.ndarray, *, options: Mapping | None = None,
+                  like: SettingNoise | None = None) -> SettingNoise:
+    """The gaps' covariance of ``data``'s setting from the measured ``positions`` (n_steps, n_markers, 3) m, as
+    ``identify(..., weighting="efficient")`` would build it from its ``options`` (``efficient`` settings, the
+    reference's ``reference_captures``, ``prepare``'s options); the floor alone when it cannot be built.
+    ``like``: the noise of another setting of the same markers, whose moved sets give this one without a
+    re-preparation: the same wall form's under the other end condition (``GapCovariance.for_ends``), a dense
+    cloud's under the other wall form (``GapCovariance.for_wall``: only the balance again); built afresh where they
+    cannot."""
     scale, n_steps = np.asarray(data.scale, dtype=float), int(data.evw.shape[1])
     if like is not None:
         cov = like.covariance
@@ -75,14 +77,24 @@ def setting_noise(data: VFMData, positions: np.ndarray, *, settings: EfficientSe
         derived = None if cov is None else cov.for_wall(data)
         if derived is not None:
             return SettingNoise(derived, scale, n_steps, data.wall)
-    options = {k: v for k, v in (prepare_options or {}).items() if k not in _NOT_PREPARE}
+    given = dict(options or {})
+    prepare_options = {k: v for k, v in given.items() if k not in _NOT_PREPARE}
     try:
         with np.errstate(all="ignore"):
-            cov = GapCovariance(data, positions, settings or EfficientSettings(), options)
+            cov = GapCovariance(data, positions, _settings(given, data, positions), prepare_options)
     except (IdentificationError, ValueError, np.linalg.LinAlgError) as exc:
         log.info("the gaps' covariance not built (%s): the floor %g alone judges the settings", exc, NOISE_FLOOR)
         cov = None
     return SettingNoise(cov, scale, n_steps, data.wall)
+
+
+def _settings(given: Mapping, data: VFMData, positions: np.ndarray) -> EfficientSettings:
+    """The efficient weighting's settings as ``identify`` would take them (the reference's captures counted)."""
+    settings = given.get("efficient") or EfficientSettings()
+    captures = given.get("reference_captures")
+    if captures is not None and data.smoothing is not None:
+        settings = with_reference_sigma(settings, data, positions, captures)
+    return settings
 
 
 def whitened_fit(data: VFMData, model, noise: SettingNoise, initial: Mapping[str, float]):

@@ -26,9 +26,7 @@ import numpy as np
 
 from .checks import with_end_force, with_ends
 from .errors import IdentificationError
-from .efficient import EfficientSettings
 from .fit import axial_stretches, identify_prepared
-from .optimize import with_reference_sigma
 from .setting_noise import NOISE_FLOOR, SettingNoise, setting_noise, whitened_fit
 from .vfm import VFMData, prepare
 
@@ -122,20 +120,9 @@ def fit_hypotheses(first, positions: np.ndarray, walls, ends_list, *, prepare_op
             fit = first if d is data0 else _best_fit(d, model, first.parameters)
             # one covariance built: the other ends' from the same moved sets (``for_ends``), of a dense cloud the
             # other wall form's too (``for_wall``); elsewhere one per wall form
-            noise = setting_noise(d, positions, settings=_settings(given, d, positions),
-                                  prepare_options={k: v for k, v in given.items() if k not in ("wall", "ends")},
-                                  like=noise)
+            noise = setting_noise(d, positions, options=given, like=noise)
             out.append(_judged(wall, ends, d, fit, model, noise, efficient))
     return out
-
-
-def _settings(given: Mapping, data: VFMData, positions: np.ndarray) -> EfficientSettings:
-    """The efficient weighting's settings as ``identify`` would take them (the reference's captures counted)."""
-    settings = given.get("efficient") or EfficientSettings()
-    captures = given.get("reference_captures")
-    if captures is not None and data.smoothing is not None:
-        settings = with_reference_sigma(settings, data, positions, captures)
-    return settings
 
 
 def _chi2(h: Hypothesis, data: VFMData, model, initial) -> float:
